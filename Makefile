@@ -1,0 +1,41 @@
+# Two commands do everything on a fresh machine: `make demo` and `make test`.
+# Each bootstraps .venv (Python >= 3.10 with venv) and installs the package with
+# its extras; a stamp file re-runs the install when the packaging changes.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed-roi-node
+EXTRAS := ros,bag,robots,dev
+DEMO_OUT ?= demo_out
+
+# Everything that starts DDS keeps it on this machine, on its own domain.
+export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
+# glibc settings that cut page faults for large image messages (shared/PERF_NOTES.md)
+export MALLOC_MMAP_THRESHOLD_ := 33554432
+export MALLOC_TRIM_THRESHOLD_ := 4000000000
+
+.PHONY: test demo bench lint venv clean
+
+venv: $(STAMP)
+
+$(STAMP): setup.py setup.cfg package.xml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e ".[$(EXTRAS)]"
+	touch $(STAMP)
+
+test: $(STAMP)
+	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-71} $(PY) -m pytest -q test
+
+demo: $(STAMP)
+	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-72} $(VENV)/bin/roi-node demo --out $(DEMO_OUT)
+
+bench: $(STAMP)
+	$(PY) bench/core.py
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check roi_node test bench examples
+	$(VENV)/bin/mypy roi_node
+
+clean:
+	rm -rf $(VENV) $(DEMO_OUT) build install log

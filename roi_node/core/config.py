@@ -1,0 +1,397 @@
+"""Rig config (`schema: roi_node/rig/v1`): one YAML per rig, the single source of
+truth for the live node and offline replay (see DESIGN.md "Rig config").
+
+Every error names the file, the key path and what was expected. Unknown keys
+are errors too: a misspelt `ofset_px` must not silently fall back to a default.
+Paths are relative to the config file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .camera import CameraModel, load_calibration_yaml
+from .errors import ConfigError
+from .robot_models import EXAMPLE_ROBOT_DATA_PREFIX, resolve_robot_reference
+from .transforms import Transform
+
+RIG_SCHEMA = "roi_node/rig/v1"
+SYNC_POLICIES = ("interpolate", "nearest", "exact", "latest")
+RESIZE_POLICIES = ("stretch", "letterbox")
+INTERPOLATIONS = ("area",)
+PADDING_MODES = ("zero",)
+
+
+@dataclass(frozen=True)
+class DepthScale:
+    """l = clip(alpha * f_x * r / Z_c, min_px, max_px): window side in pixels."""
+
+    alpha: float
+    radius_m: float
+    min_px: float
+    max_px: float
+
+
+@dataclass(frozen=True)
+class FixedScale:
+    size_px: float
+
+
+@dataclass(frozen=True)
+class TipSpec:
+    """Where the fingertips are: a fixed offset in the ee frame, or a URDF frame."""
+
+    offset_m: tuple[float, float, float] | None = None
+    frame: str | None = None
+
+
+@dataclass(frozen=True)
+class ArmConfig:
+    id: str
+    robot: str
+    ee_frame: str
+    tip: TipSpec
+    offset_px: float
+    scale: DepthScale | FixedScale
+    aspect: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    id: str
+    urdf_path: Path
+    world_T_base: Transform
+    joint_prefix: str
+    base_in_world_raw: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    id: str
+    intrinsics: CameraModel | None  # None: from the CameraInfo topic live
+    world_T_cam: Transform
+    extrinsics_raw: dict[str, Any]
+    extrinsics_version: str | None
+    rectified: bool
+    delay_ms: float
+    z_min_m: float
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    size_px: tuple[int, int]  # (width, height)
+    interpolation: str
+    resize_policy: str
+    padding: str
+    global_enabled: bool
+    global_size_px: tuple[int, int]
+
+
+@dataclass(frozen=True)
+class SyncConfig:
+    policy: str
+    max_skew_ms: float
+    max_wait_ms: float
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    path: Path
+    rig_id: str
+    camera: CameraConfig
+    robots: tuple[RobotConfig, ...]
+    arms: tuple[ArmConfig, ...]
+    output: OutputConfig
+    sync: SyncConfig
+    raw: dict[str, Any] = field(repr=False, compare=False)
+
+    def robot(self, robot_id: str) -> RobotConfig:
+        return next(r for r in self.robots if r.id == robot_id)
+
+    def content_hash(self) -> str:
+        blob = json.dumps(self.raw, sort_keys=True, separators=(",", ":"), default=str).encode()
+        return "sha256:" + hashlib.sha256(blob).hexdigest()[:16]
+
+
+class _Node:
+    """A mapping inside the YAML document, with its key path for messages."""
+
+    def __init__(self, data: object, where: str, file: Path) -> None:
+        if not isinstance(data, Mapping):
+            raise ConfigError(f"{file}: {where}: expected a mapping, got {type(data).__name__}")
+        self.data: Mapping[str, Any] = data
+        self.where = where
+        self.file = file
+
+    def fail(self, key: str, problem: str) -> ConfigError:
+        return ConfigError(f"{self.file}: {self.where}.{key}: {problem}" if self.where else f"{self.file}: {key}: {problem}")
+
+    def check_keys(self, allowed: tuple[str, ...]) -> None:
+        for key in self.data:
+            if key not in allowed:
+                raise self.fail(str(key), f"unknown key; expected one of {', '.join(allowed)}")
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def child(self, key: str) -> _Node:
+        if key not in self.data:
+            raise self.fail(key, "missing")
+        return _Node(self.data[key], self._path(key), self.file)
+
+    def _path(self, key: str) -> str:
+        return f"{self.where}.{key}" if self.where else key
+
+    def str(self, key: str, default: str | None = None) -> str:
+        value = self.data.get(key, default)
+        if value is None:
+            raise self.fail(key, "missing (expected a string)")
+        if not isinstance(value, str) or not value:
+            raise self.fail(key, f"expected a non-empty string, got {value!r}")
+        return value
+
+    def number(self, key: str, default: float | None = None, *, positive: bool = False, minimum: float | None = None) -> float:
+        value = self.data.get(key, default)
+        if value is None:
+            raise self.fail(key, "missing (expected a number)")
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise self.fail(key, f"expected a finite number, got {value!r}")
+        if positive and value <= 0:
+            raise self.fail(key, f"must be > 0, got {value!r}")
+        if minimum is not None and value < minimum:
+            raise self.fail(key, f"must be >= {minimum}, got {value!r}")
+        return float(value)
+
+    def boolean(self, key: str, default: bool) -> bool:
+        value = self.data.get(key, default)
+        if not isinstance(value, bool):
+            raise self.fail(key, f"expected true or false, got {value!r}")
+        return value
+
+    def choice(self, key: str, choices: tuple[str, ...], default: str) -> str:
+        value = self.data.get(key, default)
+        if value not in choices:
+            raise self.fail(key, f"expected one of {', '.join(choices)}, got {value!r}")
+        return str(value)
+
+    def numbers(self, key: str, length: int, default: list[float] | None = None, *, positive: bool = False) -> tuple[float, ...]:
+        value = self.data.get(key, default)
+        if value is None:
+            raise self.fail(key, f"missing (expected {length} numbers)")
+        if not isinstance(value, list | tuple) or len(value) != length:
+            raise self.fail(key, f"expected a list of {length} numbers, got {value!r}")
+        out = []
+        for item in value:
+            if isinstance(item, bool) or not isinstance(item, int | float) or not math.isfinite(item):
+                raise self.fail(key, f"expected finite numbers, got {value!r}")
+            if positive and item <= 0:
+                raise self.fail(key, f"values must be > 0, got {value!r}")
+            out.append(float(item))
+        return tuple(out)
+
+    def size(self, key: str, default: list[int]) -> tuple[int, int]:
+        value = self.data.get(key, default)
+        if (
+            not isinstance(value, list | tuple)
+            or len(value) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in value)
+        ):
+            raise self.fail(key, f"expected [width, height] in pixels (positive integers), got {value!r}")
+        return int(value[0]), int(value[1])
+
+    def items(self, key: str) -> list[_Node]:
+        value = self.data.get(key)
+        if not isinstance(value, list) or not value:
+            raise self.fail(key, "expected a non-empty list")
+        return [_Node(item, f"{self._path(key)}[{i}]", self.file) for i, item in enumerate(value)]
+
+
+def _pose(node: _Node) -> Transform:
+    node.check_keys(("parent", "child", "translation", "rotation_xyzw", "version"))
+    translation = node.numbers("translation", 3)
+    rotation = node.numbers("rotation_xyzw", 4)
+    return Transform.from_xyz_quat(translation, rotation, where=f"{node.file}: {node.where}")
+
+
+def _resolve_path(base: Path, value: str) -> Path:
+    path = Path(value).expanduser()
+    return path if path.is_absolute() else (base / path)
+
+
+def load_rig_config(path: str | Path) -> RigConfig:
+    """Load and validate a rig config; raises ConfigError naming file, key and problem."""
+    file = Path(path)
+    try:
+        text = file.read_text()
+    except FileNotFoundError as exc:
+        raise ConfigError(f"{file}: rig config not found") from exc
+    except IsADirectoryError as exc:
+        raise ConfigError(f"{file}: is a directory, expected a rig config YAML file") from exc
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{file}: not valid YAML: {exc}") from exc
+    root = _Node(doc, "", file)
+    root.check_keys(("schema", "rig_id", "camera", "robots", "arms", "output", "sync"))
+    schema = root.str("schema")
+    if schema != RIG_SCHEMA:
+        raise root.fail("schema", f"expected {RIG_SCHEMA!r}, got {schema!r}")
+    base_dir = file.resolve().parent
+
+    camera = _load_camera(root.child("camera"), base_dir)
+    robots = tuple(_load_robot(node, base_dir) for node in root.items("robots"))
+    _unique([r.id for r in robots], root, "robots", "id")
+    robot_ids = {r.id for r in robots}
+    arms = tuple(_load_arm(node, robot_ids) for node in root.items("arms"))
+    _unique([a.id for a in arms], root, "arms", "id")
+    output = _load_output(root.child("output") if root.has("output") else _Node({}, "output", file))
+    sync = _load_sync(root.child("sync") if root.has("sync") else _Node({}, "sync", file))
+    return RigConfig(
+        path=file.resolve(),
+        rig_id=root.str("rig_id"),
+        camera=camera,
+        robots=robots,
+        arms=arms,
+        output=output,
+        sync=sync,
+        raw=dict(doc),
+    )
+
+
+def _unique(ids: list[str], root: _Node, key: str, field_name: str) -> None:
+    seen: set[str] = set()
+    for value in ids:
+        if value in seen:
+            raise root.fail(key, f"duplicate {field_name} {value!r}")
+        seen.add(value)
+
+
+def _load_camera(node: _Node, base_dir: Path) -> CameraConfig:
+    node.check_keys(("id", "intrinsics", "extrinsics", "rectified", "delay_ms", "z_min_m"))
+    rectified = node.boolean("rectified", False)
+    intrinsics: CameraModel | None = None
+    value = node.data.get("intrinsics")
+    if value not in (None, "topic"):
+        if not isinstance(value, str):
+            raise node.fail("intrinsics", f"expected a calibration file path or 'topic', got {value!r}")
+        intrinsics = load_calibration_yaml(_resolve_path(base_dir, value), rectified=rectified)
+    ext = node.child("extrinsics")
+    parent = ext.str("parent", "world")
+    if parent != "world":
+        raise ext.fail("parent", f"must be 'world' (the pose of the camera optical frame in world), got {parent!r}")
+    version = ext.data.get("version")
+    if version is not None and not isinstance(version, str):
+        raise ext.fail("version", f"expected a string, got {version!r}")
+    return CameraConfig(
+        id=node.str("id"),
+        intrinsics=intrinsics,
+        world_T_cam=_pose(ext),
+        extrinsics_raw=dict(ext.data),
+        extrinsics_version=version,
+        rectified=rectified,
+        delay_ms=node.number("delay_ms", 0.0),
+        z_min_m=node.number("z_min_m", 0.01, positive=True),
+    )
+
+
+def _load_robot(node: _Node, base_dir: Path) -> RobotConfig:
+    node.check_keys(("id", "urdf", "base_in_world", "joint_prefix"))
+    urdf = node.str("urdf")
+    if urdf.startswith(EXAMPLE_ROBOT_DATA_PREFIX):
+        urdf_path = resolve_robot_reference(urdf, f"{node.file}: {node.where}.urdf")
+    else:
+        urdf_path = _resolve_path(base_dir, urdf)
+        if not urdf_path.is_file():
+            raise node.fail("urdf", f"URDF file {urdf_path} not found")
+    if node.has("base_in_world"):
+        base = node.child("base_in_world")
+        world_T_base = _pose(base)
+        base_raw = dict(base.data)
+    else:
+        world_T_base = Transform.identity()
+        base_raw = {}
+    prefix = node.data.get("joint_prefix", "")
+    if not isinstance(prefix, str):
+        raise node.fail("joint_prefix", f"expected a string, got {prefix!r}")
+    return RobotConfig(node.str("id"), urdf_path, world_T_base, prefix, base_raw)
+
+
+def _load_arm(node: _Node, robot_ids: set[str]) -> ArmConfig:
+    node.check_keys(("id", "robot", "ee_frame", "tip", "offset_px", "scale", "aspect"))
+    robot = node.str("robot")
+    if robot not in robot_ids:
+        raise node.fail("robot", f"unknown robot {robot!r}; robots are {', '.join(sorted(robot_ids))}")
+    tip_node = node.child("tip")
+    tip_node.check_keys(("offset_m", "frame"))
+    if tip_node.has("offset_m") == tip_node.has("frame"):
+        raise node.fail("tip", "give exactly one of offset_m: [x, y, z] or frame: <URDF frame>")
+    if tip_node.has("frame"):
+        tip = TipSpec(frame=tip_node.str("frame"))
+    else:
+        ox, oy, oz = tip_node.numbers("offset_m", 3)
+        if ox == oy == oz == 0.0:
+            raise tip_node.fail("offset_m", "must not be zero: it defines the inward direction d_in")
+        tip = TipSpec(offset_m=(ox, oy, oz))
+    scale_node = node.child("scale")
+    mode = scale_node.choice("mode", ("depth", "fixed"), "depth")
+    scale: DepthScale | FixedScale
+    if mode == "depth":
+        scale_node.check_keys(("mode", "alpha", "radius_m", "min_px", "max_px"))
+        min_px = scale_node.number("min_px", 64, positive=True)
+        max_px = scale_node.number("max_px", 1024, positive=True)
+        if min_px > max_px:
+            raise scale_node.fail("min_px", f"must be <= max_px ({max_px}), got {min_px}")
+        scale = DepthScale(
+            alpha=scale_node.number("alpha", positive=True),
+            radius_m=scale_node.number("radius_m", positive=True),
+            min_px=min_px,
+            max_px=max_px,
+        )
+    else:
+        scale_node.check_keys(("mode", "size_px"))
+        scale = FixedScale(size_px=scale_node.number("size_px", positive=True))
+    aspect = node.numbers("aspect", 2, [1.0, 1.0], positive=True)
+    return ArmConfig(
+        id=node.str("id"),
+        robot=robot,
+        ee_frame=node.str("ee_frame"),
+        tip=tip,
+        offset_px=node.number("offset_px", 0.0),
+        scale=scale,
+        aspect=(aspect[0], aspect[1]),
+    )
+
+
+def _load_output(node: _Node) -> OutputConfig:
+    node.check_keys(("size", "interpolation", "resize_policy", "padding", "global_view"))
+    global_enabled, global_size = True, (256, 256)
+    if node.has("global_view"):
+        g = node.child("global_view")
+        g.check_keys(("enabled", "size"))
+        global_enabled = g.boolean("enabled", True)
+        global_size = g.size("size", [256, 256])
+    return OutputConfig(
+        size_px=node.size("size", [256, 256]),
+        interpolation=node.choice("interpolation", INTERPOLATIONS, "area"),
+        resize_policy=node.choice("resize_policy", RESIZE_POLICIES, "stretch"),
+        padding=node.choice("padding", PADDING_MODES, "zero"),
+        global_enabled=global_enabled,
+        global_size_px=global_size,
+    )
+
+
+def _load_sync(node: _Node) -> SyncConfig:
+    node.check_keys(("policy", "max_skew_ms", "max_wait_ms"))
+    return SyncConfig(
+        policy=node.choice("policy", SYNC_POLICIES, "interpolate"),
+        max_skew_ms=node.number("max_skew_ms", 20.0, positive=True),
+        max_wait_ms=node.number("max_wait_ms", 50.0, minimum=0.0),
+    )

@@ -1,0 +1,159 @@
+"""Forward kinematics with placo, one model per URDF.
+
+FK needs no meshes, but placo's constructor resolves every mesh even with
+`Flags.ignore_collisions` (a `package://` URI it cannot resolve is fatal, and
+resolving costs ~1 s). So the URDF text is loaded with `<visual>` and
+`<collision>` elements removed. placo prepends a 7-value floating base to
+`state.q`, so joints are always set by name, never by index.
+
+Only the joints on the chain from the URDF root to an arm's ee/tip frames are
+required from JointState; other joints (fingers, the other arm of a bimanual
+URDF, wheels) stay at zero unless given.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import math
+import os
+import re
+import tempfile
+import xml.etree.ElementTree as ET
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import placo
+
+from .errors import KinematicsError
+from .transforms import Transform
+
+_GEOMETRY_ELEMENTS = re.compile(r"<(visual|collision)\b[^>]*?(/>|>.*?</\1\s*>)", re.S)
+MOVABLE_JOINT_TYPES = ("revolute", "continuous", "prismatic")
+
+
+@dataclass(frozen=True)
+class UrdfJoint:
+    name: str
+    type: str
+    parent: str
+    child: str
+    mimic_of: str | None
+    mimic_multiplier: float
+    mimic_offset: float
+
+
+def strip_geometry(urdf_text: str) -> str:
+    """URDF text without `<visual>`/`<collision>` elements (FK needs neither)."""
+    return _GEOMETRY_ELEMENTS.sub("", urdf_text)
+
+
+def parse_joints(urdf_text: str, where: str) -> dict[str, UrdfJoint]:
+    try:
+        root = ET.fromstring(urdf_text)
+    except ET.ParseError as exc:
+        raise KinematicsError(f"{where}: not valid URDF XML: {exc}") from exc
+    if root.tag != "robot":
+        raise KinematicsError(f"{where}: root element is <{root.tag}>, expected <robot>")
+    joints: dict[str, UrdfJoint] = {}
+    for el in root.findall("joint"):
+        parent, child, mimic = el.find("parent"), el.find("child"), el.find("mimic")
+        if parent is None or child is None:
+            raise KinematicsError(f"{where}: joint {el.get('name')!r} lacks <parent> or <child>")
+        joints[el.get("name", "")] = UrdfJoint(
+            name=el.get("name", ""),
+            type=el.get("type", ""),
+            parent=parent.get("link", ""),
+            child=child.get("link", ""),
+            mimic_of=mimic.get("joint") if mimic is not None else None,
+            mimic_multiplier=float(mimic.get("multiplier", 1.0)) if mimic is not None else 1.0,
+            mimic_offset=float(mimic.get("offset", 0.0)) if mimic is not None else 0.0,
+        )
+    return joints
+
+
+class RobotKinematics:
+    """One placo model of one URDF; thread-compatible, not thread-safe."""
+
+    def __init__(self, robot_id: str, urdf_path: Path, urdf_text: str | None = None) -> None:
+        self.robot_id = robot_id
+        self.urdf_path = urdf_path
+        where = str(urdf_path)
+        if urdf_text is None:
+            try:
+                urdf_text = urdf_path.read_text()
+            except OSError as exc:
+                raise KinematicsError(f"{urdf_path}: cannot read URDF: {exc}") from exc
+        self.urdf_sha256 = hashlib.sha256(urdf_text.encode()).hexdigest()
+        self._joints = parse_joints(urdf_text, where)
+        self._joint_by_child = {j.child: j for j in self._joints.values()}
+        self._robot = _load_placo(strip_geometry(urdf_text), where)
+        self.frame_names: frozenset[str] = frozenset(self._robot.frame_names())
+        self.movable_joints: frozenset[str] = frozenset(self._robot.joint_names())
+        self._continuous = frozenset(j.name for j in self._joints.values() if j.type == "continuous")
+
+    def check_frame(self, frame: str, where: str) -> None:
+        if frame not in self.frame_names:
+            close = sorted(f for f in self.frame_names if _similar(f, frame))[:8]
+            hint = f"; similar frames: {', '.join(close)}" if close else ""
+            raise KinematicsError(f"{where}: frame {frame!r} is not in {self.urdf_path.name}{hint}")
+
+    def chain_joints(self, frame: str) -> tuple[str, ...]:
+        """Movable joints (mimic joints replaced by their source) between the root and `frame`."""
+        link = self._joints[frame].parent if frame in self._joints else frame
+        names: list[str] = []
+        if frame in self._joints and self._joints[frame].type in MOVABLE_JOINT_TYPES:
+            names.append(frame)
+        seen: set[str] = set()
+        while link in self._joint_by_child and link not in seen:
+            seen.add(link)
+            joint = self._joint_by_child[link]
+            if joint.type in MOVABLE_JOINT_TYPES:
+                names.append(joint.mimic_of or joint.name)
+            link = joint.parent
+        return tuple(dict.fromkeys(reversed(names)))
+
+    def is_continuous(self, joint: str) -> bool:
+        return joint in self._continuous
+
+    def fk(self, positions: Mapping[str, float], frames: Sequence[str]) -> list[Transform]:
+        """Poses `base_T_frame` of `frames` for joint `positions` (radians / metres by name)."""
+        robot = self._robot
+        for name, value in positions.items():
+            robot.set_joint(name, float(value))
+        for joint in self._joints.values():
+            if joint.mimic_of is not None and joint.mimic_of in positions and joint.name in self.movable_joints:
+                robot.set_joint(joint.name, joint.mimic_multiplier * float(positions[joint.mimic_of]) + joint.mimic_offset)
+        robot.update_kinematics()
+        return [Transform.from_matrix(np.asarray(robot.get_T_world_frame(f))) for f in frames]
+
+
+def _load_placo(urdf_text: str, where: str) -> placo.RobotWrapper:
+    flags = placo.Flags.ignore_collisions | placo.Flags.collision_as_visual
+    with tempfile.TemporaryDirectory(prefix="roi_node_urdf_") as tmp:
+        path = os.path.join(tmp, "robot.urdf")
+        Path(path).write_text(urdf_text)
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):
+                robot = placo.RobotWrapper(path, flags)
+        except Exception as exc:  # placo raises bare RuntimeError/ValueError from C++
+            raise KinematicsError(f"{where}: placo could not load the URDF: {exc}") from exc
+    robot.update_kinematics()
+    return robot
+
+
+def _similar(candidate: str, wanted: str) -> bool:
+    a, b = candidate.lower(), wanted.lower()
+    return a in b or b in a or any(part and part in a for part in re.split(r"[_\-/]", b) if len(part) > 2)
+
+
+def wrap_angle(angle_rad: float) -> float:
+    """Angle in [-pi, pi): for interpolating continuous joints the short way round."""
+    return (angle_rad + math.pi) % (2 * math.pi) - math.pi
+
+
+def unique_in_order(items: Iterable[str]) -> tuple[str, ...]:
+    return tuple(dict.fromkeys(items))

@@ -1,0 +1,88 @@
+"""The per-frame metadata record and its lineage tuple (DESIGN.md "Metadata record").
+
+The JSON is produced here and only here, with fixed key order, fixed float
+rounding and compact separators, so the live node and offline replay emit the
+same bytes for the same inputs. Its JSON Schema ships as
+config/metadata.schema.json.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+from .. import __version__
+from .resources import config_dir
+
+METADATA_SCHEMA = "roi_node/metadata/v1"
+PX_DECIMALS = 3
+M_DECIMALS = 6
+RATIO_DECIMALS = 6
+MS_DECIMALS = 3
+
+
+@dataclass(frozen=True)
+class Lineage:
+    intrinsics_ver: str
+    extrinsics_ver: str
+    fk_ver: str
+    roi_generator_ver: str
+    crop_offset_ver: str
+    resize_policy: str
+    padding_mode: str
+
+    def as_dict(self) -> dict[str, str]:
+        return {
+            "intrinsics_ver": self.intrinsics_ver,
+            "extrinsics_ver": self.extrinsics_ver,
+            "fk_ver": self.fk_ver,
+            "roi_generator_ver": self.roi_generator_ver,
+            "crop_offset_ver": self.crop_offset_ver,
+            "resize_policy": self.resize_policy,
+            "padding_mode": self.padding_mode,
+        }
+
+
+def content_hash(content: object) -> str:
+    """`sha256:` + 16 hex digits of canonical JSON: a version that changes iff content does."""
+    blob = json.dumps(content, sort_keys=True, separators=(",", ":"), default=str).encode()
+    return "sha256:" + hashlib.sha256(blob).hexdigest()[:16]
+
+
+def text_hash(text: str) -> str:
+    return "sha256:" + hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def generator_version() -> str:
+    return f"roi_node {__version__}"
+
+
+def rnd(value: float | None, decimals: int) -> float | None:
+    """Round for the record; -0.0 becomes 0.0 so equal geometry gives equal bytes."""
+    if value is None:
+        return None
+    r = round(float(value), decimals)
+    return 0.0 if r == 0 else r
+
+
+def rnd_list(values: object, decimals: int) -> list[float]:
+    return [rnd(float(v), decimals) or 0.0 for v in values]  # type: ignore[attr-defined]
+
+
+def dumps(record: dict[str, Any]) -> str:
+    """The one serialisation of a record: key order as built, compact, no NaN."""
+    return json.dumps(record, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+
+
+@cache
+def metadata_schema() -> dict[str, Any]:
+    loaded: dict[str, Any] = json.loads((config_dir() / "metadata.schema.json").read_text())
+    return loaded
+
+
+def schema_path() -> Path:
+    return config_dir() / "metadata.schema.json"

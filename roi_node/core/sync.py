@@ -1,0 +1,352 @@
+"""Pairing camera frames with joint states: one implementation for live and offline.
+
+Decisions depend only on stamps, never on arrival order: samples are kept per
+joint, sorted by stamp; duplicate stamps with conflicting values resolve to the
+smaller value (order-independent) and are counted. Several JointState streams
+merge by joint name. The live node and offline replay both drive
+`FrameSynchronizer`; offline replay loads all joint states before it releases
+frames, the live node releases a frame once its bracketing sample arrived or
+`max_wait_ms` passed (DESIGN.md "Sync policies").
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Generic, TypeVar
+
+from .errors import JointStateError
+from .kinematics import wrap_angle
+
+NS_PER_MS = 1_000_000
+NS_PER_S = 1_000_000_000
+STATUS_ORDER = ("ok", "extrapolated", "stale", "missing")
+TIME_JUMP_RESET_NS = NS_PER_S  # a stamp this far behind the newest means a bag loop / clock reset
+RATE_WINDOW_NS = NS_PER_S
+
+
+@dataclass(frozen=True)
+class SyncResult:
+    """Joint positions for one frame and how well they fit its capture time."""
+
+    policy: str
+    status: str  # ok | extrapolated | stale | missing
+    positions: dict[str, float]
+    residual_ms: float | None
+    joint_stamp_ns: int | None
+    missing: tuple[str, ...] = ()
+    joint_rate_hz: float | None = None
+
+    @property
+    def usable(self) -> bool:
+        return self.status != "missing"
+
+
+def _worse(a: str, b: str) -> str:
+    return a if STATUS_ORDER.index(a) >= STATUS_ORDER.index(b) else b
+
+
+class _Series:
+    """One joint's samples, sorted by stamp."""
+
+    __slots__ = ("stamps", "values")
+
+    def __init__(self) -> None:
+        self.stamps: list[int] = []
+        self.values: list[float] = []
+
+    def insert(self, stamp_ns: int, value: float) -> bool:
+        """Insert; returns True when the stamp existed with a different value."""
+        i = bisect.bisect_left(self.stamps, stamp_ns)
+        if i < len(self.stamps) and self.stamps[i] == stamp_ns:
+            conflict = self.values[i] != value
+            self.values[i] = min(self.values[i], value)
+            return conflict
+        self.stamps.insert(i, stamp_ns)
+        self.values.insert(i, value)
+        return False
+
+    def prune_before(self, stamp_ns: int) -> None:
+        """Drop samples older than stamp_ns, keeping the newest one before it as a bracket."""
+        i = bisect.bisect_left(self.stamps, stamp_ns) - 1
+        if i > 0:
+            del self.stamps[:i]
+            del self.values[:i]
+
+
+class JointStateBuffer:
+    """Per-joint time series merged from any number of JointState streams."""
+
+    def __init__(self, continuous_joints: Iterable[str] = ()) -> None:
+        self._series: dict[str, _Series] = {}
+        self._continuous = frozenset(continuous_joints)
+        self.newest_stamp_ns: int | None = None
+        self.conflicting_duplicates = 0
+        self.time_jumps = 0
+
+    def clear(self) -> None:
+        self._series.clear()
+        self.newest_stamp_ns = None
+
+    def add(self, stamp_ns: int, names: Sequence[str], positions: Sequence[float], *, where: str = "joint_states") -> list[str]:
+        """Insert one JointState; returns names skipped for non-finite positions.
+
+        Raises JointStateError for a message that cannot be read at all
+        (names and positions of different lengths, repeated names).
+        """
+        if len(names) != len(positions):
+            raise JointStateError(f"{where}: {len(names)} names but {len(positions)} positions")
+        if len(set(names)) != len(names):
+            raise JointStateError(f"{where}: repeated joint names {sorted(n for n in set(names) if list(names).count(n) > 1)}")
+        if self.newest_stamp_ns is not None and stamp_ns < self.newest_stamp_ns - TIME_JUMP_RESET_NS:
+            self.time_jumps += 1
+            self.clear()
+        skipped = []
+        for name, value in zip(names, positions, strict=True):
+            v = float(value)
+            if not math.isfinite(v):
+                skipped.append(name)
+                continue
+            series = self._series.setdefault(name, _Series())
+            if series.insert(stamp_ns, v):
+                self.conflicting_duplicates += 1
+        if self.newest_stamp_ns is None or stamp_ns > self.newest_stamp_ns:
+            self.newest_stamp_ns = stamp_ns
+        return skipped
+
+    def known_joints(self) -> frozenset[str]:
+        return frozenset(self._series)
+
+    def prune_before(self, stamp_ns: int) -> None:
+        for series in self._series.values():
+            series.prune_before(stamp_ns)
+
+    def has_bracket(self, t_ns: int, joints: Iterable[str]) -> bool:
+        """Every joint has a sample at or after t (so interpolation cannot improve later)."""
+        for name in joints:
+            series = self._series.get(name)
+            if series is None or not series.stamps or series.stamps[-1] < t_ns:
+                return False
+        return True
+
+    def rate_hz(self, t_ns: int, joint: str) -> float | None:
+        """Measured sample rate of `joint` over the second before t (f_t)."""
+        series = self._series.get(joint)
+        if series is None:
+            return None
+        lo = bisect.bisect_right(series.stamps, t_ns - RATE_WINDOW_NS)
+        hi = bisect.bisect_right(series.stamps, t_ns)
+        if hi - lo < 2:
+            return None
+        span = series.stamps[hi - 1] - series.stamps[lo]
+        return (hi - lo - 1) * NS_PER_S / span if span > 0 else None
+
+    def resolve(
+        self,
+        t_ns: int,
+        joints: Sequence[str],
+        policy: str,
+        max_skew_ns: int,
+        *,
+        latest_limit_ns: int | None = None,
+    ) -> SyncResult:
+        """Joint positions at capture time t under `policy`.
+
+        interpolate: linear between the bracketing samples (continuous joints the
+          short way round); residual = distance to the nearer sample.
+        nearest: the nearest sample; exact: an equal stamp.
+        latest: the newest sample (at or before `latest_limit_ns` when given).
+        When the policy cannot be met the nearest sample is used and the status
+        says how: extrapolated (outside the samples, within max_skew), stale
+        (farther than max_skew), missing (no sample at all).
+        """
+        positions: dict[str, float] = {}
+        missing: list[str] = []
+        status = "ok"
+        worst_residual: int | None = None
+        worst_stamp: int | None = None
+        for name in joints:
+            series = self._series.get(name)
+            if series is None or not series.stamps:
+                missing.append(name)
+                continue
+            value, used_stamp, residual, joint_status = self._resolve_one(series, name, t_ns, policy, max_skew_ns, latest_limit_ns)
+            positions[name] = value
+            status = _worse(status, joint_status)
+            if worst_residual is None or residual > worst_residual:
+                worst_residual, worst_stamp = residual, used_stamp
+        if missing:
+            status = "missing"
+        rate = self.rate_hz(t_ns, joints[0]) if joints else None
+        return SyncResult(
+            policy=policy,
+            status=status,
+            positions=positions,
+            residual_ms=None if worst_residual is None else worst_residual / NS_PER_MS,
+            joint_stamp_ns=worst_stamp,
+            missing=tuple(missing),
+            joint_rate_hz=rate,
+        )
+
+    def _resolve_one(
+        self, series: _Series, name: str, t_ns: int, policy: str, max_skew_ns: int, latest_limit_ns: int | None
+    ) -> tuple[float, int, int, str]:
+        stamps, values = series.stamps, series.values
+        if policy == "latest":
+            limit = latest_limit_ns if latest_limit_ns is not None else stamps[-1]
+            i = bisect.bisect_right(stamps, limit) - 1
+            if i < 0:
+                i = 0
+            residual = abs(t_ns - stamps[i])
+            return values[i], stamps[i], residual, "ok" if residual <= max_skew_ns else "stale"
+        hi = bisect.bisect_left(stamps, t_ns)
+        if hi < len(stamps) and stamps[hi] == t_ns:
+            return values[hi], t_ns, 0, "ok"
+        lo = hi - 1
+        if policy == "interpolate" and lo >= 0 and hi < len(stamps):
+            s0, s1 = stamps[lo], stamps[hi]
+            frac = (t_ns - s0) / (s1 - s0)
+            v0, v1 = values[lo], values[hi]
+            delta = wrap_angle(v1 - v0) if name in self._continuous else v1 - v0
+            nearer = s0 if t_ns - s0 <= s1 - t_ns else s1
+            residual = min(t_ns - s0, s1 - t_ns)
+            status = "ok" if residual <= max_skew_ns else "stale"
+            return v0 + frac * delta, nearer, residual, status
+        # nearest sample: the policy itself, or the fallback
+        if lo < 0:
+            j = hi
+        elif hi >= len(stamps):
+            j = lo
+        else:
+            j = lo if t_ns - stamps[lo] <= stamps[hi] - t_ns else hi
+        residual = abs(t_ns - stamps[j])
+        outside = lo < 0 or hi >= len(stamps)
+        if residual > max_skew_ns:
+            status = "stale"
+        elif policy == "exact":
+            status = "stale"
+        elif policy == "interpolate" and outside:
+            status = "extrapolated"
+        else:
+            status = "ok"
+        return values[j], stamps[j], residual, status
+
+
+def command_residual(command: JointStateBuffer, t_ns: int, measured: dict[str, float], max_skew_ns: int) -> float | None:
+    """r_t = || commanded - measured || over the joints both know, at capture time t."""
+    common = sorted(set(measured) & command.known_joints())
+    if not common:
+        return None
+    cmd = command.resolve(t_ns, common, "interpolate", max_skew_ns)
+    return math.sqrt(sum((cmd.positions[n] - measured[n]) ** 2 for n in common))
+
+
+P = TypeVar("P")
+
+
+@dataclass
+class PendingFrame(Generic[P]):
+    capture_ns: int
+    arrival_ns: int
+    payload: P
+
+
+@dataclass
+class SyncCounters:
+    released: int = 0
+    dropped_overflow: int = 0
+    dropped_out_of_order: int = 0
+    time_jumps: int = 0
+    status_counts: dict[str, int] = field(default_factory=lambda: {s: 0 for s in STATUS_ORDER})
+
+
+class FrameSynchronizer(Generic[P]):
+    """Pending frames in stamp order, released when their joint state is known.
+
+    Bounded: beyond `max_pending` frames the oldest are dropped and counted. A
+    frame older than the last released one is dropped (out of order), unless
+    it is more than a second older, which means the source restarted (a bag
+    loop): then the state resets.
+    """
+
+    def __init__(
+        self,
+        joints: Sequence[str],
+        policy: str,
+        max_skew_ms: float,
+        max_wait_ms: float,
+        *,
+        continuous_joints: Iterable[str] = (),
+        max_pending: int = 8,
+        on_drop: Callable[[PendingFrame[P], str], None] | None = None,
+    ) -> None:
+        self.joints = tuple(joints)
+        self.policy = policy
+        self.max_skew_ns = int(max_skew_ms * NS_PER_MS)
+        self.max_wait_ns = int(max_wait_ms * NS_PER_MS)
+        self.max_pending = max_pending
+        self.buffer = JointStateBuffer(continuous_joints)
+        self.counters = SyncCounters()
+        self._pending: list[PendingFrame[P]] = []
+        self._last_released_ns: int | None = None
+        self._on_drop = on_drop
+
+    @property
+    def pending(self) -> int:
+        return len(self._pending)
+
+    def add_joint_state(self, stamp_ns: int, names: Sequence[str], positions: Sequence[float], *, where: str = "joint_states") -> list[str]:
+        jumps = self.buffer.time_jumps
+        skipped = self.buffer.add(stamp_ns, names, positions, where=where)
+        if self.buffer.time_jumps != jumps:
+            self.counters.time_jumps += 1
+        return skipped
+
+    def add_frame(self, capture_ns: int, payload: P, arrival_ns: int = 0) -> None:
+        last = self._last_released_ns
+        if last is not None and capture_ns <= last:
+            if capture_ns < last - TIME_JUMP_RESET_NS:
+                self.counters.time_jumps += 1
+                self._last_released_ns = None
+            else:
+                self._drop(PendingFrame(capture_ns, arrival_ns, payload), "out_of_order")
+                return
+        bisect.insort(self._pending, PendingFrame(capture_ns, arrival_ns, payload), key=lambda f: f.capture_ns)
+        while len(self._pending) > self.max_pending:
+            self._drop(self._pending.pop(0), "overflow")
+
+    def _drop(self, frame: PendingFrame[P], reason: str) -> None:
+        if reason == "overflow":
+            self.counters.dropped_overflow += 1
+        else:
+            self.counters.dropped_out_of_order += 1
+        if self._on_drop is not None:
+            self._on_drop(frame, reason)
+
+    def _ready(self, frame: PendingFrame[P], now_ns: int | None) -> bool:
+        if self.policy == "latest" or now_ns is None:
+            return True
+        if self.buffer.has_bracket(frame.capture_ns, self.joints):
+            return True
+        return now_ns - frame.arrival_ns >= self.max_wait_ns
+
+    def pop_ready(self, now_ns: int | None) -> list[tuple[P, int, SyncResult]]:
+        """Release frames in stamp order; `now_ns=None` releases everything (flush)."""
+        out: list[tuple[P, int, SyncResult]] = []
+        while self._pending and self._ready(self._pending[0], now_ns):
+            frame = self._pending.pop(0)
+            result = self.buffer.resolve(
+                frame.capture_ns,
+                self.joints,
+                self.policy,
+                self.max_skew_ns,
+                latest_limit_ns=None if now_ns is not None else frame.capture_ns,
+            )
+            self.counters.released += 1
+            self.counters.status_counts[result.status] += 1
+            self._last_released_ns = frame.capture_ns
+            self.buffer.prune_before(frame.capture_ns - 2 * NS_PER_S)
+            out.append((frame.payload, frame.capture_ns, result))
+        return out
