@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from numpy.typing import NDArray
 
 from .errors import CalibrationError
 from .transforms import Float64Array
@@ -49,7 +50,7 @@ class CameraModel:
         """Focal length along x used by the depth-adaptive scale (P's when rectified)."""
         return float(self.p[0, 0] if self.rectified else self.k[0, 0])
 
-    def project(self, points_cam_m: Float64Array, z_min_m: float = 1e-3) -> tuple[Float64Array, NDBool]:
+    def project(self, points_cam_m: Float64Array, z_min_m: float = 1e-3) -> tuple[Float64Array, NDArray[np.bool_]]:
         """Project N x 3 points in the optical frame to raw pixels.
 
         Returns `(uv_px, valid)`: rows of `uv_px` where `valid` is False are NaN.
@@ -124,7 +125,7 @@ class CameraModel:
         return "sha256:" + hashlib.sha256(blob).hexdigest()[:16]
 
 
-NDBool = np.ndarray
+
 
 
 def _distort_radtan(x: Float64Array, y: Float64Array, d: Float64Array) -> tuple[Float64Array, Float64Array]:
@@ -186,10 +187,7 @@ def camera_from_info(
     if len(d_v) > limit:
         raise CalibrationError(f"{where}.distortion_coefficients: {model} takes at most {limit} coefficients, got {len(d_v)}")
     r_m = np.eye(3) if r is None or _all_zero(r) else _matrix(r, (3, 3), f"{where}.rectification_matrix")
-    if p is None or _all_zero(p):
-        p_m = np.hstack([k_m, np.zeros((3, 1))])
-    else:
-        p_m = _matrix(p, (3, 4), f"{where}.projection_matrix")
+    p_m = np.hstack([k_m, np.zeros((3, 1))]) if p is None or _all_zero(p) else _matrix(p, (3, 4), f"{where}.projection_matrix")
     return CameraModel(int(width_px), int(height_px), k_m, d_v, model, r_m, p_m, bool(rectified))
 
 

@@ -26,7 +26,7 @@ from .transforms import Transform
 RIG_SCHEMA = "roi_node/rig/v1"
 SYNC_POLICIES = ("interpolate", "nearest", "exact", "latest")
 RESIZE_POLICIES = ("stretch", "letterbox")
-INTERPOLATIONS = ("area",)
+INTERPOLATIONS = ("area", "area_pyramid")
 PADDING_MODES = ("zero",)
 
 
@@ -150,7 +150,7 @@ class _Node:
     def _path(self, key: str) -> str:
         return f"{self.where}.{key}" if self.where else key
 
-    def str(self, key: str, default: str | None = None) -> str:
+    def text(self, key: str, default: str | None = None) -> str:
         value = self.data.get(key, default)
         if value is None:
             raise self.fail(key, "missing (expected a string)")
@@ -241,7 +241,7 @@ def load_rig_config(path: str | Path) -> RigConfig:
         raise ConfigError(f"{file}: not valid YAML: {exc}") from exc
     root = _Node(doc, "", file)
     root.check_keys(("schema", "rig_id", "camera", "robots", "arms", "output", "sync"))
-    schema = root.str("schema")
+    schema = root.text("schema")
     if schema != RIG_SCHEMA:
         raise root.fail("schema", f"expected {RIG_SCHEMA!r}, got {schema!r}")
     base_dir = file.resolve().parent
@@ -256,7 +256,7 @@ def load_rig_config(path: str | Path) -> RigConfig:
     sync = _load_sync(root.child("sync") if root.has("sync") else _Node({}, "sync", file))
     return RigConfig(
         path=file.resolve(),
-        rig_id=root.str("rig_id"),
+        rig_id=root.text("rig_id"),
         camera=camera,
         robots=robots,
         arms=arms,
@@ -284,14 +284,14 @@ def _load_camera(node: _Node, base_dir: Path) -> CameraConfig:
             raise node.fail("intrinsics", f"expected a calibration file path or 'topic', got {value!r}")
         intrinsics = load_calibration_yaml(_resolve_path(base_dir, value), rectified=rectified)
     ext = node.child("extrinsics")
-    parent = ext.str("parent", "world")
+    parent = ext.text("parent", "world")
     if parent != "world":
         raise ext.fail("parent", f"must be 'world' (the pose of the camera optical frame in world), got {parent!r}")
     version = ext.data.get("version")
     if version is not None and not isinstance(version, str):
         raise ext.fail("version", f"expected a string, got {version!r}")
     return CameraConfig(
-        id=node.str("id"),
+        id=node.text("id"),
         intrinsics=intrinsics,
         world_T_cam=_pose(ext),
         extrinsics_raw=dict(ext.data),
@@ -304,7 +304,7 @@ def _load_camera(node: _Node, base_dir: Path) -> CameraConfig:
 
 def _load_robot(node: _Node, base_dir: Path) -> RobotConfig:
     node.check_keys(("id", "urdf", "base_in_world", "joint_prefix"))
-    urdf = node.str("urdf")
+    urdf = node.text("urdf")
     if urdf.startswith(EXAMPLE_ROBOT_DATA_PREFIX):
         urdf_path = resolve_robot_reference(urdf, f"{node.file}: {node.where}.urdf")
     else:
@@ -321,12 +321,12 @@ def _load_robot(node: _Node, base_dir: Path) -> RobotConfig:
     prefix = node.data.get("joint_prefix", "")
     if not isinstance(prefix, str):
         raise node.fail("joint_prefix", f"expected a string, got {prefix!r}")
-    return RobotConfig(node.str("id"), urdf_path, world_T_base, prefix, base_raw)
+    return RobotConfig(node.text("id"), urdf_path, world_T_base, prefix, base_raw)
 
 
 def _load_arm(node: _Node, robot_ids: set[str]) -> ArmConfig:
     node.check_keys(("id", "robot", "ee_frame", "tip", "offset_px", "scale", "aspect"))
-    robot = node.str("robot")
+    robot = node.text("robot")
     if robot not in robot_ids:
         raise node.fail("robot", f"unknown robot {robot!r}; robots are {', '.join(sorted(robot_ids))}")
     tip_node = node.child("tip")
@@ -334,7 +334,7 @@ def _load_arm(node: _Node, robot_ids: set[str]) -> ArmConfig:
     if tip_node.has("offset_m") == tip_node.has("frame"):
         raise node.fail("tip", "give exactly one of offset_m: [x, y, z] or frame: <URDF frame>")
     if tip_node.has("frame"):
-        tip = TipSpec(frame=tip_node.str("frame"))
+        tip = TipSpec(frame=tip_node.text("frame"))
     else:
         ox, oy, oz = tip_node.numbers("offset_m", 3)
         if ox == oy == oz == 0.0:
@@ -360,9 +360,9 @@ def _load_arm(node: _Node, robot_ids: set[str]) -> ArmConfig:
         scale = FixedScale(size_px=scale_node.number("size_px", positive=True))
     aspect = node.numbers("aspect", 2, [1.0, 1.0], positive=True)
     return ArmConfig(
-        id=node.str("id"),
+        id=node.text("id"),
         robot=robot,
-        ee_frame=node.str("ee_frame"),
+        ee_frame=node.text("ee_frame"),
         tip=tip,
         offset_px=node.number("offset_px", 0.0),
         scale=scale,

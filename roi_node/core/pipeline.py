@@ -172,7 +172,9 @@ class RoiPipeline:
         rois = tuple(self._process_arm(arm, image, sync) for arm in self._arms)
         global_view = None
         if self.rig.output.global_enabled:
-            global_view = place_in_output(image, (0, 0), self.rig.output.global_size_px, self.rig.output.resize_policy).image
+            global_view = place_in_output(
+                image, (0, 0), self.rig.output.global_size_px, self.rig.output.resize_policy, self.rig.output.interpolation
+            ).image
         teleop = teleop or Teleop(control_hz=sync.joint_rate_hz)
         record = {
             "schema": METADATA_SCHEMA,
@@ -225,7 +227,9 @@ class RoiPipeline:
         depth_m = float(points_cam[0, 2])
         geometry = roi_geometry(cfg, wrist, tip, depth_m, self.camera.fx_px)
         flags.extend(geometry.flags)
-        resampled, inside = crop_resize(image, geometry.window, (out_w, out_h), self.rig.output.resize_policy)
+        resampled, inside = crop_resize(
+            image, geometry.window, (out_w, out_h), self.rig.output.resize_policy, self.rig.output.interpolation
+        )
         window_area = geometry.window.width * geometry.window.height
         in_frame = in_frame_ratio(inside, window_area)
         if in_frame == 0.0:
@@ -263,7 +267,7 @@ class RoiPipeline:
     ) -> ArmRoi:
         """An arm without a valid projection still gets its (all-zero) ROI and a record."""
         out_w, out_h = self.rig.output.size_px
-        blank = np.zeros((out_h, out_w) + image.shape[2:], dtype=image.dtype)
+        blank = np.zeros((out_h, out_w, *image.shape[2:]), dtype=image.dtype)
         record = {
             "arm_id": arm.config.id,
             "projected_center": None,

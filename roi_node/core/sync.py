@@ -223,9 +223,7 @@ class JointStateBuffer:
             j = lo if t_ns - stamps[lo] <= stamps[hi] - t_ns else hi
         residual = abs(t_ns - stamps[j])
         outside = lo < 0 or hi >= len(stamps)
-        if residual > max_skew_ns:
-            status = "stale"
-        elif policy == "exact":
+        if residual > max_skew_ns or policy == "exact":
             status = "stale"
         elif policy == "interpolate" and outside:
             status = "extrapolated"

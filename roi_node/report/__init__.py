@@ -1,0 +1,3 @@
+"""Quality reports: contact sheets and (later) gates and manifests."""
+
+from __future__ import annotations

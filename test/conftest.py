@@ -1,0 +1,20 @@
+"""Shared fixtures: bundled rig paths and helpers to build joint states."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIG = REPO / "config"
+
+
+@pytest.fixture(scope="session")
+def bimanual_rig_path() -> Path:
+    return CONFIG / "rig_demo_bimanual.yaml"
+
+
+@pytest.fixture(scope="session")
+def single_rig_path() -> Path:
+    return CONFIG / "rig_panda_single.yaml"

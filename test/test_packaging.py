@@ -1,0 +1,60 @@
+"""The package builds with colcon as an ament_python package and installs what `ros2 run` needs."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tarfile
+from pathlib import Path
+
+import pytest
+
+from .conftest import REPO
+
+
+def _tracked_files() -> list[str]:
+    out = subprocess.run(
+        ["git", "ls-files", "-co", "--exclude-standard"], cwd=REPO, check=True, capture_output=True, text=True
+    ).stdout
+    return [f for f in out.splitlines() if f and not f.startswith(".venv") and (REPO / f).is_file()]
+
+
+@pytest.mark.skipif(shutil.which("colcon", path=str(Path(sys.executable).parent)) is None, reason="colcon not installed")
+def test_colcon_build_installs_executables_index_marker_and_config(tmp_path: Path) -> None:
+    src = tmp_path / "ws" / "src" / "roi_node"
+    src.mkdir(parents=True)
+    archive = tmp_path / "src.tar"
+    with tarfile.open(archive, "w") as tar:
+        for name in _tracked_files():
+            tar.add(REPO / name, arcname=name)
+    with tarfile.open(archive) as tar:
+        tar.extractall(src, filter="data")
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    build = subprocess.run(
+        ["colcon", "build", "--packages-select", "roi_node"], cwd=tmp_path / "ws", env=env, capture_output=True, text=True, timeout=300
+    )
+    assert build.returncode == 0, build.stdout + build.stderr
+    install = tmp_path / "ws" / "install" / "roi_node"
+    assert (install / "lib" / "roi_node" / "roi_node").is_file()  # what `ros2 run roi_node roi_node` executes
+    assert (install / "lib" / "roi_node" / "roi-node").is_file()
+    assert (install / "share" / "ament_index" / "resource_index" / "packages" / "roi_node").is_file()
+    assert (install / "share" / "roi_node" / "package.xml").is_file()
+    for name in ("rig_demo_bimanual.yaml", "front_intrinsics.yaml", "metadata.schema.json"):
+        assert (install / "share" / "roi_node" / "config" / name).is_file()
+    # the installed executable runs from the install space and finds its config through the ament prefix
+    site = next(install.glob("lib/python3*/site-packages"))
+    run_env = {**env, "PYTHONPATH": str(site), "AMENT_PREFIX_PATH": str(install)}
+    out = subprocess.run(
+        [sys.executable, str(install / "lib" / "roi_node" / "roi-node"), "demo", "--help"],
+        cwd=tmp_path, env=run_env, capture_output=True, text=True, timeout=60,
+    )
+    assert out.returncode == 0 and "usage: roi-node demo" in out.stdout
+    probe = subprocess.run(
+        [sys.executable, "-c", "import roi_node, roi_node.core.resources as r; print(roi_node.__file__); print(r.config_dir())"],
+        cwd=tmp_path, env=run_env, capture_output=True, text=True, timeout=60,
+    )
+    module_file, config_dir = probe.stdout.split()
+    assert module_file.startswith(str(install)), probe.stdout
+    assert config_dir == str(install / "share" / "roi_node" / "config")
