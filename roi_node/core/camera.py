@@ -197,6 +197,8 @@ def load_calibration_yaml(path: Path, *, rectified: bool = False) -> CameraModel
         data = yaml.safe_load(path.read_text())
     except FileNotFoundError as exc:
         raise CalibrationError(f"{path}: calibration file not found") from exc
+    except IsADirectoryError as exc:
+        raise CalibrationError(f"{path}: is a directory, expected a camera_calibration YAML file") from exc
     except yaml.YAMLError as exc:
         raise CalibrationError(f"{path}: not valid YAML: {exc}") from exc
     if not isinstance(data, Mapping):

@@ -19,7 +19,7 @@ from typing import Any
 import yaml
 
 from .camera import CameraModel, load_calibration_yaml
-from .errors import ConfigError
+from .errors import CalibrationError, ConfigError
 from .robot_models import EXAMPLE_ROBOT_DATA_PREFIX, resolve_robot_reference
 from .transforms import Transform
 
@@ -280,9 +280,12 @@ def _load_camera(node: _Node, base_dir: Path) -> CameraConfig:
     intrinsics: CameraModel | None = None
     value = node.data.get("intrinsics")
     if value not in (None, "topic"):
-        if not isinstance(value, str):
+        if not isinstance(value, str) or not value:
             raise node.fail("intrinsics", f"expected a calibration file path or 'topic', got {value!r}")
-        intrinsics = load_calibration_yaml(_resolve_path(base_dir, value), rectified=rectified)
+        try:
+            intrinsics = load_calibration_yaml(_resolve_path(base_dir, value), rectified=rectified)
+        except CalibrationError as exc:
+            raise CalibrationError(f"{node.file}: {node.where}.intrinsics: {exc}") from exc
     ext = node.child("extrinsics")
     parent = ext.text("parent", "world")
     if parent != "world":

@@ -51,22 +51,23 @@ def _worse(a: str, b: str) -> str:
 class _Series:
     """One joint's samples, sorted by stamp."""
 
-    __slots__ = ("stamps", "values")
+    __slots__ = ("conflicted", "stamps", "values")
 
     def __init__(self) -> None:
         self.stamps: list[int] = []
         self.values: list[float] = []
+        self.conflicted: set[int] = set()  # stamps that received different values
 
-    def insert(self, stamp_ns: int, value: float) -> bool:
-        """Insert; returns True when the stamp existed with a different value."""
+    def insert(self, stamp_ns: int, value: float) -> None:
+        """Insert; a repeated stamp keeps the smaller value and is remembered if values differed."""
         i = bisect.bisect_left(self.stamps, stamp_ns)
         if i < len(self.stamps) and self.stamps[i] == stamp_ns:
-            conflict = self.values[i] != value
+            if self.values[i] != value:
+                self.conflicted.add(stamp_ns)
             self.values[i] = min(self.values[i], value)
-            return conflict
+            return
         self.stamps.insert(i, stamp_ns)
         self.values.insert(i, value)
-        return False
 
     def prune_before(self, stamp_ns: int) -> None:
         """Drop samples older than stamp_ns, keeping the newest one before it as a bracket."""
@@ -83,8 +84,12 @@ class JointStateBuffer:
         self._series: dict[str, _Series] = {}
         self._continuous = frozenset(continuous_joints)
         self.newest_stamp_ns: int | None = None
-        self.conflicting_duplicates = 0
         self.time_jumps = 0
+
+    @property
+    def conflicting_duplicates(self) -> int:
+        """(joint, stamp) pairs that arrived with different values: independent of arrival order."""
+        return sum(len(series.conflicted) for series in self._series.values())
 
     def clear(self) -> None:
         self._series.clear()
@@ -109,9 +114,7 @@ class JointStateBuffer:
             if not math.isfinite(v):
                 skipped.append(name)
                 continue
-            series = self._series.setdefault(name, _Series())
-            if series.insert(stamp_ns, v):
-                self.conflicting_duplicates += 1
+            self._series.setdefault(name, _Series()).insert(stamp_ns, v)
         if self.newest_stamp_ns is None or stamp_ns > self.newest_stamp_ns:
             self.newest_stamp_ns = stamp_ns
         return skipped
