@@ -8,8 +8,6 @@ Paths are relative to the config file.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -115,10 +113,6 @@ class RigConfig:
 
     def robot(self, robot_id: str) -> RobotConfig:
         return next(r for r in self.robots if r.id == robot_id)
-
-    def content_hash(self) -> str:
-        blob = json.dumps(self.raw, sort_keys=True, separators=(",", ":"), default=str).encode()
-        return "sha256:" + hashlib.sha256(blob).hexdigest()[:16]
 
 
 class _Node:

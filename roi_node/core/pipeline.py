@@ -72,6 +72,7 @@ class _ArmModel:
     config: ArmConfig
     kinematics: RobotKinematics
     world_T_base: Transform
+    cam_T_base: Transform
     prefix: str
     chain: tuple[str, ...]  # URDF joint names that move the ee/tip frames
     tip_frame: str | None
@@ -116,7 +117,8 @@ class RoiPipeline:
             ee_T_tip = Transform(np.eye(3), np.asarray(arm.tip.offset_m, dtype=np.float64))
         chain = unique_in_order(j for f in chain_frames for j in kin.chain_joints(f))
         robot = self.rig.robot(arm.robot)
-        return _ArmModel(arm, kin, robot.world_T_base, robot.joint_prefix, chain, arm.tip.frame, ee_T_tip)
+        cam_T_base = self.cam_T_world @ robot.world_T_base
+        return _ArmModel(arm, kin, robot.world_T_base, cam_T_base, robot.joint_prefix, chain, arm.tip.frame, ee_T_tip)
 
     def _fk_version(self) -> str:
         shas = {r.id: self._kinematics[r.id].urdf_sha256 for r in self.rig.robots}
@@ -216,8 +218,7 @@ class RoiPipeline:
         poses = arm.kinematics.fk(q, frames)
         base_T_ee = poses[0]
         base_T_tip = poses[1] if arm.tip_frame else base_T_ee @ arm.ee_T_tip  # type: ignore[operator]
-        cam_T_base = self.cam_T_world @ arm.world_T_base
-        points_cam = cam_T_base.apply(np.vstack([base_T_ee.translation_m, base_T_tip.translation_m]))
+        points_cam = arm.cam_T_base.apply(np.vstack([base_T_ee.translation_m, base_T_tip.translation_m]))
         uv, valid = self.camera.project(points_cam, self.rig.camera.z_min_m)
         if not valid[0]:
             flags.append("behind_camera")
