@@ -272,3 +272,27 @@ def _int(value: object, where: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise CalibrationError(f"{where}: expected an integer, got {value!r}")
     return value
+
+
+@dataclass(frozen=True)
+class CameraInfoFields:
+    """The arrays of a sensor_msgs/CameraInfo, row-major float64."""
+
+    distortion_model: str
+    d: Float64Array
+    k: Float64Array
+    r: Float64Array
+    p: Float64Array
+
+
+def camera_info_fields(camera: CameraModel | None) -> CameraInfoFields:
+    """What a CameraInfo carries for `camera`; all zeros (K = 0 means uncalibrated) for None."""
+    if camera is None:
+        return CameraInfoFields("plumb_bob", np.zeros(0), np.zeros(9), np.zeros(9), np.zeros(12))
+    return CameraInfoFields(
+        camera.distortion_model,
+        np.ascontiguousarray(camera.d, dtype=np.float64).reshape(-1),
+        np.ascontiguousarray(camera.k, dtype=np.float64).reshape(-1),
+        np.ascontiguousarray(camera.r, dtype=np.float64).reshape(-1),
+        np.ascontiguousarray(camera.p, dtype=np.float64).reshape(-1),
+    )

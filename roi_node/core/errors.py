@@ -25,3 +25,7 @@ class ImageError(RoiNodeError):
 
 class JointStateError(RoiNodeError):
     """A joint state message is malformed (lengths, names, non-finite values)."""
+
+
+class BagError(RoiNodeError):
+    """A bag is missing, empty, corrupt, lacks a needed topic, or an output path is taken."""

@@ -1,0 +1,47 @@
+"""Topic names and message types of the roi_node contract (DESIGN.md "Topics").
+
+Relative names: the live node resolves them in its namespace (so remaps and
+namespaces work); bags store them fully qualified in the root namespace.
+"""
+
+from __future__ import annotations
+
+IMAGE = "image_raw"
+COMPRESSED_IMAGE = "image_raw/compressed"
+CAMERA_INFO = "camera_info"
+JOINT_STATES = "joint_states"
+ROBOT_DESCRIPTION = "robot_description"
+METADATA = "roi/metadata"
+GLOBAL_IMAGE = "roi/global/image_raw"
+DIAGNOSTICS = "/diagnostics"
+
+IMAGE_TYPE = "sensor_msgs/msg/Image"
+COMPRESSED_IMAGE_TYPE = "sensor_msgs/msg/CompressedImage"
+CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
+STRING_TYPE = "std_msgs/msg/String"
+
+
+def roi_image(arm_id: str) -> str:
+    return f"roi/{arm_id}/image_raw"
+
+
+def roi_camera_info(arm_id: str) -> str:
+    return f"roi/{arm_id}/camera_info"
+
+
+def absolute(name: str) -> str:
+    """The name as a bag records it for a node in the root namespace."""
+    return name if name.startswith("/") else "/" + name
+
+
+def output_topics(arm_ids: tuple[str, ...] | list[str], global_view: bool) -> dict[str, str]:
+    """Every output topic (relative name -> message type) of a node for these arms."""
+    topics: dict[str, str] = {}
+    for arm in arm_ids:
+        topics[roi_image(arm)] = IMAGE_TYPE
+        topics[roi_camera_info(arm)] = CAMERA_INFO_TYPE
+    if global_view:
+        topics[GLOBAL_IMAGE] = IMAGE_TYPE
+    topics[METADATA] = STRING_TYPE
+    return topics
