@@ -23,7 +23,7 @@ from rosbags.typesys.store import Typestore
 
 from ..core.errors import BagError
 
-ROSBAG2_VERSION = 9
+ROSBAG2_VERSION: Literal[9] = 9
 STATUS_KEY = "roi_node.status"
 _ZERO = QosTime(0, 0)
 _INFINITE = QosTime(2147483647, 4294967295)
