@@ -31,7 +31,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    ros_args: list[str] = []
+    if "--ros-args" in argv:  # everything from --ros-args on belongs to rclpy
+        cut = argv.index("--ros-args")
+        argv, ros_args = argv[:cut], argv[cut:]
     args = build_parser().parse_args(argv)
+    args.ros_args = ros_args
     try:
         code: int = args.func(args)
     except RoiNodeError as exc:

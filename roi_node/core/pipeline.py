@@ -8,6 +8,7 @@ for byte.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -37,6 +38,7 @@ from .roi_policy import roi_geometry
 from .sync import SyncResult
 from .transforms import Transform
 
+JOINT_DECIMALS = 9
 SYNC_FLAGS = {"stale": "sync_stale", "extrapolated": "sync_extrapolated", "missing": "sync_missing"}
 
 
@@ -82,13 +84,17 @@ class _ArmModel:
 class RoiPipeline:
     """Process frames of one rig; construct once, call `process` per frame."""
 
-    def __init__(self, rig: RigConfig, *, intrinsics: CameraModel | None = None) -> None:
+    def __init__(
+        self, rig: RigConfig, *, intrinsics: CameraModel | None = None, urdf_texts: Mapping[str, str] | None = None
+    ) -> None:
+        """`urdf_texts` (robot id -> URDF XML) replaces the rig's URDF files, e.g. from `robot_description`."""
         self.rig = rig
+        texts = urdf_texts or {}
         camera = intrinsics or rig.camera.intrinsics
         if camera is None:
             raise ConfigError(f"{rig.path}: camera.intrinsics: no calibration file given; pass intrinsics from a CameraInfo")
         self.cam_T_world = rig.camera.world_T_cam.inverse()
-        kinematics = {r.id: RobotKinematics(r.id, r.urdf_path) for r in rig.robots}
+        kinematics = {r.id: RobotKinematics(r.id, r.urdf_path, texts.get(r.id)) for r in rig.robots}
         self._kinematics = kinematics
         self._arms = tuple(self._arm_model(arm, kinematics[arm.robot]) for arm in rig.arms)
         self.required_joints: tuple[str, ...] = unique_in_order(
@@ -191,6 +197,7 @@ class RoiPipeline:
                 "residual_ms": rnd(sync.residual_ms, MS_DECIMALS),
                 "status": sync.status,
             },
+            "joint_positions": {name: rnd(sync.positions[name], JOINT_DECIMALS) for name in self.required_joints if name in sync.positions},
             "arms": [roi.record for roi in rois],
             "teleop": {
                 "latency_ms": rnd(teleop.latency_ms, MS_DECIMALS),

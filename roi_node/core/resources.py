@@ -41,3 +41,17 @@ def default_rig_path(name: str = "demo_bimanual") -> Path:
         available = sorted(p.stem[4:] for p in config_dir().glob("rig_*.yaml"))
         raise ConfigError(f"no bundled rig {name!r}; available: {', '.join(available)}")
     return path
+
+
+def resolve_config_file(value: str | Path) -> Path:
+    """A config path as given (absolute or relative to the working directory), else the bundled one of that name.
+
+    So `-p config:=rig_demo_bimanual.yaml` works from any directory of a
+    colcon install; a path that exists nowhere is returned as given and the
+    loader's error names it.
+    """
+    path = Path(value)
+    if path.exists() or path.is_absolute():
+        return path
+    bundled = config_dir() / path
+    return bundled if bundled.is_file() else path

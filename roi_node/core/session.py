@@ -10,7 +10,7 @@ clock, and the caller supplies both.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +33,7 @@ class ReadyFrame:
     payload: FramePayload
     capture_ns: int
     sync: SyncResult
+    command_residual: float | None  # r_t, when a command stream is fed
 
 
 class RoiSession:
@@ -43,11 +44,12 @@ class RoiSession:
         rig: RigConfig,
         *,
         intrinsics: CameraModel | None = None,
+        urdf_texts: Mapping[str, str] | None = None,
         max_pending: int = 8,
         on_drop: Callable[[PendingFrame[FramePayload], str], None] | None = None,
     ) -> None:
         self.rig = rig
-        self.pipeline = RoiPipeline(rig, intrinsics=intrinsics)
+        self.pipeline = RoiPipeline(rig, intrinsics=intrinsics, urdf_texts=urdf_texts)
         self.delay_ns = round(rig.camera.delay_ms * NS_PER_MS)
         self.synchronizer: FrameSynchronizer[FramePayload] = FrameSynchronizer(
             self.pipeline.required_joints,
@@ -81,17 +83,24 @@ class RoiSession:
         self.synchronizer.add_frame(int(stamp_ns) - self.delay_ns, payload, arrival_ns)
         return index
 
-    def pop_ready(self, now_ns: int | None) -> list[ReadyFrame]:
-        """Frames whose joint state is settled (or whose wait expired); `None` flushes all."""
-        return [ReadyFrame(p, capture_ns, sync) for p, capture_ns, sync in self.synchronizer.pop_ready(now_ns)]
+    def pop_ready(self, now_ns: int | None, limit: int | None = None) -> list[ReadyFrame]:
+        """Frames whose joint state is settled (or whose wait expired); `None` flushes all.
+
+        Everything that reads the joint buffers happens here, so a live driver
+        holds its lock only for this call and runs `process` outside it.
+        """
+        ready = []
+        for payload, capture_ns, sync in self.synchronizer.pop_ready(now_ns, limit):
+            residual = None
+            if self.commands.known_joints() and sync.positions:
+                residual = command_residual(self.commands, capture_ns, sync.positions, self.synchronizer.max_skew_ns)
+            self.commands.prune_before(capture_ns - 2 * NS_PER_S)
+            ready.append(ReadyFrame(payload, capture_ns, sync, residual))
+        return ready
 
     def process(self, ready: ReadyFrame, latency_ms: float | None = None) -> FrameResult:
         """Run the pipeline on a released frame; `latency_ms` (L_t) is live-only."""
         sync = ready.sync
-        residual = None
-        if self.commands.known_joints() and sync.positions:
-            residual = command_residual(self.commands, ready.capture_ns, sync.positions, self.synchronizer.max_skew_ns)
-        self.commands.prune_before(ready.capture_ns - 2 * NS_PER_S)
-        teleop = Teleop(latency_ms=latency_ms, control_hz=sync.joint_rate_hz, command_residual=residual)
+        teleop = Teleop(latency_ms=latency_ms, control_hz=sync.joint_rate_hz, command_residual=ready.command_residual)
         payload = ready.payload
         return self.pipeline.process(payload.image, payload.stamp_ns, payload.frame_index, sync, teleop)

@@ -333,10 +333,14 @@ class FrameSynchronizer(Generic[P]):
             return True
         return now_ns - frame.arrival_ns >= self.max_wait_ns
 
-    def pop_ready(self, now_ns: int | None) -> list[tuple[P, int, SyncResult]]:
-        """Release frames in stamp order; `now_ns=None` releases everything (flush)."""
+    def pop_ready(self, now_ns: int | None, limit: int | None = None) -> list[tuple[P, int, SyncResult]]:
+        """Release frames in stamp order, at most `limit`; `now_ns=None` releases everything (flush).
+
+        A live worker takes one frame at a time so that frames arriving while
+        it processes stay in the bounded pending queue (oldest dropped first).
+        """
         out: list[tuple[P, int, SyncResult]] = []
-        while self._pending and self._ready(self._pending[0], now_ns):
+        while self._pending and self._ready(self._pending[0], now_ns) and (limit is None or len(out) < limit):
             frame = self._pending.pop(0)
             result = self.buffer.resolve(
                 frame.capture_ns,

@@ -1,0 +1,86 @@
+"""rclpy messages <-> numpy and stamps, built the fast way.
+
+Incoming pixels go through core.image_codec (a zero-copy view of `msg.data`).
+Outgoing images are built through the message constructor from an
+`array('B')` filled with one copy: assigning an ndarray or memoryview to
+`Image.data` is copied element by element, orders of magnitude slower
+(shared/PERF_NOTES.md).
+"""
+
+from __future__ import annotations
+
+from array import array
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from sensor_msgs.msg import CameraInfo, Image, RegionOfInterest
+from std_msgs.msg import Header
+
+from ..core.camera import CameraModel, camera_from_info, camera_info_fields
+from ..core.image_codec import output_pixels
+from ..core.sync import NS_PER_S
+
+
+def stamp_ns(header: Header) -> int:
+    return int(header.stamp.sec) * NS_PER_S + int(header.stamp.nanosec)
+
+
+def time_msg(t_ns: int) -> Time:
+    sec, nanosec = divmod(int(t_ns), NS_PER_S)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def header(t_ns: int, frame_id: str) -> Header:
+    return Header(stamp=time_msg(t_ns), frame_id=frame_id)
+
+
+def _byte_array(pixels: np.ndarray) -> array[int]:
+    data = array("B")
+    data.frombytes(pixels.data.cast("B"))
+    return data
+
+
+def image_msg(t_ns: int, frame_id: str, pixels: np.ndarray, encoding: str = "rgb8") -> Image:
+    enc, step, data = output_pixels(pixels, encoding)
+    return Image(
+        header=header(t_ns, frame_id),
+        height=data.shape[0],
+        width=data.shape[1],
+        encoding=enc,
+        is_bigendian=0,
+        step=step,
+        data=_byte_array(data),
+    )
+
+
+def camera_info_msg(t_ns: int, frame_id: str, camera: CameraModel | None, width_px: int, height_px: int) -> CameraInfo:
+    """CameraInfo of `camera`; all zeros (K = 0: uncalibrated) when the ROI has no valid camera."""
+    fields = camera_info_fields(camera)
+    return CameraInfo(
+        header=header(t_ns, frame_id),
+        height=height_px,
+        width=width_px,
+        distortion_model=fields.distortion_model,
+        d=fields.d.tolist(),
+        k=fields.k.tolist(),
+        r=fields.r.tolist(),
+        p=fields.p.tolist(),
+        binning_x=0,
+        binning_y=0,
+        roi=RegionOfInterest(),
+    )
+
+
+def camera_from_msg(msg: CameraInfo, rectified: bool, where: str) -> CameraModel:
+    """Intrinsics from a CameraInfo (raises CalibrationError naming `where`)."""
+    return camera_from_info(
+        width_px=msg.width,
+        height_px=msg.height,
+        distortion_model=msg.distortion_model,
+        d=list(msg.d),
+        k=list(msg.k),
+        r=list(msg.r),
+        p=list(msg.p),
+        rectified=rectified,
+        where=where,
+    )

@@ -1,0 +1,94 @@
+"""LiveStats snapshot -> diagnostic_msgs/DiagnosticArray (what diagnostic_updater would publish).
+
+One status per concern so a rig's diagnostic aggregator can route them:
+input, sync, one per arm, lineage. Levels: WARN when frames were dropped,
+messages were bad or frames were flagged in the window; ERROR when frames
+arrive but nothing can be published (no joint states, no intrinsics).
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+from ..core.metadata import Lineage
+from .conversions import header
+
+HARDWARE_ID = "roi_node"
+
+
+def _kv(key: str, value: object) -> KeyValue:
+    text = value if isinstance(value, str) else json.dumps(value, sort_keys=True, default=str)
+    return KeyValue(key=key, value=text)
+
+
+def _fmt(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.2f}"
+
+
+def _status(name: str, level: bytes, message: str, values: dict[str, object]) -> DiagnosticStatus:
+    return DiagnosticStatus(
+        level=level, name=f"roi_node: {name}", message=message, hardware_id=HARDWARE_ID, values=[_kv(k, v) for k, v in values.items()]
+    )
+
+
+def diagnostics_msg(stamp_ns: int, snap: dict[str, Any], lineage: Lineage | None, waiting_for: str | None) -> DiagnosticArray:
+    statuses = []
+    bad = snap["bad_messages"]
+    drops = snap["drops"]
+    input_level = DiagnosticStatus.OK
+    input_message = f"frames {_fmt(snap['frame_rate_in_hz'])} Hz in, {_fmt(snap['frame_rate_out_hz'])} Hz out"
+    if waiting_for:
+        input_level, input_message = DiagnosticStatus.ERROR, f"waiting for {waiting_for}"
+    elif bad or drops:
+        input_level = DiagnosticStatus.WARN
+        input_message += f"; dropped {sum(drops.values())}, bad messages {sum(bad.values())} since start"
+    statuses.append(
+        _status(
+            "input",
+            input_level,
+            input_message,
+            {
+                "frame_rate_in_hz": round(snap["frame_rate_in_hz"], 3),
+                "joint_msg_rate_in_hz": round(snap["joint_rate_in_hz"], 3),
+                "frame_rate_out_hz": round(snap["frame_rate_out_hz"], 3),
+                "totals": snap["totals"],
+                "dropped_by_reason": drops,
+                "bad_messages_by_kind": bad,
+                "last_errors": snap["last_errors"],
+                "process_ms": snap["process_ms"],
+                "latency_ms": snap["latency_ms"],
+            },
+        )
+    )
+    status_counts = snap["sync_status"]
+    not_ok = sum(v for k, v in status_counts.items() if k != "ok")
+    sync_level = DiagnosticStatus.OK if not not_ok else DiagnosticStatus.WARN
+    if status_counts and status_counts.get("missing", 0) == sum(status_counts.values()):
+        sync_level = DiagnosticStatus.ERROR
+    residual = snap["residual_ms"]
+    statuses.append(
+        _status(
+            "sync",
+            sync_level,
+            f"residual p50 {_fmt(residual and residual['p50'])} ms; {not_ok} frames not ok since start",
+            {"status_counts": status_counts, "residual_ms": residual},
+        )
+    )
+    for arm_id, arm in snap["arms"].items():
+        flagged = {k.split(":", 1)[1]: v for k, v in snap["flags"].items() if k.startswith(arm_id + ":")}
+        valid = arm["projection_valid_ratio"]
+        level = DiagnosticStatus.OK if valid in (None, 1.0) else DiagnosticStatus.WARN
+        statuses.append(
+            _status(
+                f"arm {arm_id}",
+                level,
+                f"valid {_fmt(valid)}, in-frame {_fmt(arm['in_frame_ratio_mean'])}",
+                {**arm, "flags_since_start": flagged},
+            )
+        )
+    if lineage is not None:
+        statuses.append(_status("lineage", DiagnosticStatus.OK, lineage.intrinsics_ver, dict(lineage.as_dict())))
+    return DiagnosticArray(header=header(stamp_ns, ""), status=statuses)

@@ -1,0 +1,51 @@
+"""Running an rclpy node to completion: `with ros_context()`, a multi-threaded executor, clean exit.
+
+Jazzy's `rclpy.init()` is not yet a context manager (it is from Kilted on),
+and `with Context()` takes no arguments, so `ros_context` is the same idiom
+with ROS arguments: init on entry, `try_shutdown` on any exit.
+
+rclpy's signal handlers turn SIGINT and SIGTERM into a context shutdown, which
+ends `spin()`; the node is then closed (its own threads joined) and destroyed
+before the context goes away.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterator, Sequence
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+
+
+@contextlib.contextmanager
+def ros_context(ros_args: Sequence[str] = ()) -> Iterator[None]:
+    rclpy.init(args=["roi_node", *ros_args])
+    try:
+        yield
+    finally:
+        rclpy.try_shutdown()
+
+
+def spin_node(make_node: Callable[[], Node], ros_args: Sequence[str] = (), threads: int = 3) -> int:
+    """Create the node inside an rclpy context and spin it until shutdown; returns an exit code.
+
+    Errors raised by `make_node` (a bad rig config) propagate before anything
+    spins, so a bad start fails at once with the config error.
+    """
+    with ros_context(ros_args):
+        node = make_node()
+        executor = MultiThreadedExecutor(num_threads=threads)
+        executor.add_node(node)
+        try:
+            executor.spin()
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        finally:
+            close = getattr(node, "close", None)
+            if close is not None:
+                close()
+            executor.shutdown(timeout_sec=1.0)
+            node.destroy_node()
+    return 0
