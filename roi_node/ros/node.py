@@ -1,9 +1,9 @@
 """RoiNode: the live rclpy driver of RoiSession.
 
-Threads: executor callbacks only convert and enqueue (images in one callback
-group; joint states, commands, CameraInfo and robot_description in another,
-so joint states are never starved by image work); one worker thread pops
-frames from the session in stamp order, runs the pipeline and publishes.
+Threads: the executor thread only converts and enqueues (a zero-copy view of
+an Image, a joint state into the buffer), so joint states are never starved
+by image work; one worker thread pops frames from the session in stamp order,
+runs the pipeline and publishes (see ros/spin.py for why one executor thread).
 Frames wait at most `max_wait_ms` for their bracketing joint sample; when the
 worker falls behind, the session's bounded queue drops the oldest frame and
 counts it. A bad message is counted, logged (throttled) and reported on
@@ -19,7 +19,6 @@ from collections.abc import Callable
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -90,26 +89,21 @@ class RoiNode(Node):
     def _create_endpoints(self) -> None:
         p = self.params
         sub_qos, pub_qos = p.subscription_qos(), p.publisher_qos()
-        self._image_group = MutuallyExclusiveCallbackGroup()
-        self._state_group = MutuallyExclusiveCallbackGroup()
-        self._timer_group = MutuallyExclusiveCallbackGroup()
         if p.image_transport == "compressed":
             self._image_topic = p.image_topic.rstrip("/") + "/compressed"
-            self.create_subscription(CompressedImage, self._image_topic, self._on_compressed, sub_qos, callback_group=self._image_group)
+            self.create_subscription(CompressedImage, self._image_topic, self._on_compressed, sub_qos)
         else:
             self._image_topic = p.image_topic
-            self.create_subscription(Image, self._image_topic, self._on_image, sub_qos, callback_group=self._image_group)
+            self.create_subscription(Image, self._image_topic, self._on_image, sub_qos)
         for topic in p.joint_state_topics:
-            self.create_subscription(JointState, topic, self._joint_callback(topic), sub_qos, callback_group=self._state_group)
+            self.create_subscription(JointState, topic, self._joint_callback(topic), p.joint_state_qos())
         if p.command_topic:
-            self.create_subscription(JointState, p.command_topic, self._on_command, sub_qos, callback_group=self._state_group)
+            self.create_subscription(JointState, p.command_topic, self._on_command, p.joint_state_qos())
         if self._need_camera_info:
-            self.create_subscription(CameraInfo, p.camera_info_topic, self._on_camera_info, sub_qos, callback_group=self._state_group)
+            self.create_subscription(CameraInfo, p.camera_info_topic, self._on_camera_info, sub_qos)
         if p.robot_description_source == "topic":
             latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-            self.create_subscription(
-                String, topics.ROBOT_DESCRIPTION, self._on_robot_description, latched, callback_group=self._state_group
-            )
+            self.create_subscription(String, topics.ROBOT_DESCRIPTION, self._on_robot_description, latched)
         self._roi_pubs = {
             arm.id: (
                 self.create_publisher(Image, topics.roi_image(arm.id), pub_qos),
@@ -120,7 +114,7 @@ class RoiNode(Node):
         self._global_pub = self.create_publisher(Image, topics.GLOBAL_IMAGE, pub_qos) if self.rig.output.global_enabled else None
         self._metadata_pub = self.create_publisher(String, topics.METADATA, pub_qos)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.create_timer(p.diagnostics_period_s, self._publish_diagnostics, callback_group=self._timer_group)
+        self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
 
     def _waiting_for(self) -> str | None:
         missing = []

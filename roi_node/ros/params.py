@@ -33,6 +33,7 @@ class NodeParams:
     robot_description: str
     subscription_reliability: str
     subscription_depth: int
+    joint_state_depth: int
     publisher_reliability: str
     publisher_depth: int
     sync_policy: str | None  # None: the rig config's
@@ -45,6 +46,10 @@ class NodeParams:
 
     def subscription_qos(self) -> QoSProfile:
         return _qos(self.subscription_reliability, self.subscription_depth)
+
+    def joint_state_qos(self) -> QoSProfile:
+        """Joint states are small and fast (200-1000 Hz): a deep queue rides out a busy moment."""
+        return _qos(self.subscription_reliability, self.joint_state_depth)
 
     def publisher_qos(self) -> QoSProfile:
         return _qos(self.publisher_reliability, self.publisher_depth)
@@ -73,6 +78,7 @@ def declare_and_read(node: Node) -> NodeParams:
         "robot_description": p("robot_description", "").value,
         "subscription_reliability": p("qos.subscription_reliability", "best_effort").value,
         "subscription_depth": p("qos.subscription_depth", 5).value,
+        "joint_state_depth": p("qos.joint_state_depth", 100).value,
         "publisher_reliability": p("qos.publisher_reliability", "reliable").value,
         "publisher_depth": p("qos.publisher_depth", 10).value,
         "sync_policy": p("sync.policy", "").value,
@@ -130,6 +136,7 @@ def _validate(v: dict[str, object]) -> NodeParams:
         robot_description=str(v["robot_description"]),
         subscription_reliability=_choice(v, "subscription_reliability", "qos.subscription_reliability", RELIABILITIES),
         subscription_depth=_positive_int(v, "subscription_depth", "qos.subscription_depth"),
+        joint_state_depth=_positive_int(v, "joint_state_depth", "qos.joint_state_depth"),
         publisher_reliability=_choice(v, "publisher_reliability", "qos.publisher_reliability", RELIABILITIES),
         publisher_depth=_positive_int(v, "publisher_depth", "qos.publisher_depth"),
         sync_policy=policy,

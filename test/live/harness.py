@@ -1,0 +1,145 @@
+"""Real processes on loopback DDS for the live tests.
+
+Every test gets its own ROS_DOMAIN_ID (derived from the run's base domain) and
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; processes that move large images load
+the shared-memory FastDDS profile and the glibc malloc settings.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo
+from std_msgs.msg import String
+
+from roi_node.ros.consumer import ObservationClient
+
+from ..conftest import CONFIG, REPO
+
+_domains = itertools.count(1)
+
+
+def ros_env(domain_id: int) -> dict[str, str]:
+    env = dict(os.environ)
+    env.update(
+        ROS_DOMAIN_ID=str(domain_id),
+        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        FASTRTPS_DEFAULT_PROFILES_FILE=str(CONFIG / "fastdds_shm.xml"),
+        MALLOC_MMAP_THRESHOLD_="33554432",
+        MALLOC_TRIM_THRESHOLD_="4000000000",
+        PYTHONUNBUFFERED="1",
+    )
+    return env
+
+
+def next_domain() -> int:
+    """A domain for one test: distinct within the run, offset from the run's own ROS_DOMAIN_ID."""
+    base = int(os.environ.get("ROS_DOMAIN_ID", "71"))
+    return (base + next(_domains) * 3) % 200 + 1
+
+
+@contextmanager
+def process(args: list[str], env: dict[str, str], log: Path) -> Iterator[subprocess.Popen[bytes]]:
+    """Run a child; on exit SIGINT it and (if still alive after 10 s) kill it."""
+    with log.open("wb") as out:
+        proc = subprocess.Popen([sys.executable, *args], cwd=REPO, env=env, stdout=out, stderr=subprocess.STDOUT)
+        try:
+            yield proc
+        finally:
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+                try:
+                    proc.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+
+
+def node_args(config: Path, *params: str) -> list[str]:
+    ros = ["--ros-args", *itertools.chain.from_iterable(("-p", p) for p in params)] if params else []
+    return ["-m", "roi_node.cli", "run", "--config", str(config), *ros]
+
+
+class Collector:
+    """An in-test rclpy subscriber (its own context and domain) to a node's outputs."""
+
+    def __init__(self, domain_id: int, arm_ids: list[str], *, with_global: bool = True, buffer: int = 1000) -> None:
+        os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(CONFIG / "fastdds_shm.xml")
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = Node("test_collector", context=self.context)
+        reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        self.client = ObservationClient(self.node, arm_ids, with_global=with_global, max_buffer=buffer, qos=reliable)
+        self.metadata: list[dict[str, Any]] = []
+        self.camera_infos: dict[str, list[CameraInfo]] = {a: [] for a in arm_ids}
+        self.diagnostics: list[DiagnosticArray] = []
+        self.node.create_subscription(String, "roi/metadata", lambda m: self.metadata.append(json.loads(m.data)), reliable)
+        for arm in arm_ids:
+            self.node.create_subscription(CameraInfo, f"roi/{arm}/camera_info", self._info_cb(arm), reliable)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self.diagnostics.append, 10)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _info_cb(self, arm: str) -> Callable[[CameraInfo], None]:
+        return lambda m: self.camera_infos[arm].append(m)
+
+    def _spin(self) -> None:
+        try:
+            while self.context.ok():
+                self.executor.spin_once(timeout_sec=0.05)
+        except Exception:  # the context was shut down under us: the test is over
+            pass
+
+    def wait_for_node(self, timeout_s: float = 30.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        while self.node.count_publishers("/roi/metadata") < 1:
+            if time.monotonic() > deadline:
+                raise TimeoutError("no roi_node publisher on /roi/metadata")
+            time.sleep(0.05)
+
+    def wait_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.05)
+        return True
+
+    def close(self) -> None:
+        self.context.try_shutdown()
+        self._thread.join(timeout=5)
+        self.executor.shutdown()
+
+
+def diagnostics_values(arrays: list[DiagnosticArray], status_name: str) -> dict[str, Any]:
+    """The newest key/values (JSON-decoded) of one diagnostics status."""
+    for array in reversed(arrays):
+        for status in array.status:
+            if status.name == status_name:
+                out: dict[str, Any] = {}
+                for kv in status.values:
+                    try:
+                        out[kv.key] = json.loads(kv.value)
+                    except json.JSONDecodeError:
+                        out[kv.key] = kv.value
+                return out
+    return {}

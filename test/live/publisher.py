@@ -1,0 +1,170 @@
+"""A camera + joint-state publisher process for the live tests.
+
+Frames are drawn from the rig's own geometry (a bright marker at each arm's
+FK-projected wrist, see test/rigs.py) for a smooth bimanual trajectory;
+joint states stream at their own rate, offset in phase from the frames. The
+script publishes at wall-clock pace with wall-clock stamps, injects the
+faults its spec asks for, and writes the ground truth (stamps, positions,
+marker pixels, what was injected) as JSON for the test to check against.
+
+    python -m test.live.publisher SPEC.json TRUTH.json
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from array import array
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rclpy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState
+from std_msgs.msg import String
+
+from roi_node.core.config import load_rig_config
+from roi_node.core.image_codec import encode_compressed
+from roi_node.core.pipeline import RoiPipeline
+from roi_node.ros.conversions import camera_info_msg, header
+from test.rigs import PANDA_HOME, draw_markers
+
+NS = 1_000_000_000
+
+
+def positions_at(joints: list[str], t_s: float, amplitude: float) -> dict[str, float]:
+    """Smooth motion around the Panda home pose, different per joint."""
+    out = {}
+    for i, name in enumerate(joints):
+        home = PANDA_HOME.get(name.split("_", 1)[1], 0.0) if "_" in name else 0.0
+        out[name] = home + amplitude * math.sin(2 * math.pi * 0.4 * t_s + 0.7 * i)
+    return out
+
+
+def image_message(stamp: int, pixels: np.ndarray, spec: dict[str, Any], fault: str | None) -> Image:
+    encoding = spec.get("encoding", "rgb8")
+    px = pixels[:, :, ::-1] if encoding == "bgr8" else pixels
+    h, w = px.shape[:2]
+    pad = int(spec.get("pad_step", 0))
+    rows = np.zeros((h, w * 3 + pad), np.uint8)
+    rows[:, : w * 3] = px.reshape(h, w * 3)
+    step = w * 3 + pad
+    data = array("B")
+    data.frombytes(rows.tobytes())
+    if fault == "bad_step":
+        step = w * 3 - 1
+    elif fault == "truncated":
+        data = data[: len(data) - 100]
+    elif fault == "bad_encoding":
+        encoding = "16UC1"
+    return Image(header=header(stamp, "front_optical"), height=h, width=w, encoding=encoding, is_bigendian=0, step=step, data=data)
+
+
+def main(spec_path: str, truth_path: str) -> int:
+    spec = json.loads(Path(spec_path).read_text())
+    rig = load_rig_config(spec["rig"])
+    pipeline = RoiPipeline(rig)
+    joints = list(pipeline.required_joints)
+    n = int(spec.get("frames", 30))
+    period_ns = int(NS / spec.get("rate_hz", 30.0))
+    joint_period_ns = int(NS / spec.get("joint_rate_hz", 200.0))
+    offset_ns = int(spec.get("joint_offset_ms", 1.7) * 1e6)
+    amplitude = float(spec.get("amplitude", 0.15))
+    faults: dict[int, str] = {int(k): v for k, v in spec.get("frame_faults", {}).items()}
+    joint_faults: dict[int, str] = {int(k): v for k, v in spec.get("joint_faults_at_frame", {}).items()}
+    no_joints_before = int(spec.get("no_joints_before_frame", 0))
+    loop_at = int(spec.get("loop_at_frame", -1))
+
+    rclpy.init()
+    node = rclpy.create_node("test_camera_publisher")
+    sensor = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    compressed = spec.get("transport", "raw") == "compressed"
+    image_pub = node.create_publisher(CompressedImage if compressed else Image, "image_raw/compressed" if compressed else "image_raw", sensor)
+    joint_pub = node.create_publisher(JointState, "joint_states", sensor)
+    info_pub = node.create_publisher(CameraInfo, "camera_info", sensor)
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    description_pub = node.create_publisher(String, "robot_description", latched)
+    if spec.get("robot_description"):
+        description_pub.publish(String(data=Path(spec["robot_description"]).read_text()))
+
+    deadline = time.monotonic() + 30
+    while (image_pub.get_subscription_count() < 1 or joint_pub.get_subscription_count() < 1) and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    if image_pub.get_subscription_count() < 1:
+        print("publisher: no subscriber on image_raw within 30 s", file=sys.stderr)
+        return 1
+    time.sleep(float(spec.get("settle_s", 0.5)))
+
+    loop_back_ns = int(spec.get("loop_back_s", 3.0) * NS)
+    frames = []
+    for k in range(n):
+        stamp = k * period_ns - (loop_back_ns if k >= loop_at >= 0 else 0)  # relative until t0 is known
+        t_s = k * period_ns / NS
+        q = positions_at(joints, t_s, amplitude)
+        size = tuple(spec["wrong_size"]) if faults.get(k) == "wrong_size" else None
+        pixels, markers = draw_markers(pipeline, q, size)  # type: ignore[arg-type]
+        frames.append({"index": k, "stamp_ns": stamp, "t_s": t_s, "positions": q, "pixels": pixels,
+                       "markers": {a: m.tolist() for a, m in markers.items()}, "fault": faults.get(k)})
+
+    events: list[tuple[int, int, str, Any]] = []  # (wall offset ns, order, kind, payload)
+    for f in frames:
+        events.append((f["index"] * period_ns, 1, "frame", f))
+    n_joint = int(n * period_ns / joint_period_ns) + 10
+    for j in range(-5, n_joint):
+        rel = offset_ns + j * joint_period_ns
+        frame_k = max(0, rel // period_ns)
+        if frame_k < no_joints_before:
+            continue
+        stamp = rel - (loop_back_ns if frame_k >= loop_at >= 0 else 0)
+        events.append((rel, 0, "joints", (stamp, rel / NS, joint_faults.get(int(frame_k)) if rel % period_ns < joint_period_ns else None)))
+    events.sort(key=lambda e: (e[0], e[1]))
+
+    # stamps are wall-clock capture times: each message goes out when its stamp comes
+    t0 = time.time_ns() + NS // 10
+    start = time.monotonic_ns() + NS // 10
+    for f in frames:
+        f["stamp_ns"] += t0
+    sent_joint_faults: list[str] = []
+    for rel, _, kind, payload in events:
+        while time.monotonic_ns() - start < rel:
+            time.sleep(0.0005)
+        if kind == "frame":
+            f = payload
+            if compressed:
+                image_pub.publish(CompressedImage(header=header(f["stamp_ns"], "front_optical"), format="png",
+                                                  data=array("B", encode_compressed(f["pixels"], "png"))))
+            else:
+                image_pub.publish(image_message(f["stamp_ns"], f["pixels"], spec, f["fault"] if f["fault"] != "wrong_size" else None))
+            if spec.get("camera_info"):
+                info_pub.publish(camera_info_msg(f["stamp_ns"], "front_optical", pipeline.camera, pipeline.camera.width_px, pipeline.camera.height_px))
+        else:
+            stamp, t_s, fault = payload
+            stamp += t0
+            q = positions_at(joints, t_s, amplitude)
+            names, values = list(q), list(q.values())
+            if fault == "joint_nan":
+                values[0] = float("nan")
+            elif fault == "joint_unknown":
+                names = [f"unknown_{i}" for i in range(len(names))]
+            elif fault == "joint_empty_positions":
+                values = []
+            if fault:
+                sent_joint_faults.append(fault)
+            joint_pub.publish(JointState(header=header(stamp, ""), name=names, position=values))
+    time.sleep(float(spec.get("linger_s", 1.0)))
+    truth = {
+        "joints": joints,
+        "frames": [{k: v for k, v in f.items() if k != "pixels"} for f in frames],
+        "joint_faults_sent": sent_joint_faults,
+    }
+    Path(truth_path).write_text(json.dumps(truth))
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1], sys.argv[2]))
