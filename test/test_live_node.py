@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -12,11 +13,15 @@ import jsonschema
 import numpy as np
 import pytest
 
+from roi_node.core.camera import load_calibration_yaml
+from roi_node.core.config import load_rig_config
 from roi_node.core.metadata import metadata_schema
+from roi_node.core.pipeline import RoiPipeline
+from roi_node.core.robot_models import resolve_robot_reference
 
 from .conftest import CONFIG, REPO
 from .live.harness import Collector, diagnostics_values, next_domain, node_args, process, ros_env
-from .rigs import marker_centroid
+from .rigs import base_rig, look_at_quat_xyzw, marker_centroid, write_rig
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 ARMS = ["left", "right"]
@@ -66,7 +71,7 @@ def assert_markers_where_metadata_says(obs: Any, frame: dict[str, Any], tol_px: 
         cx, cy = marker_centroid(obs.rois[arm["arm_id"]])
         in_image = a @ np.array([cx, cy, 1.0])
         assert np.linalg.norm(in_image - np.asarray(marker)) < tol_px, (arm["arm_id"], in_image, marker)
-        assert np.linalg.norm(np.asarray(arm["projected_center"]) - np.asarray(marker)) < 0.5
+        assert np.linalg.norm(np.asarray(arm["projected_center"]) - np.asarray(marker)) < 0.5, obs.metadata["sync"]
 
 
 def test_bimanual_720p_every_frame_with_stamps_sizes_residual_and_markers(tmp_path: Path) -> None:
@@ -103,3 +108,121 @@ def test_bimanual_720p_every_frame_with_stamps_sizes_residual_and_markers(tmp_pa
         assert all(m.width == 256 and m.height == 256 and m.k[0] > 0 for m in infos)
     sync = diagnostics_values(collector.diagnostics, "roi_node: sync")
     assert sync["status_counts"]["ok"] == len(sent)
+
+
+def _rig_without_intrinsics(tmp_path: Path) -> Path:
+    doc = base_rig()
+    del doc["camera"]["intrinsics"]
+    return write_rig(tmp_path, doc)
+
+
+def test_compressed_input_camera_info_intrinsics_and_robot_description_topic(tmp_path: Path) -> None:
+    """PNG CompressedImage in, intrinsics only from CameraInfo, URDF only from the latched robot_description topic."""
+    config = _rig_without_intrinsics(tmp_path)
+    urdf = resolve_robot_reference("example-robot-data:panda", "test")
+    spec = {"frames": 20, "transport": "compressed", "camera_info": True, "robot_description": str(urdf), "render_rig": str(BIMANUAL)}
+    collector, truth, log = run_session(
+        tmp_path, spec, "image_transport:=compressed", "robot_description_source:=topic", config=config
+    )
+    sent = {f["stamp_ns"]: f for f in truth["frames"]}
+    assert "waiting for CameraInfo" in log and "URDF from /robot_description" in log and "intrinsics from /camera_info" in log
+    records = {r["stamp_ns"]: r for r in collector.metadata}
+    # frames that arrived before CameraInfo and the URDF were counted, not published; the rest all came out
+    assert len(records) >= len(sent) - 2
+    expected_camera = load_calibration_yaml(CONFIG / "front_intrinsics.yaml")
+    reference = RoiPipeline(load_rig_config(BIMANUAL))
+    for record in records.values():
+        assert record["lineage"]["intrinsics_ver"] == expected_camera.content_version()
+        assert record["lineage"]["fk_ver"] == reference.lineage.fk_ver  # same URDF text -> same hash
+    obs = observations(collector)
+    assert len(obs) == len(records)
+    for stamp, o in obs.items():
+        assert_markers_where_metadata_says(o, sent[stamp])  # lossless PNG: the markers are exact
+    drops = diagnostics_values(collector.diagnostics, "roi_node: input")["dropped_by_reason"]
+    assert sum(drops.values()) == len(sent) - len(records)
+
+
+def test_bad_input_is_flagged_counted_and_the_node_keeps_publishing(tmp_path: Path) -> None:
+    spec = {
+        "frames": 60,
+        "no_joints_before_frame": 6,  # the first frames see no joint state at all
+        "frame_faults": {"10": "bad_step", "12": "truncated", "14": "bad_encoding", "16": "wrong_size"},
+        "wrong_size": [640, 480],
+        "joint_faults_at_frame": {"20": "joint_nan", "24": "joint_unknown", "28": "joint_empty_positions"},
+        "loop_at_frame": 40,  # stamps jump back 3 s, as when a bag loops
+    }
+    collector, truth, log = run_session(tmp_path, spec, expect=56)
+    bad_frames = {f["stamp_ns"] for f in truth["frames"] if f["fault"]}
+    good = {f["stamp_ns"] for f in truth["frames"] if not f["fault"]}
+    records = {r["stamp_ns"]: r for r in collector.metadata}
+    assert set(records) == good, "every good frame is published, no bad one"
+    assert not bad_frames & set(records)
+    first = sorted(truth["frames"], key=lambda f: f["index"])
+    for f in first[:5]:  # before any joint state: flagged, ROI all zero, still published
+        r = records[f["stamp_ns"]]
+        assert r["sync"]["status"] == "missing"
+        assert all("no_joint_state" in a["flags"] and not a["projection_valid"] for a in r["arms"])
+    after_loop = [records[f["stamp_ns"]] for f in first[42:]]
+    assert all(r["sync"]["status"] == "ok" for r in after_loop), "the node recovers after the stamps jump back"
+    inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
+    bad = inputs["bad_messages_by_kind"]
+    assert bad["image"] == 4 and inputs["dropped_by_reason"]["bad_image"] == 4
+    assert bad["joint_state_nan"] >= 1 and bad["joint_state"] >= 1
+    errors = inputs["last_errors"]
+    assert "step" in errors["image"] or "16UC1" in errors["image"] or "640x480" in errors["image"]
+    assert "no positions" in errors["joint_state"]
+    assert "image_raw" in log and "WARN" in log
+    sync = diagnostics_values(collector.diagnostics, "roi_node: sync")
+    assert sync["status_counts"]["missing"] >= 5
+
+
+def test_arm_behind_the_camera_is_flagged_and_the_other_arm_still_cropped(tmp_path: Path) -> None:
+    # a camera between the arms looking along +y: the left arm (y = +0.42) is in front, the right one behind
+    doc = base_rig()
+    eye, target = [0.5, 0.0, 0.45], [0.5, 1.0, 0.3]
+    doc["camera"]["extrinsics"] = {"parent": "world", "child": "cam", "translation": eye, "rotation_xyzw": look_at_quat_xyzw(eye, target)}
+    config = write_rig(tmp_path, doc)
+    collector, _, _ = run_session(tmp_path, {"frames": 15}, config=config)
+    assert len(collector.metadata) == 15
+    for record in collector.metadata:
+        left, right = record["arms"]
+        assert left["projection_valid"] and left["in_frame_ratio"] > 0
+        assert not right["projection_valid"] and "behind_camera" in right["flags"] and right["depth_m"] < 0
+    arm = diagnostics_values(collector.diagnostics, "roi_node: arm right")
+    assert arm["flags_since_start"]["behind_camera"] == 15
+
+
+def test_overload_drops_oldest_counts_them_and_memory_stays_bounded(tmp_path: Path) -> None:
+    """Frames offered faster than the node can process: the pending queue stays bounded, drops are counted."""
+    import psutil
+
+    spec = {"frames": 900, "rate_hz": 150.0, "distinct_frames": 20, "joint_rate_hz": 500.0}
+    domain = next_domain()
+    env = ros_env(domain)
+    (tmp_path / "spec.json").write_text(json.dumps({"rig": str(BIMANUAL), **spec}))
+    collector = Collector(domain, ARMS)
+    rss_mb: list[float] = []
+    try:
+        with process(node_args(BIMANUAL, "sync.max_pending_frames:=3"), env, tmp_path / "node.log") as node:
+            collector.wait_for_node()
+            pub = subprocess.Popen(
+                [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
+                cwd=REPO, env=env,
+            )
+            while pub.poll() is None:
+                rss_mb.append(psutil.Process(node.pid).memory_info().rss / 2**20)
+                time.sleep(0.5)
+            assert pub.returncode == 0
+            collector.wait_until(lambda: len(collector.diagnostics) >= 2, 3.0)
+            time.sleep(1.5)
+    finally:
+        collector.close()
+    inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
+    totals, drops = inputs["totals"], inputs["dropped_by_reason"]
+    assert drops.get("overflow", 0) > 0, f"expected overload at 150 Hz: {totals}"
+    assert totals["frames_in"] == totals["frames_out"] + sum(drops.values()), "every frame is published or counted"
+    assert len(collector.metadata) == totals["frames_out"]
+    stamps = [r["stamp_ns"] for r in collector.metadata]
+    assert stamps == sorted(stamps), "outputs stay in stamp order"
+    steady = rss_mb[len(rss_mb) // 3 :]
+    assert max(steady) - min(steady) < 150, f"node RSS grew: {rss_mb}"

@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -43,6 +44,7 @@ from .params import NodeParams, declare_and_read
 NODE_NAME = "roi_node"
 IDLE_WAIT_S = 0.1
 PENDING_POLL_S = 0.002
+EARLY_JOINT_STATES = 2000  # joint states kept while waiting for CameraInfo/URDF (2 s at 1 kHz)
 
 
 def _apply_overrides(rig: RigConfig, params: NodeParams) -> RigConfig:
@@ -70,6 +72,7 @@ class RoiNode(Node):
         self._camera_info: CameraModel | None = None
         self._pending_intrinsics: CameraModel | None = None
         self._urdf_text: str | None = None
+        self._early_joints: deque[tuple[int, list[str], list[float], str]] = deque(maxlen=EARLY_JOINT_STATES)
         self._frame_id = ""
         self._throttle: dict[str, float] = {}
         self.stats = LiveStats(tuple(a.id for a in self.rig.arms), time.monotonic_ns())
@@ -136,6 +139,12 @@ class RoiNode(Node):
             max_pending=self.params.max_pending_frames,
             on_drop=self._on_sync_drop,
         )
+        for stamp, names, positions, topic in self._early_joints:
+            try:
+                self._session.add_joint_state(stamp, names, positions, where=topic)
+            except RoiNodeError as exc:
+                self.stats.bad_message("joint_state", str(exc))
+        self._early_joints.clear()
 
     def _log_start(self) -> None:
         p = self.params
@@ -197,7 +206,8 @@ class RoiNode(Node):
             if not positions and names:
                 self.stats.bad_message("joint_state", f"{topic}: {len(names)} names but no positions (effort/velocity only?)")
                 return
-            if self._session is None:
+            if self._session is None:  # kept for the session that starts once CameraInfo/URDF arrive
+                self._early_joints.append((stamp_ns(msg.header), names, positions, topic))
                 return
             try:
                 skipped = self._session.add_joint_state(stamp_ns(msg.header), names, positions, where=topic)

@@ -65,7 +65,7 @@ def image_message(stamp: int, pixels: np.ndarray, spec: dict[str, Any], fault: s
 
 def main(spec_path: str, truth_path: str) -> int:
     spec = json.loads(Path(spec_path).read_text())
-    rig = load_rig_config(spec["rig"])
+    rig = load_rig_config(spec.get("render_rig", spec["rig"]))  # the node may get a rig without intrinsics
     pipeline = RoiPipeline(rig)
     joints = list(pipeline.required_joints)
     n = int(spec.get("frames", 30))
@@ -82,7 +82,8 @@ def main(spec_path: str, truth_path: str) -> int:
     node = rclpy.create_node("test_camera_publisher")
     sensor = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
     compressed = spec.get("transport", "raw") == "compressed"
-    image_pub = node.create_publisher(CompressedImage if compressed else Image, "image_raw/compressed" if compressed else "image_raw", sensor)
+    image_type, image_topic = (CompressedImage, "image_raw/compressed") if compressed else (Image, "image_raw")
+    image_pub = node.create_publisher(image_type, image_topic, sensor)
     joint_pub = node.create_publisher(JointState, "joint_states", sensor)
     info_pub = node.create_publisher(CameraInfo, "camera_info", sensor)
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -99,13 +100,17 @@ def main(spec_path: str, truth_path: str) -> int:
     time.sleep(float(spec.get("settle_s", 0.5)))
 
     loop_back_ns = int(spec.get("loop_back_s", 3.0) * NS)
+    distinct = int(spec.get("distinct_frames", n))  # > 0 and < n: frames repeat (sustained-load runs)
     frames = []
     for k in range(n):
         stamp = k * period_ns - (loop_back_ns if k >= loop_at >= 0 else 0)  # relative until t0 is known
         t_s = k * period_ns / NS
         q = positions_at(joints, t_s, amplitude)
         size = tuple(spec["wrong_size"]) if faults.get(k) == "wrong_size" else None
-        pixels, markers = draw_markers(pipeline, q, size)  # type: ignore[arg-type]
+        if k < distinct:
+            pixels, markers = draw_markers(pipeline, q, size)  # type: ignore[arg-type]
+        else:
+            pixels, markers = frames[k % distinct]["pixels"], {}
         frames.append({"index": k, "stamp_ns": stamp, "t_s": t_s, "positions": q, "pixels": pixels,
                        "markers": {a: m.tolist() for a, m in markers.items()}, "fault": faults.get(k)})
 
@@ -139,7 +144,8 @@ def main(spec_path: str, truth_path: str) -> int:
             else:
                 image_pub.publish(image_message(f["stamp_ns"], f["pixels"], spec, f["fault"] if f["fault"] != "wrong_size" else None))
             if spec.get("camera_info"):
-                info_pub.publish(camera_info_msg(f["stamp_ns"], "front_optical", pipeline.camera, pipeline.camera.width_px, pipeline.camera.height_px))
+                cam = pipeline.camera
+                info_pub.publish(camera_info_msg(f["stamp_ns"], "front_optical", cam, cam.width_px, cam.height_px))
         else:
             stamp, t_s, fault = payload
             stamp += t0
