@@ -1,0 +1,83 @@
+"""Start, stop and feed a policy: the node's lifecycle and the VLA consumer example, as real processes."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from .conftest import CONFIG, REPO
+from .live.harness import Collector, next_domain, node_args, process, ros_env
+
+BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
+
+
+def test_bad_rig_config_fails_at_start_naming_the_file(tmp_path: Path) -> None:
+    bad = tmp_path / "rig.yaml"
+    bad.write_text("schema: roi_node/rig/v1\nrig_id: x\ncamera: {id: c}\nrobots: []\narms: []\n")
+    run = subprocess.run(
+        [sys.executable, *node_args(bad)], cwd=REPO, env=ros_env(next_domain()), capture_output=True, text=True, timeout=60
+    )
+    assert run.returncode == 2
+    assert str(bad) in run.stderr and "error" in run.stderr
+    assert "Traceback" not in run.stderr
+
+
+def test_ros2_run_entry_point_with_ros_args_and_sigterm_shutdown(tmp_path: Path) -> None:
+    """`roi_node --ros-args -p config:=...` (what `ros2 run roi_node roi_node` executes) starts, and SIGTERM stops it cleanly."""
+    domain = next_domain()
+    script = Path(sys.executable).with_name("roi_node")
+    collector = Collector(domain, ["left", "right"])
+    try:
+        proc = subprocess.Popen(
+            [str(script), "--ros-args", "-p", f"config:={BIMANUAL}", "-p", "global_view:=false", "-r", "__ns:=/rig1"],
+            cwd=tmp_path, env=ros_env(domain), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        )
+        deadline = time.monotonic() + 30
+        while collector.node.count_publishers("/rig1/roi/metadata") < 1 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert collector.node.count_publishers("/rig1/roi/metadata") == 1, "namespaced outputs"
+        assert collector.node.count_publishers("/rig1/roi/global/image_raw") == 0, "global_view:=false"
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=15)
+    finally:
+        collector.close()
+    assert proc.returncode == 0, out
+    assert "/rig1/roi/left/image_raw" in out and "rig demo_bimanual" in out
+
+
+def test_vla_example_prints_observations_from_the_running_node(tmp_path: Path) -> None:
+    domain = next_domain()
+    env = ros_env(domain)
+    (tmp_path / "spec.json").write_text(json.dumps({"rig": str(BIMANUAL), "frames": 40, "settle_s": 1.5}))
+    with process(node_args(BIMANUAL), env, tmp_path / "node.log"):
+        every = subprocess.Popen(
+            [sys.executable, "examples/vla_observer.py", "--count", "5"], cwd=REPO, env=env, stdout=subprocess.PIPE, text=True
+        )
+        latest = subprocess.Popen(
+            [sys.executable, "examples/vla_observer.py", "--count", "3", "--latest"], cwd=REPO, env=env,
+            stdout=subprocess.PIPE, text=True,
+        )
+        time.sleep(2.0)  # both observers discover the node before the first frame
+        pub = subprocess.run(
+            [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
+            cwd=REPO, env=env, capture_output=True, text=True, timeout=120,
+        )
+        assert pub.returncode == 0, pub.stderr
+        every_out, _ = every.communicate(timeout=30)
+        latest_out, _ = latest.communicate(timeout=30)
+    assert every.returncode == 0 and latest.returncode == 0
+    truth = json.loads((tmp_path / "truth.json").read_text())
+    stamps = [f["stamp_ns"] for f in truth["frames"]]
+    lines = every_out.strip().splitlines()
+    assert len(lines) == 5
+    got = [int(line.split("stamp_ns=")[1].split()[0]) for line in lines]
+    assert got == stamps[:5], "every-frame mode yields consecutive frames in order"
+    for line in lines:
+        assert "global=256x256" in line and "left=256x256" in line and "right=256x256" in line and "joints=14" in line
+    latest_stamps = [int(line.split("stamp_ns=")[1].split()[0]) for line in latest_out.strip().splitlines()]
+    assert len(latest_stamps) == 3 and latest_stamps == sorted(set(latest_stamps))
+    assert set(latest_stamps) <= set(stamps)
