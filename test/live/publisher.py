@@ -92,7 +92,8 @@ def main(spec_path: str, truth_path: str) -> int:
         description_pub.publish(String(data=Path(spec["robot_description"]).read_text()))
 
     deadline = time.monotonic() + 30
-    while (image_pub.get_subscription_count() < 1 or joint_pub.get_subscription_count() < 1) and time.monotonic() < deadline:
+    want = int(spec.get("min_subscribers", 1))  # e.g. 2: the node and a recorder
+    while (image_pub.get_subscription_count() < want or joint_pub.get_subscription_count() < want) and time.monotonic() < deadline:
         rclpy.spin_once(node, timeout_sec=0.05)
     if image_pub.get_subscription_count() < 1:
         print("publisher: no subscriber on image_raw within 30 s", file=sys.stderr)
@@ -130,6 +131,8 @@ def main(spec_path: str, truth_path: str) -> int:
     # stamps are wall-clock capture times: each message goes out when its stamp comes
     t0 = time.time_ns() + NS // 10
     start = time.monotonic_ns() + NS // 10
+    # messages are built before sending (as a driver's capture buffer would be); the stamp is set at send time
+    built = {f["index"]: image_message(0, f["pixels"], spec, None) for f in frames[:distinct] if not compressed and not f["fault"]}
     for f in frames:
         f["stamp_ns"] += t0
     sent_joint_faults: list[str] = []
@@ -141,8 +144,12 @@ def main(spec_path: str, truth_path: str) -> int:
             if compressed:
                 image_pub.publish(CompressedImage(header=header(f["stamp_ns"], "front_optical"), format="png",
                                                   data=array("B", encode_compressed(f["pixels"], "png"))))
-            else:
+            elif f["fault"]:
                 image_pub.publish(image_message(f["stamp_ns"], f["pixels"], spec, f["fault"] if f["fault"] != "wrong_size" else None))
+            else:
+                msg = built[f["index"] % distinct]
+                msg.header = header(f["stamp_ns"], "front_optical")
+                image_pub.publish(msg)
             if spec.get("camera_info"):
                 cam = pipeline.camera
                 info_pub.publish(camera_info_msg(f["stamp_ns"], "front_optical", cam, cam.width_px, cam.height_px))

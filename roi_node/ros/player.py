@@ -1,0 +1,98 @@
+"""`roi-node play`: publish a bag's messages live at their recorded timing.
+
+Reads with rosbags (any rosbag2 bag, MCAP or sqlite3, or a bare .mcap) and
+publishes the serialized bytes as they are, with the QoS the recording
+publisher offered. Pacing follows the bag's log times scaled by `--rate`;
+`--clock` also publishes /clock with the bag time, for nodes with
+use_sim_time; `--loop` starts over at the end (stamps then jump back, which
+the live node treats as a bag loop).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import rclpy
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosbags.highlevel import AnyReader
+from rosgraph_msgs.msg import Clock
+
+from ..bag.writer import typestore
+from ..core.errors import BagError
+from .conversions import time_msg
+from .msg_types import from_bag_qos, message_class
+
+CLOCK_PERIOD_NS = 10_000_000  # /clock at 100 Hz of bag time at most
+DISCOVERY_WAIT_S = 3.0
+
+
+def play(bag: Path, *, rate: float, loop: bool, clock: bool, topics: Sequence[str], ros_args: Sequence[str]) -> int:
+    if rate <= 0:
+        raise BagError(f"play: --rate must be > 0, got {rate}")
+    if not bag.exists():
+        raise BagError(f"{bag}: no such bag")
+    from .spin import ros_context
+
+    wanted = {t if t.startswith("/") else "/" + t for t in topics}
+    with ros_context(ros_args):
+        node = Node("roi_node_player")
+        try:
+            return _play(node, bag, rate, loop, clock, wanted)
+        except KeyboardInterrupt:
+            print("roi-node play: interrupted")
+            return 0
+        finally:
+            node.destroy_node()
+
+
+def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: set[str]) -> int:
+    try:
+        reader = AnyReader([bag], default_typestore=typestore())
+        reader.open()
+    except Exception as exc:  # rosbags raises several reader errors for unreadable bags
+        raise BagError(f"{bag}: cannot read bag: {exc}") from exc
+    try:
+        connections = [c for c in reader.connections if not wanted or c.topic in wanted]
+        if not connections:
+            available = ", ".join(sorted({c.topic for c in reader.connections}))
+            raise BagError(f"{bag}: none of {', '.join(sorted(wanted))} in the bag; it has {available}")
+        publishers = {}
+        for c in connections:
+            qos = from_bag_qos(list(getattr(c.ext, "offered_qos_profiles", []) or []))
+            publishers[c.id] = node.create_publisher(message_class(c.msgtype), c.topic, qos)
+        clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)) if clock else None
+        _wait_for_subscribers(list(publishers.values()))
+        sent = 0
+        while True:
+            start_wall = time.monotonic_ns()
+            first: int | None = None
+            last_clock = -CLOCK_PERIOD_NS
+            for connection, log_ns, raw in reader.messages(connections=connections):
+                first = log_ns if first is None else first
+                due = start_wall + int((log_ns - first) / rate)
+                while (wait := due - time.monotonic_ns()) > 0:
+                    time.sleep(min(wait / 1e9, 0.01))
+                if clock_pub is not None and log_ns - last_clock >= CLOCK_PERIOD_NS:
+                    clock_pub.publish(Clock(clock=time_msg(log_ns)))
+                    last_clock = log_ns
+                publishers[connection.id].publish(bytes(raw))
+                sent += 1
+            if not loop or not rclpy.ok(context=node.context):
+                break
+        time.sleep(0.5)  # reliable subscribers fetch the tail
+    finally:
+        reader.close()
+    print(f"roi-node play: published {sent} messages from {bag}")
+    return 0
+
+
+def _wait_for_subscribers(publishers: list[Publisher], timeout_s: float = DISCOVERY_WAIT_S) -> None:
+    """Give subscribers that already run time to discover the new publishers (discovery takes ~1-3 s here)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not all(p.get_subscription_count() > 0 for p in publishers):
+        time.sleep(0.05)
+    time.sleep(0.3)
