@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..core.errors import ConfigError
+
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     from ..core.resources import default_rig_path
@@ -22,7 +24,41 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sim(args: argparse.Namespace) -> int:
+    from ..core.resources import default_rig_path, resolve_config_file
+
+    config = resolve_config_file(args.config) if args.config else default_rig_path()
+    if args.bag:
+        if args.target == "live":
+            raise ConfigError("sim: choose --bag OUT or live, not both")
+        from .bag_sink import write_sim_bag
+
+        summary = write_sim_bag(
+            config, Path(args.bag), duration_s=args.duration, rate_hz=args.rate_hz, joint_rate_hz=args.joint_rate_hz,
+            seed=args.seed, overwrite=args.overwrite, compressed=args.compressed or False,
+        )
+        print(f"roi-node sim: wrote {summary.path}: {summary.frames} frames on {summary.image_topic}, {summary.joint_states} joint states")
+        return 0
+    from ..ros.sim_publisher import run_live
+
+    return run_live(config, duration_s=args.duration, rate_hz=args.rate_hz, joint_rate_hz=args.joint_rate_hz, seed=args.seed,
+                    min_subscribers=args.min_subscribers, ros_args=args.ros_args)
+
+
 def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    sim = verbs.add_parser("sim", help="a simulated rig: rendered camera + joint states, live on DDS or into a bag")
+    sim.add_argument("target", nargs="?", choices=["live"], help="publish live (the default without --bag)")
+    sim.add_argument("--config", help="rig config (default: the bundled demo_bimanual rig)")
+    sim.add_argument("--bag", help="write a rosbag2 MCAP bag here instead of publishing")
+    sim.add_argument("--overwrite", action="store_true", help="replace an existing --bag output")
+    sim.add_argument("--compressed", nargs="?", const="png", choices=["png", "jpeg"], help="--bag: CompressedImage (png or jpeg)")
+    sim.add_argument("--duration", type=float, default=20.0, help="seconds (default: 20)")
+    sim.add_argument("--rate-hz", type=float, default=30.0, help="camera rate (default: 30)")
+    sim.add_argument("--joint-rate-hz", type=float, default=200.0, help="joint state rate (default: 200)")
+    sim.add_argument("--seed", type=int, default=0, help="trajectory and scene seed (default: 0)")
+    sim.add_argument("--min-subscribers", type=int, default=1, help="live: wait for this many subscribers first (default: 1)")
+    sim.set_defaults(func=_cmd_sim)
+
     demo = verbs.add_parser("demo", help="run the main job on the embedded default rig (simulated frames)")
     demo.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
     demo.add_argument("--config", help="rig config (default: the bundled demo_bimanual rig)")
