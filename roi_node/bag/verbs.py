@@ -1,9 +1,135 @@
-"""Verbs of roi_node.bag (registered by roi_node.cli)."""
+"""`roi-node replay` and `roi-node inspect` (registered by roi_node.cli)."""
 
 from __future__ import annotations
 
 import argparse
+import json
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .summary import ReplaySummary
+
+EXIT_FAILED = 2  # as cli.EXIT_ERROR: some input could not be used
+EXIT_INTERRUPTED = 130
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def _replay_options(args: argparse.Namespace) -> dict[str, Any]:
+    return {
+        "overwrite": args.overwrite,
+        "include_inputs": args.include_inputs,
+        "image_topic": args.image_topic,
+        "joint_topics": args.joint_topics,
+        "camera_info_topic": args.camera_info_topic,
+        "command_topic": args.command_topic,
+        "intrinsics_from_bag": args.intrinsics_from_bag,
+    }
+
+
+def _interrupted_note(summary: ReplaySummary) -> str:
+    return (
+        f"roi-node replay: interrupted; {summary.output_path} is finalized and readable with the {summary.frames_out} frames done "
+        f"(status: {summary.status})"
+    )
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from .memory import tune_malloc_for_large_frames
+
+    tune_malloc_for_large_frames()  # this process is ours: keep frame buffers in the heap
+    inputs = [Path(p) for p in args.inputs]
+    if len(inputs) == 1:
+        return _replay_one(inputs[0], args)
+    return _replay_many(inputs, args)
+
+
+def _replay_one(source: Path, args: argparse.Namespace) -> int:
+    """One input: OUT is the output bag; errors propagate to cli.main (one line, exit 2)."""
+    from .replay import ReplayInterrupted, replay_bag
+
+    try:
+        summary = replay_bag(source, Path(args.output), Path(args.config), progress=True, **_replay_options(args))
+    except ReplayInterrupted as exc:
+        print("\n".join(exc.summary.lines()))
+        print(_interrupted_note(exc.summary), file=sys.stderr)
+        return EXIT_INTERRUPTED
+    print("\n".join(summary.lines()))
+    return 0
+
+
+def _replay_many(inputs: list[Path], args: argparse.Namespace) -> int:
+    """Several inputs: OUT is a folder; every bag is reported, failures at the end, non-zero exit if any."""
+    from .batch import BagOutcome, replay_bags
+
+    def finished(outcome: BagOutcome) -> None:
+        if sys.stderr.isatty():
+            state = "failed" if outcome.summary is None else outcome.summary.status
+            print(f"roi-node replay: {outcome.input_path}: {state}", file=sys.stderr)
+
+    out = Path(args.output)
+    # progress lines of parallel workers would overwrite each other: one line per finished bag instead
+    options = {**_replay_options(args), "progress": args.workers == 1}
+    result = replay_bags(inputs, out, Path(args.config), workers=args.workers, on_done=finished, **options)
+    failed = 0
+    for outcome in result.outcomes:
+        if outcome.summary is not None:
+            print("\n".join(outcome.summary.lines()))
+            if outcome.interrupted:
+                print(_interrupted_note(outcome.summary), file=sys.stderr)
+        else:
+            failed += 1
+            print(f"roi-node replay: error: {outcome.error}", file=sys.stderr)
+    done = sum(o.ok for o in result.outcomes)
+    print(f"replayed {done} of {len(inputs)} bags into {out}" + (f"; {failed} failed" if failed else ""))
+    if result.interrupted:
+        print(f"roi-node replay: interrupted; {len(inputs) - len(result.outcomes)} bags not started", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return EXIT_FAILED if failed else 0
+
+
+def _cmd_inspect(args: argparse.Namespace) -> int:
+    from .inspection import inspect_bag
+
+    inspection = inspect_bag(Path(args.bag))
+    if args.json:
+        print(json.dumps(inspection.as_dict(), indent=2))
+    else:
+        print("\n".join(inspection.lines()))
+    return 0
 
 
 def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """No verbs yet."""
+    replay = verbs.add_parser(
+        "replay",
+        help="replay recorded bags through the ROI pipeline into MCAP bags (no ROS runtime needed)",
+        description="Read rosbag2 bags (MCAP or sqlite3 folders, or a bare .mcap/.db3 file), pair frames with joint states "
+        "on header stamps, run the live node's pipeline and write the live node's output topics to an MCAP bag. "
+        "With several inputs OUT is a folder and each bag goes to OUT/<input stem>_roi.",
+    )
+    replay.add_argument("inputs", nargs="+", metavar="IN", help="input bag(s)")
+    replay.add_argument("-o", "--output", required=True, metavar="OUT", help="output bag (one input) or folder (several inputs)")
+    replay.add_argument("--config", required=True, metavar="RIG_YAML", help="rig config (see config/rig_demo_bimanual.yaml)")
+    replay.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    replay.add_argument("--include-inputs", action="store_true", help="also copy the input topics used into the output bag")
+    replay.add_argument("--workers", type=_positive_int, default=1, metavar="N", help="bags replayed in parallel processes (default: 1)")
+    replay.add_argument("--image-topic", metavar="T", help="camera topic (default: the one Image/CompressedImage topic)")
+    replay.add_argument("--joint-topics", nargs="+", metavar="T", help="JointState topics (default: all, merged by joint name)")
+    replay.add_argument("--camera-info-topic", metavar="T", help="take the intrinsics from this CameraInfo topic")
+    replay.add_argument("--command-topic", metavar="T", help="commanded JointState topic, for the teleop residual r_t")
+    replay.add_argument(
+        "--intrinsics-from-bag", action="store_true", help="use the bag's CameraInfo even when the rig config has intrinsics"
+    )
+    replay.set_defaults(func=_cmd_replay)
+
+    inspect = verbs.add_parser("inspect", help="topics, counts and duration of a bag; rig, arms and lineage of an ROI bag")
+    inspect.add_argument("bag", metavar="BAG", help="bag folder or .mcap/.db3 file")
+    inspect.add_argument("--json", action="store_true", help="machine-readable output")
+    inspect.set_defaults(func=_cmd_inspect)

@@ -1,9 +1,99 @@
-"""Verbs of roi_node.report (registered by roi_node.cli)."""
+"""`roi-node validate` and `roi-node manifest` (registered by roi_node.cli)."""
 
 from __future__ import annotations
 
 import argparse
+import json
+import sys
+from pathlib import Path
+
+EXIT_GATE_FAILED = 1
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from .gates import load_gates
+    from .report import REPORT_NAME
+    from .validate import validate_bags
+
+    gates = load_gates(Path(args.gates) if args.gates else None)
+    report_dir = Path(args.report) if args.report else None
+    run = validate_bags(
+        [Path(p) for p in args.bags], gates, baseline=Path(args.baseline) if args.baseline else None, report_dir=report_dir
+    )
+    out = sys.stderr if args.json else sys.stdout  # with --json, stdout is the JSON document only
+    for bag in run.bags:
+        failed = bag.failed
+        frames = bag.result["bag_metrics"]["frames"]
+        verdict = f"FAIL ({len(failed)} of {len(bag.gates)} gates failed)" if failed else f"PASS ({len(bag.gates)} gates)"
+        print(f"{bag.path}: {frames} frames, arms {', '.join(bag.result['arms'])}: {verdict}", file=out)
+        for gate in failed:
+            print(f"FAIL {bag.name}: {gate.line()}", file=out)
+    if report_dir is not None:
+        print(f"report: {report_dir / REPORT_NAME}", file=out)
+    if args.json:
+        print(json.dumps(run.as_dict(), indent=2, allow_nan=False))
+    return 0 if run.passed else EXIT_GATE_FAILED
+
+
+def _cmd_manifest(args: argparse.Namespace) -> int:
+    from ..core.errors import ConfigError
+    from .manifest import build_manifest, find_bags, verify_manifest, write_manifest
+
+    if args.verify:
+        if args.inputs or args.output:
+            raise ConfigError("--verify takes only the manifest file")
+        problems = verify_manifest(Path(args.verify))
+        for line in problems:
+            print(f"MISMATCH {line}")
+        if problems:
+            print(f"{args.verify}: {len(problems)} mismatch(es)")
+            return EXIT_GATE_FAILED
+        print(f"{args.verify}: every bag and file matches")
+        return 0
+    if not args.inputs or not args.output:
+        raise ConfigError("give BAG_OR_FOLDER... and -o manifest.json (or --verify manifest.json)")
+    output = Path(args.output)
+    bags = find_bags([Path(p) for p in args.inputs])
+    manifest = build_manifest(
+        bags,
+        output,
+        gates=Path(args.gates) if args.gates else None,
+        validate=args.validate or args.gates is not None,
+        validation=Path(args.validation) if args.validation else None,
+        rig_config=Path(args.config) if args.config else None,
+    )
+    write_manifest(manifest, output)
+    print(f"{output}: {len(manifest['bags'])} bag(s), {sum(len(b['files']) for b in manifest['bags'])} file(s) hashed")
+    return 0
 
 
 def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """No verbs yet."""
+    validate = verbs.add_parser(
+        "validate",
+        help="quality gates and a validation report for ROI bags",
+        description="Read ROI bags (written by `roi-node replay` or recorded from the live node), compute the quality-gate "
+        "metrics per arm and per bag, and check them against a gates file. Exit 0 when every gate passes, 1 when a gate "
+        "fails (one line per failing gate), 2 when an input cannot be used.",
+    )
+    validate.add_argument("bags", nargs="+", metavar="BAG", help="ROI bag folders (or .mcap files)")
+    validate.add_argument("--gates", metavar="FILE", help="gates YAML (default: the bundled config/gates.yaml)")
+    validate.add_argument("--report", metavar="DIR", help="write REPORT.md, figures and validation.json here")
+    validate.add_argument("--json", action="store_true", help="print the validation result as JSON on stdout")
+    validate.add_argument("--baseline", metavar="BAG", help="compare ROI statistics against this ROI bag (calibration drift)")
+    validate.set_defaults(func=_cmd_validate)
+
+    manifest = verbs.add_parser(
+        "manifest",
+        help="checksummed manifest of ROI bags (or --verify one)",
+        description="Write a JSON manifest of ROI bags: per bag the sha256 of every file, topics, counts, time range, "
+        "lineage tuples and calibration/URDF hashes, governance fields (flags, teleop, padding, resize policy), and gate "
+        "results when validated. `--verify manifest.json` re-hashes every file; exit 1 on any mismatch.",
+    )
+    manifest.add_argument("inputs", nargs="*", metavar="BAG_OR_FOLDER", help="ROI bags, or folders searched for bags")
+    manifest.add_argument("-o", "--output", metavar="FILE", help="manifest JSON to write")
+    manifest.add_argument("--validate", action="store_true", help="run validation (default gates) and record the results")
+    manifest.add_argument("--gates", metavar="FILE", help="run validation with these gates and record the results")
+    manifest.add_argument("--validation", metavar="FILE", help="record results from a validation.json (validate --report/--json)")
+    manifest.add_argument("--config", metavar="RIG", help="the rig config the bags were made with: hashed and embedded")
+    manifest.add_argument("--verify", metavar="MANIFEST", help="re-hash the bags of a manifest and report mismatches")
+    manifest.set_defaults(func=_cmd_manifest)

@@ -53,7 +53,7 @@ class SimPublisher:
                     f"{DISCOVERY_TIMEOUT_S:g} s, expected {self.min_subscribers}"
                 )
             time.sleep(0.05)
-        time.sleep(0.5)  # the other side of discovery settles too
+        time.sleep(1.0)  # readers match this writer a moment after it matched them: data before that is lost
 
     def run(self, duration_s: float) -> None:
         start_wall_ns = time.time_ns() + LEAD_NS

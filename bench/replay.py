@@ -1,0 +1,170 @@
+"""Offline replay throughput against the floor of reading + decoding the same bag with rosbags.
+
+Generates a 720p bag (bundled bimanual rig, 30 Hz frames of the simulated rig,
+200 Hz joint states out of phase) in a temp folder, then measures in one run:
+  (a) floor: rosbags AnyReader read + deserialize + pixel view of every frame;
+  (a') ceiling: (a) plus RoiPipeline.process on each frame (no sync, no writing):
+       what replay would reach if its own bag handling cost nothing;
+  (b) `replay_bag` on one worker (both passes, pipeline, MCAP writing), with
+      the bundled rig (INTER_AREA) and with output.interpolation area_pyramid;
+  (c) two such bags with --workers 1 and --workers 2 (spawned processes, one
+      OpenCV thread each); --workers 1 also with OpenCV limited to one thread,
+      since by default OpenCV already spreads a single replay's resizes over the cores.
+Prints the rates and the ratios (targets: (b) >= 40% of (a); (c) near 2x).
+`--profile` adds a cProfile of (b), sorted by own time.
+Run: `.venv/bin/python bench/replay.py [--frames 300] [--profile]`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import os
+import pstats
+import shutil
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import yaml
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
+
+from roi_node.bag.batch import replay_bags
+from roi_node.bag.memory import tune_malloc_for_large_frames
+from roi_node.bag.messages import MessageFactory
+from roi_node.bag.replay import replay_bag
+from roi_node.bag.writer import ROSBAG2_VERSION, qos_profile, typestore
+from roi_node.core.config import load_rig_config
+from roi_node.core.image_codec import image_from_msg
+from roi_node.core.pipeline import RoiPipeline
+from roi_node.core.sync import NS_PER_S, SyncResult
+from roi_node.sim.render import draw_rig, table_texture
+from roi_node.sim.trajectory import SwayTrajectory
+
+REPO = Path(__file__).resolve().parents[1]
+RIG = REPO / "config" / "rig_demo_bimanual.yaml"
+START_NS = 1_700_000_000 * NS_PER_S
+
+
+def pyramid_rig(tmp: Path) -> Path:
+    """The bundled rig with output.interpolation: area_pyramid (the core's faster resampling)."""
+    doc = yaml.safe_load(RIG.read_text())
+    doc["output"]["interpolation"] = "area_pyramid"
+    doc["camera"]["intrinsics"] = str(RIG.parent / doc["camera"]["intrinsics"])
+    path = tmp / "rig_pyramid.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def write_bag(path: Path, frames: int) -> int:
+    """A recorded-style bag: /camera/image_raw (rgb8) at 30 Hz, /joint_states at 200 Hz, 1.7 ms out of phase."""
+    pipeline = RoiPipeline(load_rig_config(RIG))
+    names = list(pipeline.required_joints)
+    trajectory = SwayTrajectory(names, seed=3)
+    background = table_texture(pipeline.camera.width_px, pipeline.camera.height_px, seed=3)
+    ts = typestore()
+    factory = MessageFactory(ts)
+    frame_ns, joint_ns = NS_PER_S // 30, NS_PER_S // 200
+    with Writer(path, version=ROSBAG2_VERSION, storage_plugin=StoragePlugin.MCAP) as writer:
+        image = writer.add_connection("/camera/image_raw", "sensor_msgs/msg/Image", typestore=ts,
+                                      offered_qos_profiles=[qos_profile(reliable=False)])
+        joints = writer.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts,
+                                       offered_qos_profiles=[qos_profile(reliable=False)])
+        next_joint = START_NS + 1_700_000 - 10 * joint_ns
+        for k in range(frames):
+            stamp = START_NS + k * frame_ns
+            while next_joint <= stamp + 10 * joint_ns:
+                q = trajectory.positions((next_joint - START_NS) / NS_PER_S)
+                writer.write(joints, next_joint + 400_000, ts.serialize_cdr(factory.joint_state(next_joint, names, q), joints.msgtype))
+                next_joint += joint_ns
+            pose = dict(zip(names, trajectory.positions((stamp - START_NS) / NS_PER_S), strict=True))
+            msg = factory.image(stamp, "front_optical", draw_rig(pipeline, pose, background))
+            writer.write(image, stamp + 12_000_000, ts.serialize_cdr(msg, image.msgtype))
+    return sum(f.stat().st_size for f in path.iterdir())
+
+
+def floor_rate(path: Path, pipeline: RoiPipeline | None = None) -> float:
+    """Frames/s of reading, deserializing and viewing the pixels of every frame (and, given a pipeline, processing it)."""
+    trajectory = SwayTrajectory(list(pipeline.required_joints), seed=3) if pipeline else None
+    start = time.perf_counter()
+    n = 0
+    with AnyReader([path], default_typestore=typestore()) as reader:
+        conns = [c for c in reader.connections if c.topic == "/camera/image_raw"]
+        for conn, _, raw in reader.messages(connections=conns):
+            msg: Any = reader.deserialize(raw, conn.msgtype)
+            image = image_from_msg(msg)
+            if pipeline is not None and trajectory is not None:
+                stamp = msg.header.stamp.sec * NS_PER_S + msg.header.stamp.nanosec
+                q = dict(zip(pipeline.required_joints, trajectory.positions((stamp - START_NS) / NS_PER_S), strict=True))
+                pipeline.process(image, stamp, n, SyncResult("interpolate", "ok", q, 0.0, stamp))
+            n += 1
+    return n / (time.perf_counter() - start)
+
+
+def best(rates: list[float]) -> float:
+    return max(rates)
+
+
+def _replay_rate(bag: Path, out: Path, rig: Path) -> float:
+    summary = replay_bag(bag, out, rig, overwrite=True)
+    return summary.frames_out / summary.elapsed_s
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--frames", type=int, default=300)
+    parser.add_argument("--repeats", type=int, default=2, help="best of N for (a) and (b) on this shared, noisy machine")
+    parser.add_argument("--profile", action="store_true", help="cProfile one single-worker replay")
+    args = parser.parse_args()
+    tune_malloc_for_large_frames()  # as `roi-node replay` does: every measurement below runs with it
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        bag = tmp / "bag_a"
+        t0 = time.perf_counter()
+        size = write_bag(bag, args.frames)
+        elapsed = time.perf_counter() - t0
+        print(f"bag: {args.frames} frames 1280x720 rgb8 + 200 Hz joint states, {size / 1e6:.0f} MB, written in {elapsed:.1f} s")
+        floor_rate(bag)  # warm the page cache: both measurements read from memory
+        floor = best([floor_rate(bag) for _ in range(args.repeats)])
+        print(f"(a)  floor, rosbags read + deserialize + pixel view: {floor:7.1f} frames/s ({floor * size / args.frames / 1e6:.0f} MB/s)")
+        for label, rig in (("area", RIG), ("area_pyramid", pyramid_rig(tmp))):
+            pipeline = RoiPipeline(load_rig_config(rig))
+            ceiling = best([floor_rate(bag, pipeline) for _ in range(args.repeats)])
+            replay = best([_replay_rate(bag, tmp / "out_a", rig) for _ in range(args.repeats)])
+            print(f"[{label}]")
+            print(f"(a') ceiling, (a) + RoiPipeline.process only:      {ceiling:7.1f} frames/s   = {100 * ceiling / floor:.0f}% of (a)")
+            print(f"(b)  replay_bag, one worker:                        {replay:7.1f} frames/s   = {100 * replay / floor:.0f}% of (a),"
+                  f" {100 * replay / ceiling:.0f}% of (a')")
+        shutil.copytree(bag, tmp / "bag_b", copy_function=os.link)
+        times: dict[str, float] = {}
+        for label, workers, threads in (("--workers 1", 1, cv2.getNumThreads()), ("--workers 1, OpenCV on 1 thread", 1, 1),
+                                        ("--workers 2 (1 OpenCV thread each)", 2, cv2.getNumThreads())):
+            previous = cv2.getNumThreads()
+            cv2.setNumThreads(threads)
+            start = time.perf_counter()
+            result = replay_bags([bag, tmp / "bag_b"], tmp / f"out_{len(times)}", RIG, workers=workers)
+            times[label] = time.perf_counter() - start
+            cv2.setNumThreads(previous)
+            assert all(o.ok for o in result.outcomes), [o.error for o in result.outcomes]
+        frames = 2 * args.frames
+        print(f"[area] (the bundled rig), two bags of {args.frames} frames; OpenCV default threads here: {cv2.getNumThreads()}")
+        for label, seconds in times.items():
+            print(f"(c)  {label:<36} {frames / seconds:7.1f} frames/s ({seconds:.2f} s wall)")
+        base = times["--workers 1"]
+        single = times["--workers 1, OpenCV on 1 thread"]
+        parallel = times["--workers 2 (1 OpenCV thread each)"]
+        print(f"     speed-up of --workers 2: {base / parallel:.2f}x over --workers 1, {single / parallel:.2f}x over one OpenCV thread"
+              " (spawning the workers included)")
+        if args.profile:
+            profiler = cProfile.Profile()
+            profiler.enable()
+            replay_bag(bag, tmp / "out_a", RIG, overwrite=True)
+            profiler.disable()
+            pstats.Stats(profiler).sort_stats("tottime").print_stats(18)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,161 @@
+"""Replaying several bags: one independent output per bag, optionally in worker processes.
+
+Each bag is replayed by `replay_bag` on its own, so a failure in one (bad
+input, or even a bug) fails only that bag; every outcome is reported at the
+end. Workers are processes from a spawn context (no forked copies of a parent
+that may hold open files or threads); idle workers ignore SIGINT and a running
+replay takes it, so Ctrl-C finalizes the bags in progress and starts no more.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import signal
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed, wait
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+
+from ..core.errors import BagError, RoiNodeError
+from .memory import tune_malloc_for_large_frames
+from .reader import BAG_FILE_SUFFIXES
+from .replay import ReplayInterrupted, replay_bag
+from .summary import ReplaySummary
+
+OUTPUT_SUFFIX = "_roi"
+
+
+@dataclass(frozen=True)
+class BagOutcome:
+    input_path: Path
+    output_path: Path
+    summary: ReplaySummary | None = None
+    error: str | None = None  # one line, naming the bag
+    interrupted: bool = False  # Ctrl-C stopped this bag (its output is finalized)
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None and self.summary is not None and self.summary.status == "complete"
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    outcomes: list[BagOutcome]  # in input order; bags never started are absent
+    interrupted: bool
+
+
+def output_name(input_path: Path) -> str:
+    """OUT/<input stem>_roi: a bag folder keeps its name, a bag file loses its suffix."""
+    path = Path(input_path)
+    stem = path.stem if path.suffix in BAG_FILE_SUFFIXES and not path.is_dir() else path.name
+    return stem + OUTPUT_SUFFIX
+
+
+def output_paths(inputs: Sequence[Path], out_dir: Path) -> list[Path]:
+    names = [output_name(p) for p in inputs]
+    clashes = sorted({n for n in names if names.count(n) > 1})
+    if clashes:
+        raise BagError(f"{out_dir}: several inputs would write {', '.join(clashes)}; replay them into different folders")
+    return [out_dir / n for n in names]
+
+
+def _replay_one(source: Path, target: Path, config_path: Path, options: dict[str, Any]) -> BagOutcome:
+    """One bag; every failure becomes an outcome so the other bags carry on."""
+    try:
+        return BagOutcome(source, target, summary=replay_bag(source, target, config_path, **options))
+    except ReplayInterrupted as exc:
+        return BagOutcome(source, target, summary=exc.summary, interrupted=True)
+    except RoiNodeError as exc:
+        return BagOutcome(source, target, error=str(exc))
+    except Exception as exc:  # a bug must not take the other bags down; say it is one
+        return BagOutcome(source, target, error=f"{source}: unexpected {type(exc).__name__}: {exc} (a bug in roi_node; please report it)")
+
+
+def _worker_init() -> None:
+    """Idle workers ignore Ctrl-C; parallelism is across processes, so OpenCV stays on one thread each."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    cv2.setNumThreads(1)
+    tune_malloc_for_large_frames()
+
+
+def _replay_in_worker(source: Path, target: Path, config_path: Path, options: dict[str, Any]) -> BagOutcome:
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        return _replay_one(source, target, config_path, options)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def replay_bags(
+    inputs: Sequence[Path],
+    out_dir: Path,
+    config_path: Path,
+    *,
+    workers: int = 1,
+    on_done: Callable[[BagOutcome], None] | None = None,
+    **options: Any,
+) -> BatchResult:
+    """Replay every input into out_dir/<stem>_roi; `options` are replay_bag's keyword arguments."""
+    if workers < 1:
+        raise BagError(f"--workers must be at least 1, got {workers}")
+    out_dir = Path(out_dir)
+    targets = output_paths(inputs, out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise BagError(f"{out_dir}: exists and is not a folder; with several inputs the output is a folder")
+    if not out_dir.parent.is_dir():
+        raise BagError(f"{out_dir}: parent folder {out_dir.parent} does not exist")
+    out_dir.mkdir(exist_ok=True)
+    jobs = [(Path(src), dst, Path(config_path)) for src, dst in zip(inputs, targets, strict=True)]
+    if workers == 1 or len(jobs) == 1:
+        return _sequential(jobs, options, on_done)
+    return _parallel(jobs, options, min(workers, len(jobs)), on_done)
+
+
+def _sequential(jobs: list[tuple[Path, Path, Path]], options: dict[str, Any], on_done: Callable[[BagOutcome], None] | None) -> BatchResult:
+    outcomes: list[BagOutcome] = []
+    for source, target, config in jobs:
+        try:
+            outcome = _replay_one(source, target, config, options)
+        except KeyboardInterrupt:  # between bags, or before an output existed
+            return BatchResult(outcomes, interrupted=True)
+        outcomes.append(outcome)
+        if on_done is not None:
+            on_done(outcome)
+        if outcome.interrupted:
+            return BatchResult(outcomes, interrupted=True)
+    return BatchResult(outcomes, interrupted=False)
+
+
+def _parallel(
+    jobs: list[tuple[Path, Path, Path]], options: dict[str, Any], workers: int, on_done: Callable[[BagOutcome], None] | None
+) -> BatchResult:
+    context = multiprocessing.get_context("spawn")
+    interrupted = False
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_worker_init) as pool:
+        futures: dict[Future[BagOutcome], int] = {
+            pool.submit(_replay_in_worker, source, target, config, options): i for i, (source, target, config) in enumerate(jobs)
+        }
+        try:
+            for future in as_completed(futures):
+                if on_done is not None:
+                    on_done(_collect(future, jobs[futures[future]]))
+        except KeyboardInterrupt:
+            interrupted = True
+            for future in futures:
+                future.cancel()  # not started: never started; running: finalize and report
+            wait(futures)
+    outcomes = [_collect(future, jobs[i]) for future, i in sorted(futures.items(), key=lambda item: item[1]) if not future.cancelled()]
+    interrupted = interrupted or any(o.interrupted for o in outcomes)
+    return BatchResult(outcomes, interrupted)
+
+
+def _collect(future: Future[BagOutcome], job: tuple[Path, Path, Path]) -> BagOutcome:
+    """A worker that died (killed, out of memory) fails its bag only."""
+    source, target, _ = job
+    exc = future.exception()
+    if exc is None:
+        return future.result()
+    return BagOutcome(source, target, error=f"{source}: worker failed: {type(exc).__name__}: {exc}")

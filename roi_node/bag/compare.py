@@ -1,0 +1,74 @@
+"""Live == offline: compare the ROI outputs of two bags frame by frame (DESIGN.md "Determinism").
+
+Metadata records must be equal as JSON except the live-only fields
+(`teleop.latency_ms`); frames flagged `stale` or `latest` are reported but
+not required to match. ROI images must be equal byte for byte.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..core import topics
+from .reader import open_bag
+
+LIVE_ONLY_TELEOP = ("latency_ms",)
+EXEMPT_STATUS = ("stale",)
+
+
+@dataclass
+class Comparison:
+    frames: int = 0
+    exempt: int = 0
+    differences: list[str] = field(default_factory=list)
+
+    @property
+    def equal(self) -> bool:
+        return self.frames > 0 and not self.differences
+
+
+def _outputs(bag: Path) -> tuple[dict[int, dict[str, Any]], dict[str, dict[int, bytes]]]:
+    records: dict[int, dict[str, Any]] = {}
+    images: dict[str, dict[int, bytes]] = {}
+    with open_bag(bag) as reader:
+        wanted = [c for c in reader.connections if c.topic.startswith("/roi/") and c.msgtype in (topics.STRING_TYPE, topics.IMAGE_TYPE)]
+        for connection, _, raw in reader.messages(connections=wanted):
+            msg: Any = reader.deserialize(raw, connection.msgtype)
+            if connection.msgtype == topics.STRING_TYPE:
+                record = json.loads(msg.data)
+                records[int(record["stamp_ns"])] = record
+            else:
+                stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+                images.setdefault(connection.topic, {})[stamp] = bytes(msg.data)
+    return records, images
+
+
+def compare_live_offline(live_bag: Path, offline_bag: Path) -> Comparison:
+    """Every frame of the live bag against the offline one."""
+    live_records, live_images = _outputs(live_bag)
+    offline_records, offline_images = _outputs(offline_bag)
+    result = Comparison()
+    if live_records.keys() != offline_records.keys():
+        only_live = sorted(set(live_records) - set(offline_records))[:3]
+        only_offline = sorted(set(offline_records) - set(live_records))[:3]
+        result.differences.append(f"frame stamps differ: only live {only_live}, only offline {only_offline}")
+    for stamp in sorted(live_records.keys() & offline_records.keys()):
+        live, offline = live_records[stamp], offline_records[stamp]
+        if live["sync"]["status"] in EXEMPT_STATUS:
+            result.exempt += 1
+            continue
+        result.frames += 1
+        for key in LIVE_ONLY_TELEOP:
+            live["teleop"].pop(key, None)
+            offline["teleop"].pop(key, None)
+        if live != offline:
+            diff = sorted(k for k in live if live.get(k) != offline.get(k))
+            result.differences.append(f"frame {stamp}: metadata differs in {diff}")
+            continue
+        for topic, frames in live_images.items():
+            if frames.get(stamp) != offline_images.get(topic, {}).get(stamp):
+                result.differences.append(f"frame {stamp}: {topic} pixels differ")
+    return result

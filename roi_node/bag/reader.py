@@ -1,0 +1,140 @@
+"""Opening rosbag2 bags with rosbags' AnyReader, with errors that say what is wrong.
+
+rosbags reports a missing footer, a truncated record or a broken database with
+whatever exception the failing parser hit (ReaderError, struct.error,
+TypeError from `ord(b"")`, sqlite3 errors); those are all "this bag cannot be
+read", so they become one BagError naming the bag and the reason. Only the
+calls into rosbags are wrapped, never our own processing, so a bug in roi_node
+still shows as a bug.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+import struct
+from collections.abc import Collection, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.interfaces import Connection
+from rosbags.rosbag2 import ReaderError
+from rosbags.serde import SerdeError
+
+from ..core.errors import BagError
+from .writer import typestore
+
+BAG_FILE_SUFFIXES = (".mcap", ".db3")
+EXPECTED = "expected a rosbag2 folder (with metadata.yaml) or a .mcap/.db3 file"
+# what rosbags' parsers raise on truncated or corrupt storage
+_READ_ERRORS: tuple[type[BaseException], ...] = (
+    AnyReaderError,
+    ReaderError,
+    OSError,
+    EOFError,
+    struct.error,
+    sqlite3.Error,
+    TypeError,
+    ValueError,
+    IndexError,
+    KeyError,
+)
+_INFO_ERRORS: tuple[type[BaseException], ...] = (yaml.YAMLError, McapError, *_READ_ERRORS)
+# what deserializing one malformed CDR message raises (AnyReader wraps SerdeError)
+DESERIALIZE_ERRORS: tuple[type[BaseException], ...] = (AnyReaderError, SerdeError, struct.error, ValueError, IndexError, TypeError)
+
+
+def check_bag_path(path: Path) -> None:
+    """Fail early, naming the path, for anything that cannot be a rosbag2 bag."""
+    if not path.exists():
+        raise BagError(f"{path}: no such bag; {EXPECTED}")
+    if path.is_dir():
+        if not (path / "metadata.yaml").is_file():
+            storage = sorted(p.name for p in path.iterdir() if p.suffix in BAG_FILE_SUFFIXES)
+            hint = f"; it holds {', '.join(storage)}: pass that file instead, or run `ros2 bag reindex {path}`" if storage else ""
+            raise BagError(f"{path}: not a rosbag2 folder (no metadata.yaml){hint}")
+    elif path.suffix not in BAG_FILE_SUFFIXES:
+        raise BagError(f"{path}: unrecognised bag file suffix {path.suffix!r}; {EXPECTED}")
+
+
+def _unreadable(path: Path, exc: BaseException) -> BagError:
+    detail = str(exc).strip() or type(exc).__name__
+    return BagError(f"{path}: cannot read the bag ({detail}); the file may be truncated or corrupt")
+
+
+@contextmanager
+def open_bag(path: Path) -> Iterator[AnyReader]:
+    """An open AnyReader (message definitions from the bag, else the Jazzy typestore)."""
+    check_bag_path(path)
+    try:
+        reader = AnyReader([path], default_typestore=typestore())
+        reader.open()
+    except _READ_ERRORS as exc:
+        raise _unreadable(path, exc) from exc
+    try:
+        yield reader
+    finally:
+        reader.close()
+
+
+def read_messages(reader: AnyReader, connections: Collection[Connection], path: Path) -> Iterator[tuple[Connection, int, bytes]]:
+    """`reader.messages(connections)` in log-time order; a storage failure mid-bag is a BagError."""
+    if not connections:
+        return
+    messages = reader.messages(connections=connections)
+    while True:
+        try:
+            item = next(messages)
+        except StopIteration:
+            return
+        except _READ_ERRORS as exc:
+            raise _unreadable(path, exc) from exc
+        yield item
+
+
+@dataclass(frozen=True)
+class TopicStats:
+    name: str
+    msgtype: str
+    count: int
+
+
+def topic_stats(reader: AnyReader) -> dict[str, TopicStats]:
+    """Every topic with its type and message count (a topic of mixed types reports the first)."""
+    out: dict[str, TopicStats] = {}
+    for name, info in reader.topics.items():
+        msgtype = info.msgtype or (info.connections[0].msgtype if info.connections else "")
+        out[name] = TopicStats(name, msgtype, int(info.msgcount))
+    return out
+
+
+def stamp_ns(header: Any) -> int:
+    """A std_msgs/Header's stamp in nanoseconds: what sync and every output use, never the log time."""
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def bag_information(path: Path) -> dict[str, Any]:
+    """The rosbag2 bag information (storage, version, custom_data, ...) or {} when the bag has none.
+
+    A folder keeps it in metadata.yaml; a bare .mcap written by rosbag2 or
+    rosbags carries the same document in its "rosbag2" metadata record.
+    """
+    try:
+        if path.is_dir():
+            doc = yaml.safe_load((path / "metadata.yaml").read_text())
+            info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
+            return info if isinstance(info, dict) else {}
+        if path.suffix == ".mcap":
+            with path.open("rb") as stream:
+                for record in make_reader(stream).iter_metadata():
+                    if record.name == "rosbag2" and "serialized_metadata" in record.metadata:
+                        info = yaml.safe_load(record.metadata["serialized_metadata"])
+                        return info if isinstance(info, dict) else {}
+    except _INFO_ERRORS as exc:
+        raise _unreadable(path, exc) from exc
+    return {}

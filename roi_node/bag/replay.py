@@ -1,0 +1,306 @@
+"""Offline replay: a recorded bag through the live node's RoiSession into an ROI bag.
+
+Two passes over the input. The first reads only joint states, commands and
+camera info (DESIGN.md "Sync policies": offline, all joint samples are known
+before a frame is released). The second reads the frames in bag order, each
+`add_frame` then `pop_ready(None)`, so frame_index is the frame's position in
+the image topic (frames that cannot be decoded never reach the session, as
+live) and the sync result depends on header stamps only. Outputs use
+the live node's topic names, carry the source frame's header stamp, and are
+logged at that stamp, so a replay of a live recording matches the live output.
+
+A bad frame mid-bag is counted and skipped (the live node flags and counts it
+too); a stream the rig cannot use at all fails before any output is kept.
+An interrupt (Ctrl-C) finalizes the output with what was done.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rosbags.highlevel import AnyReader
+from rosbags.interfaces import Connection
+
+from ..core import topics
+from ..core.config import RigConfig, load_rig_config
+from ..core.errors import BagError, CalibrationError, ConfigError, ImageError, JointStateError
+from ..core.pipeline import FrameResult
+from ..core.session import RoiSession
+from .inputs import InputSelection, check_frame_stream, decode_frame, select_inputs
+from .interrupt import DeferredInterrupt
+from .messages import MessageFactory
+from .progress import Progress
+from .reader import DESERIALIZE_ERRORS, check_bag_path, open_bag, read_messages, stamp_ns, topic_stats
+from .streams import BadMessages, IntrinsicsSchedule, Streams, read_streams
+from .summary import ReplaySummary, SummaryBuilder
+from .writer import BagWriter, qos_profile
+
+__all__ = ["ReplayInterrupted", "ReplaySummary", "check_output_path", "replay_bag"]
+
+
+class ReplayInterrupted(KeyboardInterrupt):
+    """Ctrl-C during a replay; the output was finalized with what was done.
+
+    A KeyboardInterrupt, so callers that do not know it still stop; `summary`
+    says what was written (status "interrupted", or "complete" when Ctrl-C
+    came while the finished bag was being closed).
+    """
+
+    def __init__(self, summary: ReplaySummary) -> None:
+        super().__init__(summary)
+        self.summary = summary
+
+
+def check_output_path(source: Path, target: Path, overwrite: bool) -> None:
+    """Refuse an existing output (unless overwrite) and any output that would replace the input."""
+    src, dst = source.resolve(), target.resolve()
+    if dst == src or dst in src.parents or src in dst.parents:
+        raise BagError(f"{target}: output overlaps the input bag {source}; choose another path")
+    if (target.exists() or target.is_symlink()) and not overwrite:
+        raise BagError(f"{target}: output exists; choose another path or pass --overwrite")
+
+
+def replay_bag(
+    input_path: Path,
+    output_path: Path,
+    config_path: Path,
+    *,
+    overwrite: bool = False,
+    include_inputs: bool = False,
+    progress: bool = False,
+    image_topic: str | None = None,
+    joint_topics: Sequence[str] | None = None,
+    camera_info_topic: str | None = None,
+    command_topic: str | None = None,
+    intrinsics_from_bag: bool = False,
+) -> ReplaySummary:
+    """Replay one rosbag2 bag (folder, .mcap or .db3) through the rig's pipeline into an MCAP bag.
+
+    The bag's CameraInfo supplies the intrinsics when the rig has none, when
+    `intrinsics_from_bag` is set or when `camera_info_topic` is given.
+    Raises BagError / ConfigError / ImageError naming what is wrong (no output
+    is left behind), or ReplayInterrupted after finalizing a partial output.
+    """
+    source, target = Path(input_path), Path(output_path)
+    check_bag_path(source)
+    check_output_path(source, target, overwrite)
+    rig = load_rig_config(config_path)
+    from_bag = rig.camera.intrinsics is None or intrinsics_from_bag or camera_info_topic is not None
+    started = time.perf_counter()
+    with open_bag(source) as reader:
+        if reader.message_count == 0:
+            raise BagError(f"{source}: the bag is empty (no messages)")
+        selection = select_inputs(
+            source,
+            topic_stats(reader),
+            image_topic=image_topic,
+            joint_topics=joint_topics,
+            camera_info_topic=camera_info_topic,
+            command_topic=command_topic,
+            need_camera_info=from_bag,
+        )
+        streams = read_streams(reader, selection, source, rig.camera.rectified)
+        replay = _Replay(rig, source, selection, streams, from_bag, progress)
+        return replay.run(reader, target, overwrite=overwrite, include_inputs=include_inputs, started=started)
+
+
+class _Replay:
+    """The second pass: frames in bag order through one RoiSession, results into a BagWriter."""
+
+    def __init__(self, rig: RigConfig, source: Path, selection: InputSelection, streams: Streams, from_bag: bool, progress: bool) -> None:
+        self.rig = rig
+        self.source = source
+        self.selection = selection
+        self.bad: BadMessages = streams.bad
+        self.stats = SummaryBuilder(tuple(arm.id for arm in rig.arms))
+        self.schedule: IntrinsicsSchedule | None = None
+        if from_bag:
+            if not streams.cameras:
+                raise BagError(f"{source}: {selection.camera_info_topic}: no usable CameraInfo message")
+            self.schedule = IntrinsicsSchedule(streams.cameras)
+        self.session = RoiSession(
+            rig,
+            intrinsics=self.schedule.first if self.schedule else None,
+            max_pending=selection.frame_count + 1,  # offline nothing waits, so nothing may overflow
+            on_drop=lambda _frame, reason: self.stats.drop(reason),
+        )
+        self._check_joint_names(streams)
+        self.joint_messages = len(streams.joints)
+        for sample in streams.joints:
+            self._feed(self.session.add_joint_state, sample.stamp_ns, sample.names, sample.positions, sample.where)
+        for sample in streams.commands:
+            self._feed(self.session.add_command, sample.stamp_ns, sample.names, sample.positions, sample.where)
+        self.progress = Progress(source.name, selection.frame_count, progress)
+        self.frame_where = f"{source}: {selection.image_topic}"
+        self._stream_checked = False
+        self._size_checked = False
+
+    def _feed(self, add: Callable[..., list[str]], stamp: int, names: Sequence[str], positions: np.ndarray, where: str) -> None:
+        try:
+            add(stamp, names, positions, where=where)
+        except JointStateError as exc:
+            self.bad.add(str(exc))
+
+    def _check_joint_names(self, streams: Streams) -> None:
+        have = streams.joint_names()
+        required = self.session.pipeline.required_joints
+        missing = [j for j in required if j not in have]
+        if missing:
+            raise ConfigError(
+                f"{self.rig.path}: the rig needs joints {', '.join(missing)} that {self.source} does not have on "
+                f"{', '.join(self.selection.joint_topics)}; the bag's joint states name {', '.join(sorted(have)) or 'no joints'}"
+            )
+        if self.selection.joint_topics_detected:
+            # merging by name is right for complementary streams (one per arm), wrong for measured + commanded
+            carriers = streams.topics_by_joint()
+            shared = [j for j in required if len(carriers[j]) > 1]
+            if shared:
+                raise BagError(
+                    f"{self.source}: joints {', '.join(shared)} are on several JointState topics "
+                    f"({', '.join(sorted(carriers[shared[0]]))}); choose the measured ones with --joint-topics "
+                    "(and a commanded one with --command-topic)"
+                )
+
+    def run(self, reader: AnyReader, target: Path, *, overwrite: bool, include_inputs: bool, started: float) -> ReplaySummary:
+        wanted = {self.selection.image_topic, *(self.selection.stream_topics if include_inputs else ())}
+        connections = [c for c in reader.connections if c.topic in wanted]
+        with DeferredInterrupt() as interrupt:
+            try:
+                with BagWriter(target, overwrite=overwrite) as writer:
+                    outputs = _OutputTopics(writer, self.session)
+                    if include_inputs:
+                        _add_input_topics(writer, connections, outputs.names, self.source)
+                    for connection, log_ns, raw in read_messages(reader, connections, self.source):
+                        interrupt.check()
+                        if include_inputs:
+                            writer.write_cdr(connection.topic, log_ns, raw)
+                        if connection.topic == self.selection.image_topic:
+                            self._frame(reader, raw, outputs)
+                    if self.stats.frames_out == 0:
+                        first = self.bad.examples[0] if self.bad.examples else "no frame was released"
+                        raise ImageError(
+                            f"{self.frame_where}: none of the {self.stats.frames_in} frames could be used; first problem: {first}"
+                        )
+            except KeyboardInterrupt:
+                self.progress.finish()
+                raise ReplayInterrupted(self._summary(target, "interrupted", started)) from None
+        self.progress.finish()
+        summary = self._summary(target, "complete", started)
+        if interrupt.requested:  # Ctrl-C while the finished bag was being closed: it is complete; still stop
+            raise ReplayInterrupted(summary)
+        return summary
+
+    def _frame(self, reader: AnyReader, raw: bytes, outputs: _OutputTopics) -> None:
+        index = self.stats.frames_in
+        self.stats.frames_in += 1
+        msgtype = self.selection.image_type
+        try:
+            msg: Any = reader.deserialize(raw, msgtype)
+        except DESERIALIZE_ERRORS as exc:
+            self._bad_frame(f"{self.frame_where}: message {index} cannot be deserialized as {msgtype} ({exc})")
+            return
+        stamp = stamp_ns(msg.header)
+        if not self._stream_checked:
+            check_frame_stream(msg, msgtype, self.frame_where)  # the rig cannot use this stream at all: fatal
+            self._stream_checked = True
+        where = f"{self.frame_where}: message {index} (stamp {stamp})"
+        pipeline = self.session.pipeline
+        try:
+            image = decode_frame(msg, msgtype, where)
+            if self.schedule is not None and (camera := self.schedule.at(stamp)) is not pipeline.camera:
+                pipeline.set_intrinsics(camera)
+            if not self._size_checked:
+                self._check_size(image.shape[1], image.shape[0])
+            pipeline.check_image(image, where)
+        except ImageError as exc:
+            self._bad_frame(str(exc))
+            return
+        self.session.add_frame(stamp, image)
+        for ready in self.session.pop_ready(None):  # offline every joint sample is loaded: release at once
+            result = self.session.process(ready)
+            outputs.write(result, msg.header.frame_id)
+            self.stats.add(result, ready.sync)
+        self.progress.update(self.stats.frames_in)
+
+    def _check_size(self, width: int, height: int) -> None:
+        camera = self.session.pipeline.camera
+        if (width, height) != (camera.width_px, camera.height_px):
+            source = "the bag's camera info" if self.schedule else f"the rig config {self.rig.path}"
+            raise CalibrationError(
+                f"{self.frame_where}: frames are {width}x{height} but the intrinsics from {source} are for "
+                f"{camera.width_px}x{camera.height_px}; use the rig config that matches this camera"
+            )
+        self._size_checked = True
+
+    def _bad_frame(self, message: str) -> None:
+        self.stats.frames_bad += 1
+        self.bad.add(message)
+        self.progress.update(self.stats.frames_in)
+
+    def _summary(self, target: Path, status: str, started: float) -> ReplaySummary:
+        stats = self.stats
+        intrinsics = f"{self.selection.camera_info_topic} in the bag" if self.schedule else f"the rig config {self.rig.path}"
+        return ReplaySummary(
+            input_path=self.source,
+            output_path=target,
+            status=status,
+            image_topic=self.selection.image_topic,
+            joint_topics=self.selection.joint_topics,
+            intrinsics_source=intrinsics,
+            frames_in=stats.frames_in,
+            frames_out=stats.frames_out,
+            frames_bad=stats.frames_bad,
+            frames_dropped=dict(stats.dropped),
+            joint_messages=self.joint_messages,
+            bad_messages=self.bad.count - stats.frames_bad,
+            problems=tuple(self.bad.examples),
+            arms=stats.arms(),
+            residual_ms=stats.residual_stats(),
+            sync_status=stats.status_counts(),
+            elapsed_s=time.perf_counter() - started,
+        )
+
+
+class _OutputTopics:
+    """The live node's output topics in one bag; every message logged at the source frame's stamp."""
+
+    def __init__(self, writer: BagWriter, session: RoiSession) -> None:
+        self.writer = writer
+        self.factory = MessageFactory(writer.typestore)
+        rig = session.rig
+        self.size = rig.output.size_px
+        self.arm_topics = {
+            arm: (topics.absolute(topics.roi_image(arm)), topics.absolute(topics.roi_camera_info(arm)))
+            for arm in session.pipeline.arm_ids()
+        }
+        self.global_topic = topics.absolute(topics.GLOBAL_IMAGE)
+        self.metadata_topic = topics.absolute(topics.METADATA)
+        self.names: set[str] = set()
+        for name, msgtype in topics.output_topics(list(self.arm_topics), rig.output.global_enabled).items():
+            writer.add_topic(topics.absolute(name), msgtype)
+            self.names.add(topics.absolute(name))
+
+    def write(self, result: FrameResult, frame_id: str) -> None:
+        stamp = result.stamp_ns
+        factory, writer = self.factory, self.writer
+        out_w, out_h = self.size
+        for roi in result.rois:
+            image_topic, info_topic = self.arm_topics[roi.arm_id]
+            writer.write(image_topic, stamp, factory.image(stamp, frame_id, roi.image))
+            writer.write(info_topic, stamp, factory.camera_info(stamp, frame_id, roi.camera, out_w, out_h))
+        if result.global_view is not None:
+            writer.write(self.global_topic, stamp, factory.image(stamp, frame_id, result.global_view))
+        writer.write(self.metadata_topic, stamp, factory.string(result.record_json))
+
+
+def _add_input_topics(writer: BagWriter, connections: list[Connection], output_names: set[str], source: Path) -> None:
+    """Inputs copied as recorded (raw CDR, original log time, first offered QoS)."""
+    for connection in connections:
+        if connection.topic in output_names:
+            raise BagError(f"{source}: input topic {connection.topic} has the name of an output topic; it cannot be included")
+        profiles = getattr(connection.ext, "offered_qos_profiles", None) or [qos_profile(reliable=True)]
+        writer.add_topic(connection.topic, connection.msgtype, profiles[0])

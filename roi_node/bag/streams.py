@@ -1,0 +1,131 @@
+"""The first replay pass: joint states, commands and camera info, read before any frame.
+
+Offline, every joint sample is known before a frame is released, so a frame's
+sync result depends only on header stamps and never on where the recorder
+happened to log the samples; and the intrinsics are known before the pipeline
+is built, even when the first CameraInfo was logged after the first frame.
+The pass only touches these (small) messages.
+"""
+
+from __future__ import annotations
+
+import bisect
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rosbags.highlevel import AnyReader
+
+from ..core.camera import CameraModel
+from ..core.errors import CalibrationError
+from .inputs import InputSelection, camera_from_msg
+from .reader import DESERIALIZE_ERRORS, read_messages, stamp_ns
+
+MAX_REPORTED = 5  # bad messages quoted in full; the rest are counted
+
+
+@dataclass(frozen=True)
+class JointSample:
+    stamp_ns: int
+    names: tuple[str, ...]
+    positions: np.ndarray
+    topic: str
+    where: str
+
+
+@dataclass
+class BadMessages:
+    """Messages skipped because they could not be used: counted, the first few quoted."""
+
+    count: int = 0
+    examples: list[str] = field(default_factory=list)
+
+    def add(self, message: str) -> None:
+        self.count += 1
+        if len(self.examples) < MAX_REPORTED:
+            self.examples.append(message)
+
+
+class IntrinsicsSchedule:
+    """The camera in effect at each stamp: the newest CameraInfo at or before it.
+
+    Frames before the first CameraInfo use the first one. Consecutive infos
+    with the same content collapse, so a steady camera_info stream is one entry.
+    """
+
+    def __init__(self, stamped: list[tuple[int, CameraModel]]) -> None:
+        entries: list[tuple[int, CameraModel]] = []
+        for stamp, camera in sorted(stamped, key=lambda item: item[0]):
+            if not entries or (entries[-1][1] is not camera and entries[-1][1].content_version() != camera.content_version()):
+                entries.append((stamp, camera))
+        self._stamps = [stamp for stamp, _ in entries]
+        self._cameras = [camera for _, camera in entries]
+
+    @property
+    def first(self) -> CameraModel:
+        return self._cameras[0]
+
+    def at(self, stamp: int) -> CameraModel:
+        return self._cameras[max(bisect.bisect_right(self._stamps, stamp) - 1, 0)]
+
+
+@dataclass
+class Streams:
+    joints: list[JointSample]
+    commands: list[JointSample]
+    cameras: list[tuple[int, CameraModel]]
+    bad: BadMessages
+
+    def joint_names(self) -> set[str]:
+        return {name for sample in self.joints for name in sample.names}
+
+    def topics_by_joint(self) -> dict[str, set[str]]:
+        """Which joint state topics carry each joint."""
+        out: dict[str, set[str]] = {}
+        for sample in self.joints:
+            for name in sample.names:
+                out.setdefault(name, set()).add(sample.topic)
+        return out
+
+
+def read_streams(reader: AnyReader, selection: InputSelection, path: Path, rectified: bool) -> Streams:
+    """Read every joint state, command and camera info; malformed ones are counted, not fatal."""
+    topics = set(selection.stream_topics)
+    connections = [c for c in reader.connections if c.topic in topics]
+    names_cache: dict[tuple[str, ...], tuple[str, ...]] = {}
+    streams = Streams([], [], [], BadMessages())
+    calibration_errors: list[CalibrationError] = []
+    cameras: dict[tuple[Any, ...], CameraModel] = {}  # a steady camera_info stream is one model
+    for connection, _, raw in read_messages(reader, connections, path):
+        where = f"{path}: {connection.topic}"
+        try:
+            msg: Any = reader.deserialize(raw, connection.msgtype)
+        except DESERIALIZE_ERRORS as exc:
+            streams.bad.add(f"{where}: message cannot be deserialized as {connection.msgtype} ({exc})")
+            continue
+        if connection.topic == selection.camera_info_topic:
+            key = _calibration_key(msg)
+            try:
+                camera = cameras.get(key)
+                if camera is None:
+                    camera = cameras[key] = camera_from_msg(msg, rectified, where)
+                streams.cameras.append((stamp_ns(msg.header), camera))
+            except CalibrationError as exc:
+                calibration_errors.append(exc)
+                streams.bad.add(str(exc))
+            continue
+        names = tuple(msg.name)
+        names = names_cache.setdefault(names, names)
+        sample = JointSample(stamp_ns(msg.header), names, np.asarray(msg.position, dtype=np.float64), connection.topic, where)
+        (streams.commands if connection.topic == selection.command_topic else streams.joints).append(sample)
+    if selection.camera_info_topic is not None and not streams.cameras and calibration_errors:
+        raise calibration_errors[0]
+    return streams
+
+
+
+def _calibration_key(msg: Any) -> tuple[Any, ...]:
+    """What defines the camera in a CameraInfo (everything but the header)."""
+    arrays = (np.asarray(a, dtype=np.float64).tobytes() for a in (msg.d, msg.k, msg.r, msg.p))
+    return (int(msg.width), int(msg.height), str(msg.distortion_model), *arrays)

@@ -1,0 +1,191 @@
+"""Quality gates (`schema: roi_node/gates/v1`): thresholds on validation metrics, and their verdicts.
+
+A gates file names metrics (stats.ARM_METRICS per arm, stats.BAG_METRICS per
+bag, drift.DRIFT_METRICS per arm) with a `min` and/or `max` bound; `null`
+switches a gate off. The file given replaces the defaults in
+config/gates.yaml: a gate is only what the file says. Every error names the
+file, the key and the value, like the rig config.
+"""
+
+from __future__ import annotations
+
+import difflib
+import hashlib
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ..core.errors import ConfigError
+from ..core.resources import config_dir
+from .drift import DRIFT_METRICS
+from .stats import ARM_METRICS, BAG_METRICS, Metric
+
+GATES_SCHEMA = "roi_node/gates/v1"
+SCOPES = {**dict.fromkeys(ARM_METRICS, "arm"), **dict.fromkeys(BAG_METRICS, "bag"), **dict.fromkeys(DRIFT_METRICS, "drift")}
+BAG_SCOPE = "-"  # the `arm` of a bag-level gate result
+
+
+@dataclass(frozen=True)
+class GateParams:
+    stamp_gap_factor: float = 1.5  # a stamp interval longer than this many median periods is a gap
+    window_fraction: float = 1 / 3  # window drift: the last this-much of a bag against the first
+
+
+@dataclass(frozen=True)
+class Gate:
+    metric: str
+    scope: str  # arm | bag | drift
+    op: str  # min | max
+    threshold: float
+
+
+@dataclass(frozen=True)
+class GateSet:
+    path: Path
+    sha256: str
+    gates: tuple[Gate, ...]
+    params: GateParams
+
+
+@dataclass(frozen=True)
+class GateResult:
+    gate: str
+    op: str
+    threshold: float
+    arm: str  # arm id, or BAG_SCOPE
+    value: Metric
+    status: str  # pass | fail | no_data
+
+    @property
+    def failed(self) -> bool:
+        return self.status == "fail"
+
+    def threshold_text(self) -> str:
+        return f"{'>=' if self.op == 'min' else '<='} {format_value(self.threshold)}"
+
+    def line(self) -> str:
+        """The one line `roi-node validate` prints for a failing gate."""
+        return f"gate {self.gate} failed: arm {self.arm}: value {format_value(self.value)}, threshold {self.threshold_text()}"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"gate": self.gate, "arm": self.arm, "value": self.value, "op": self.op, "threshold": self.threshold, "status": self.status}
+
+
+def format_value(value: Metric) -> str:
+    if value is None:
+        return "n/a"
+    if isinstance(value, int):
+        return str(value)
+    return f"{value:.6g}"
+
+
+def default_gates_path() -> Path:
+    return config_dir() / "gates.yaml"
+
+
+def _number(file: Path, where: str, value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ConfigError(f"{file}: {where}: expected a finite number, got {value!r}")
+    return float(value)
+
+
+def _unknown_metric(file: Path, name: str) -> ConfigError:
+    close = difflib.get_close_matches(name, list(SCOPES), n=1)
+    hint = f"; did you mean {close[0]!r}?" if close else ""
+    return ConfigError(f"{file}: gates.{name}: unknown metric{hint} (the metrics are listed in {default_gates_path()})")
+
+
+def _gates(file: Path, node: object) -> tuple[Gate, ...]:
+    if not isinstance(node, Mapping):
+        raise ConfigError(f"{file}: gates: expected a mapping of metric: {{min: x}} / {{max: x}}, got {node!r}")
+    gates: list[Gate] = []
+    for name, bounds in node.items():
+        if str(name) not in SCOPES:
+            raise _unknown_metric(file, str(name))
+        if bounds is None:
+            continue
+        where = f"gates.{name}"
+        if not isinstance(bounds, Mapping) or not bounds or set(bounds) - {"min", "max"}:
+            raise ConfigError(f"{file}: {where}: expected {{min: x}}, {{max: x}}, both, or null (off), got {bounds!r}")
+        values = {op: _number(file, f"{where}.{op}", bounds[op]) for op in ("min", "max") if op in bounds}
+        if "min" in values and "max" in values and values["min"] > values["max"]:
+            raise ConfigError(f"{file}: {where}: min {values['min']} is greater than max {values['max']}")
+        gates.extend(Gate(str(name), SCOPES[str(name)], op, value) for op, value in values.items())
+    return tuple(gates)
+
+
+def _params(file: Path, node: object) -> GateParams:
+    if node is None:
+        return GateParams()
+    if not isinstance(node, Mapping):
+        raise ConfigError(f"{file}: params: expected a mapping, got {node!r}")
+    allowed = ("stamp_gap_factor", "window_fraction")
+    for key in node:
+        if key not in allowed:
+            raise ConfigError(f"{file}: params.{key}: unknown key; expected one of {', '.join(allowed)}")
+    defaults = GateParams()
+    gap = _number(file, "params.stamp_gap_factor", node.get("stamp_gap_factor", defaults.stamp_gap_factor))
+    if gap <= 1.0:
+        raise ConfigError(f"{file}: params.stamp_gap_factor: must be > 1 (a multiple of the median frame period), got {gap}")
+    fraction = _number(file, "params.window_fraction", node.get("window_fraction", defaults.window_fraction))
+    if not 0.0 < fraction <= 0.5:
+        raise ConfigError(f"{file}: params.window_fraction: must be in (0, 0.5], got {fraction}")
+    return GateParams(gap, fraction)
+
+
+def load_gates(path: Path | None = None) -> GateSet:
+    """Load and check a gates file (default: config/gates.yaml); ConfigError names file, key and value."""
+    file = Path(path) if path is not None else default_gates_path()
+    try:
+        data = file.read_bytes()
+    except FileNotFoundError as exc:
+        raise ConfigError(f"{file}: gates file not found") from exc
+    except IsADirectoryError as exc:
+        raise ConfigError(f"{file}: is a directory, expected a gates YAML file") from exc
+    try:
+        doc = yaml.safe_load(data)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{file}: not valid YAML: {exc}") from exc
+    if not isinstance(doc, Mapping):
+        raise ConfigError(f"{file}: expected a mapping with schema, gates and params")
+    for key in doc:
+        if key not in ("schema", "gates", "params"):
+            raise ConfigError(f"{file}: {key}: unknown key; expected one of schema, gates, params")
+    if doc.get("schema") != GATES_SCHEMA:
+        raise ConfigError(f"{file}: schema: expected {GATES_SCHEMA!r}, got {doc.get('schema')!r}")
+    if "gates" not in doc:
+        raise ConfigError(f"{file}: gates: missing")
+    return GateSet(file, "sha256:" + hashlib.sha256(data).hexdigest(), _gates(file, doc["gates"]), _params(file, doc.get("params")))
+
+
+def _verdict(gate: Gate, arm: str, value: Metric) -> GateResult:
+    if value is None:
+        status = "no_data"
+    elif gate.op == "min":
+        status = "pass" if value >= gate.threshold else "fail"
+    else:
+        status = "pass" if value <= gate.threshold else "fail"
+    return GateResult(gate.metric, gate.op, gate.threshold, arm, value, status)
+
+
+def evaluate(
+    gates: GateSet,
+    bag_metrics: Mapping[str, Metric],
+    arm_metrics: Mapping[str, Mapping[str, Metric]],
+    drift_metrics: Mapping[str, Mapping[str, Metric]],
+) -> list[GateResult]:
+    """Every gate on every arm it applies to. A drift gate whose comparison was not made (no
+    --baseline, or a bag too short for windows) is left out; a metric without data is `no_data`."""
+    results: list[GateResult] = []
+    for gate in gates.gates:
+        if gate.scope == "bag":
+            results.append(_verdict(gate, BAG_SCOPE, bag_metrics[gate.metric]))
+        elif gate.scope == "arm":
+            results.extend(_verdict(gate, arm, metrics[gate.metric]) for arm, metrics in arm_metrics.items())
+        else:
+            results.extend(_verdict(gate, arm, metrics[gate.metric]) for arm, metrics in drift_metrics.items() if gate.metric in metrics)
+    return results

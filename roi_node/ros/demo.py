@@ -1,0 +1,283 @@
+"""`roi-node demo`: the whole job on the embedded default rig, as separate processes on loopback DDS.
+
+simulated rig (`roi-node sim live`) -> live node (`roi-node run`) -> MCAP
+recorder (`roi-node record`), with this process watching /roi/metadata for
+the progress line. Afterwards: the recorded bag is validated against the
+quality gates (REPORT.md, figures, contact sheet), its inputs are replayed
+offline and the offline ROIs are compared with the live ones, a side-by-side
+video strip is written, and a summary printed. Every child gets
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, this run's ROS_DOMAIN_ID, the
+shared-memory FastDDS profile and the malloc settings.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
+
+from ..bag.compare import compare_live_offline
+from ..core import topics
+from ..core.config import load_rig_config
+from ..core.errors import RoiNodeError
+from ..core.resources import config_dir
+from ..report.strip import write_strip
+
+MARKER = ".roi_node_demo"
+DISCOVERY_TIMEOUT_S = 60.0
+DEFAULT_DOMAIN = 72
+CHILD_ENV = {
+    "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+    "MALLOC_MMAP_THRESHOLD_": "33554432",
+    "MALLOC_TRIM_THRESHOLD_": "4000000000",
+    "PYTHONUNBUFFERED": "1",
+}
+
+
+@dataclass
+class _Watch:
+    """Receive time - source stamp of every metadata record (camera stamp -> ROI record here)."""
+
+    latency_ms: list[float] = field(default_factory=list)
+    frames: int = 0
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def on_metadata(self, msg: String) -> None:
+        stamp = json.loads(msg.data)["stamp_ns"]
+        with self.lock:
+            self.latency_ms.append((time.time_ns() - stamp) / 1e6)
+            self.frames += 1
+
+
+def _prepare_out(out: Path) -> None:
+    if out.exists():
+        if not (out / MARKER).exists() and any(out.iterdir()):
+            raise RoiNodeError(f"{out}: exists and is not a previous demo output; choose another --out")
+        shutil.rmtree(out)
+    (out / "logs").mkdir(parents=True)
+    (out / MARKER).write_text("written by roi-node demo; the next demo run replaces this folder\n")
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env.update(CHILD_ENV)
+    env.setdefault("ROS_DOMAIN_ID", str(DEFAULT_DOMAIN))
+    env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(config_dir() / "fastdds_shm.xml")
+    return env
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "roi_node.cli", *args]
+
+
+def _start(args: list[str], env: dict[str, str], log: Path) -> subprocess.Popen[bytes]:
+    with log.open("wb") as out:
+        return subprocess.Popen(args, env=env, stdout=out, stderr=subprocess.STDOUT)
+
+
+def _stop(proc: subprocess.Popen[bytes], name: str, log: Path) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    if proc.returncode != 0:
+        raise RoiNodeError(f"demo: {name} exited with {proc.returncode}; see {log}")
+
+
+def _run_step(args: list[str], env: dict[str, str], log: Path, name: str) -> str:
+    result = subprocess.run(args, env=env, capture_output=True, text=True)
+    log.write_text(result.stdout + result.stderr)
+    if result.returncode not in (0, 1):  # validate exits 1 when a gate fails: reported, not fatal here
+        raise RoiNodeError(f"demo: {name} failed with exit {result.returncode}; see {log}")
+    return result.stdout
+
+
+def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed: int) -> int:
+    rig = load_rig_config(config)  # a bad config fails here, before anything starts
+    arms = [a.id for a in rig.arms]
+    _prepare_out(out)
+    env = _env()
+    os.environ.update({k: env[k] for k in (*CHILD_ENV, "ROS_DOMAIN_ID", "FASTRTPS_DEFAULT_PROFILES_FILE")})
+    logs, session = out / "logs", out / "session"
+    record_topics = [topics.IMAGE, topics.CAMERA_INFO, topics.JOINT_STATES, *topics.output_topics(arms, rig.output.global_enabled)]
+    print(f"roi-node demo: rig {rig.rig_id} ({config}), arms {', '.join(arms)}; {duration_s:g} s at {rate_hz:g} Hz; "
+          f"ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} (loopback only) -> {out}/", flush=True)
+    started = time.monotonic()
+    watch = _Watch()
+    context = Context()
+    rclpy.init(context=context, domain_id=int(env["ROS_DOMAIN_ID"]))
+    node = Node("roi_node_demo_watch", context=context)
+    node.create_subscription(String, topics.METADATA, watch.on_metadata, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    stop_spin = threading.Event()
+
+    def spin() -> None:
+        while not stop_spin.is_set():
+            executor.spin_once(timeout_sec=0.05)
+
+    spinner = threading.Thread(target=spin)
+    spinner.start()
+    procs: dict[str, tuple[subprocess.Popen[bytes], Path]] = {}
+    try:
+        procs["node"] = (_start(_cli("run", "--config", str(config)), env, logs / "node.log"), logs / "node.log")
+        procs["recorder"] = (_start(_cli("record", "-o", str(session), "--topics", *record_topics), env, logs / "record.log"),
+                             logs / "record.log")
+        _wait_for_recorder(node, record_topics, procs)
+        sim_args = _cli("sim", "live", "--config", str(config), "--duration", str(duration_s), "--rate-hz", str(rate_hz),
+                        "--seed", str(seed), "--min-subscribers", "2")
+        sim = _start(sim_args, env, logs / "sim.log")
+        expected = int(duration_s * rate_hz)
+        while sim.poll() is None:
+            _progress(watch, expected, started)
+            time.sleep(0.5)
+        if sim.returncode != 0:
+            raise RoiNodeError(f"demo: the simulated rig exited with {sim.returncode}; see {logs / 'sim.log'}")
+        deadline = time.monotonic() + 5
+        while watch.frames < expected and time.monotonic() < deadline:
+            time.sleep(0.1)
+        _progress(watch, expected, started, final=True)
+        for name in ("recorder", "node"):  # the recorder first: it must see the node's last outputs
+            proc, log = procs.pop(name)
+            _stop(proc, name, log)
+    finally:
+        for proc, _ in procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+                proc.wait(timeout=20)
+        stop_spin.set()
+        spinner.join()
+        executor.shutdown()
+        node.destroy_node()
+        context.try_shutdown()
+    live_s = time.monotonic() - started
+
+    print("validating the recorded bag against the quality gates ...", flush=True)
+    validation_out = _run_step(_cli("validate", str(session), "--report", str(out / "report"), "--json"), env, logs / "validate.log",
+                               "validate")
+    validation = json.loads(validation_out)
+    print("replaying the recorded inputs offline through the same pipeline ...", flush=True)
+    _run_step(_cli("replay", str(session), "-o", str(out / "offline"), "--config", str(config), "--image-topic", "/image_raw",
+                   "--joint-topics", "/joint_states"), env, logs / "replay.log", "replay")
+    comparison = compare_live_offline(session, out / "offline")
+    strip = write_strip(session, arms, out / "strip.mp4")
+    sheet = out / "report" / "contact_sheet.png"
+    if not sheet.exists():
+        candidates = sorted((out / "report").rglob("contact_sheet*.png"))
+        sheet = candidates[0] if candidates else sheet
+    if sheet.exists():
+        shutil.copy(sheet, out / "contact_sheet.png")
+    summary = _summary(watch, expected, logs, validation, comparison, live_s, out, strip)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    _print_summary(summary)
+    ok = summary["dropped_frames"] == 0 and summary["gates_passed"] and comparison.equal
+    return 0 if ok else 1
+
+
+def _wait_for_recorder(node: Node, record_topics: list[str], procs: dict[str, tuple[subprocess.Popen[bytes], Path]]) -> None:
+    """Start the rig only once the recorder subscribes to the node's outputs (discovery takes ~1-3 s here).
+
+    The recorder subscribes to the inputs once the rig publishes them; `sim --min-subscribers 2` waits for that.
+    """
+    deadline = time.monotonic() + DISCOVERY_TIMEOUT_S
+    while True:
+        for name, (proc, log) in procs.items():
+            if proc.poll() is not None:
+                raise RoiNodeError(f"demo: {name} exited with {proc.returncode} at start; see {log}")
+        ready = node.count_publishers(topics.METADATA) >= 1 and node.count_subscribers(topics.METADATA) >= 2
+        ready = ready and all(node.count_subscribers(t) >= 1 for t in record_topics if t.startswith("roi/"))  # inputs: see sim
+        if ready:
+            break
+        if time.monotonic() > deadline:
+            logs = procs["node"][1].parent
+            raise RoiNodeError(f"demo: the node and recorder did not come up within {DISCOVERY_TIMEOUT_S:g} s; see {logs}")
+        time.sleep(0.1)
+    time.sleep(1.0)  # the node's writers match the recorder's readers a moment later
+
+
+def _progress(watch: _Watch, expected: int, started: float, final: bool = False) -> None:
+    """One live status line: rewritten in place on a terminal, a new line every 2 s in a log."""
+    with watch.lock:
+        lat = np.asarray(watch.latency_ms[-300:]) if watch.latency_ms else None
+        frames = watch.frames
+    elapsed = time.monotonic() - started
+    text = f"\r[demo {elapsed:5.1f} s] ROI frames {frames}/{expected}"
+    if lat is not None:
+        text += f", camera->ROI latency p50 {np.median(lat):.1f} ms, p99 {np.percentile(lat, 99):.1f} ms"
+    if sys.stdout.isatty():
+        print(text, end="\n" if final else "", flush=True)
+    elif final or int(elapsed * 2) % 4 == 0:
+        print(text.lstrip("\r"), flush=True)
+
+
+def _recorded_counts(log: Path) -> dict[str, tuple[int, int]]:
+    counts = {}
+    for line in log.read_text().splitlines():
+        if ": " in line and " written, " in line:
+            topic, rest = line.split(": ", 1)
+            written, dropped = rest.split(" written, ")
+            counts[topic] = (int(written), int(dropped.split()[0]))
+    return counts
+
+
+def _summary(watch: _Watch, expected: int, logs: Path, validation: dict[str, Any], comparison: Any, live_s: float, out: Path,
+             strip: Path | None) -> dict[str, Any]:
+    lat = np.asarray(watch.latency_ms) if watch.latency_ms else np.zeros(1)
+    recorded = _recorded_counts(logs / "record.log")
+    images_in = recorded.get("/image_raw", (0, 0))[0]
+    metadata = recorded.get("/roi/metadata", (0, 0))[0]
+    bag = validation["bags"][0] if validation.get("bags") else {}
+    failed = [g for g in bag.get("gates", []) if not g.get("passed", True)]
+    return {
+        "frames_published_by_sim": expected,
+        "frames_recorded_in": images_in,
+        "roi_frames_out": metadata,
+        "dropped_frames": expected - metadata + sum(d for _, d in recorded.values()),
+        "latency_ms": {"p50": float(np.median(lat)), "p99": float(np.percentile(lat, 99))},
+        "gates_passed": bool(validation.get("passed", False)),
+        "gates_failed": failed,
+        "live_equals_offline": comparison.equal,
+        "live_offline_frames_compared": comparison.frames,
+        "live_offline_differences": comparison.differences[:5],
+        "live_seconds": live_s,
+        "paths": {
+            "bag": str(out / "session"),
+            "offline_bag": str(out / "offline"),
+            "report": str(out / "report" / "REPORT.md"),
+            "contact_sheet": str(out / "contact_sheet.png"),
+            "strip": str(strip) if strip else None,
+            "logs": str(logs),
+        },
+    }
+
+
+def _print_summary(s: dict[str, Any]) -> None:
+    print("summary:")
+    print(f"  ran: simulated rig -> roi-node run -> roi-node record ({s['live_seconds']:.1f} s), then validate, replay, compare")
+    print(f"  frames: {s['frames_published_by_sim']} published, {s['frames_recorded_in']} recorded, "
+          f"{s['roi_frames_out']} ROI frames out, dropped {s['dropped_frames']}")
+    print(f"  camera -> ROI latency: p50 {s['latency_ms']['p50']:.1f} ms, p99 {s['latency_ms']['p99']:.1f} ms")
+    gates = "all passed" if s["gates_passed"] else f"FAILED: {[g.get('name') for g in s['gates_failed']]}"
+    print(f"  quality gates: {gates}")
+    print(f"  live == offline: {'yes' if s['live_equals_offline'] else 'NO'} ({s['live_offline_frames_compared']} frames compared)")
+    for name, path in s["paths"].items():
+        print(f"  {name}: {path}")
