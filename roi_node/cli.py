@@ -46,6 +46,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"roi-node {args.verb}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # `roi-node inspect BAG | head`: the reader left, nothing is wrong
+        sys.stderr.close()
+        return 0
     return code
 
 

@@ -18,10 +18,9 @@ import rclpy
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from rosbags.highlevel import AnyReader
 from rosgraph_msgs.msg import Clock
 
-from ..bag.writer import typestore
+from ..bag.reader import open_bag
 from ..core.errors import BagError
 from .conversions import time_msg
 from .msg_types import from_bag_qos, message_class
@@ -33,8 +32,6 @@ DISCOVERY_WAIT_S = 3.0
 def play(bag: Path, *, rate: float, loop: bool, clock: bool, topics: Sequence[str], ros_args: Sequence[str]) -> int:
     if rate <= 0:
         raise BagError(f"play: --rate must be > 0, got {rate}")
-    if not bag.exists():
-        raise BagError(f"{bag}: no such bag")
     from .spin import ros_context
 
     wanted = {t if t.startswith("/") else "/" + t for t in topics}
@@ -50,12 +47,7 @@ def play(bag: Path, *, rate: float, loop: bool, clock: bool, topics: Sequence[st
 
 
 def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: set[str]) -> int:
-    try:
-        reader = AnyReader([bag], default_typestore=typestore())
-        reader.open()
-    except Exception as exc:  # rosbags raises several reader errors for unreadable bags
-        raise BagError(f"{bag}: cannot read bag: {exc}") from exc
-    try:
+    with open_bag(bag) as reader:
         connections = [c for c in reader.connections if not wanted or c.topic in wanted]
         if not connections:
             available = ", ".join(sorted({c.topic for c in reader.connections}))
@@ -84,8 +76,6 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
             if not loop or not rclpy.ok(context=node.context):
                 break
         time.sleep(0.5)  # reliable subscribers fetch the tail
-    finally:
-        reader.close()
     print(f"roi-node play: published {sent} messages from {bag}")
     return 0
 
