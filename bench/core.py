@@ -20,8 +20,7 @@ from roi_node.core.config import load_rig_config
 from roi_node.core.metadata import dumps
 from roi_node.core.pipeline import RoiPipeline
 from roi_node.core.sync import SyncResult
-from roi_node.sim.render import draw_rig, table_texture
-from roi_node.sim.trajectory import SwayTrajectory
+from roi_node.sim.rig_sim import SimRig
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -56,10 +55,9 @@ def psnr_db(a: np.ndarray, b: np.ndarray) -> float:
 def bench(width: int, height: int, frames: int, tmp: Path) -> None:
     pipeline = rig_for(width, height, tmp, "area")
     fast = rig_for(width, height, tmp, "area_pyramid")
-    trajectory = SwayTrajectory(list(pipeline.required_joints), seed=1)
-    background = table_texture(width, height, seed=1)
-    poses = [dict(zip(pipeline.required_joints, trajectory.positions(i / 30), strict=True)) for i in range(frames)]
-    images = [draw_rig(pipeline, poses[i], background) for i in range(0, frames, max(1, frames // 10))]
+    sim = SimRig(pipeline.rig, seed=1, intrinsics=pipeline.camera)
+    poses = [dict(zip(sim.required_joints, sim.positions(sim.capture_ns(i)), strict=True)) for i in range(frames)]
+    images = [sim.render(sim.capture_ns(i))[0] for i in range(0, frames, max(1, frames // 10))]
     copy_ms, total_ms, global_ms, json_ms, fast_ms = [], [], [], [], []
     windows: list[int] = []
     psnr_global: list[float] = []

@@ -55,7 +55,7 @@ def env_for(domain: int) -> dict[str, str]:
     return env
 
 
-def rig_at(width: int, height: int, tmp: Path) -> Path:
+def rig_at(width: int, height: int, tmp: Path, interpolation: str) -> Path:
     """The bundled bimanual rig with its intrinsics scaled to width x height."""
     cam = load_rig_config(RIG).camera.intrinsics
     assert cam is not None
@@ -65,9 +65,8 @@ def rig_at(width: int, height: int, tmp: Path) -> Path:
     (tmp / f"cam_{width}.yaml").write_text(calibration_yaml_text(scaled, "front"))
     doc = yaml.safe_load(RIG.read_text())
     doc["camera"]["intrinsics"] = str(tmp / f"cam_{width}.yaml")
-    for robot in doc["robots"]:
-        robot.setdefault("urdf", "example-robot-data:panda")
-    path = tmp / f"rig_{width}.yaml"
+    doc["output"]["interpolation"] = interpolation
+    path = tmp / f"rig_{width}_{interpolation}.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path
 
@@ -111,9 +110,9 @@ def publish(spec_path: Path, truth_path: Path, env: dict[str, str]) -> dict[str,
     return json.loads(truth_path.read_text())  # type: ignore[no-any-return]
 
 
-def run_case(size: int, duration_s: float, tmp: Path, domain: int) -> dict[str, float]:
+def run_case(size: int, duration_s: float, tmp: Path, domain: int, interpolation: str) -> dict[str, float]:
     width, height = SIZES[size]
-    rig = rig_at(width, height, tmp)
+    rig = rig_at(width, height, tmp, interpolation)
     frames = int(duration_s * 30)
     spec = tmp / f"spec_{size}.json"
     spec.write_text(json.dumps({"rig": str(rig), "frames": frames, "rate_hz": 30.0, "joint_rate_hz": 200.0, "distinct_frames": 30}))
@@ -157,12 +156,14 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--duration-s", type=float, default=60.0, help="seconds per measurement (default: 60)")
     parser.add_argument("--sizes", type=int, nargs="+", default=[720, 1080], choices=sorted(SIZES))
+    parser.add_argument("--interpolation", choices=["area", "area_pyramid"], default="area", help="the rig's output.interpolation")
     parser.add_argument("--domain", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "73")) % 200 + 20)
     args = parser.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for i, size in enumerate(args.sizes):
-            rows.append(run_case(size, args.duration_s, Path(tmp), args.domain + 2 * i))
+            rows.append(run_case(size, args.duration_s, Path(tmp), args.domain + 2 * i, args.interpolation))
+    print(f"output.interpolation: {args.interpolation}")
     print(f"{'stream':>14} | {'(a) transport p50/p99 ms':>25} | {'(b) via node p50/p99 ms':>24} | {'b-a p50 ms':>10} | "
           f"{'dropped a/b':>11} | {'node CPU ms/frame':>17} | {'node CPU % core':>15}")
     for r in rows:

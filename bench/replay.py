@@ -30,19 +30,17 @@ from typing import Any
 import cv2
 import yaml
 from rosbags.highlevel import AnyReader
-from rosbags.rosbag2 import StoragePlugin, Writer
 
 from roi_node.bag.batch import replay_bags
 from roi_node.bag.memory import tune_malloc_for_large_frames
-from roi_node.bag.messages import MessageFactory
 from roi_node.bag.replay import replay_bag
-from roi_node.bag.writer import ROSBAG2_VERSION, qos_profile, typestore
+from roi_node.bag.writer import typestore
 from roi_node.core.config import load_rig_config
 from roi_node.core.image_codec import image_from_msg
 from roi_node.core.pipeline import RoiPipeline
 from roi_node.core.sync import NS_PER_S, SyncResult
-from roi_node.sim.render import draw_rig, table_texture
-from roi_node.sim.trajectory import SwayTrajectory
+from roi_node.sim.bag_sink import write_sim_bag
+from roi_node.sim.rig_sim import SimRig
 
 REPO = Path(__file__).resolve().parents[1]
 RIG = REPO / "config" / "rig_demo_bimanual.yaml"
@@ -60,45 +58,24 @@ def pyramid_rig(tmp: Path) -> Path:
 
 
 def write_bag(path: Path, frames: int) -> int:
-    """A recorded-style bag: /camera/image_raw (rgb8) at 30 Hz, /joint_states at 200 Hz, 1.7 ms out of phase."""
-    pipeline = RoiPipeline(load_rig_config(RIG))
-    names = list(pipeline.required_joints)
-    trajectory = SwayTrajectory(names, seed=3)
-    background = table_texture(pipeline.camera.width_px, pipeline.camera.height_px, seed=3)
-    ts = typestore()
-    factory = MessageFactory(ts)
-    frame_ns, joint_ns = NS_PER_S // 30, NS_PER_S // 200
-    with Writer(path, version=ROSBAG2_VERSION, storage_plugin=StoragePlugin.MCAP) as writer:
-        image = writer.add_connection("/camera/image_raw", "sensor_msgs/msg/Image", typestore=ts,
-                                      offered_qos_profiles=[qos_profile(reliable=False)])
-        joints = writer.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts,
-                                       offered_qos_profiles=[qos_profile(reliable=False)])
-        next_joint = START_NS + 1_700_000 - 10 * joint_ns
-        for k in range(frames):
-            stamp = START_NS + k * frame_ns
-            while next_joint <= stamp + 10 * joint_ns:
-                q = trajectory.positions((next_joint - START_NS) / NS_PER_S)
-                writer.write(joints, next_joint + 400_000, ts.serialize_cdr(factory.joint_state(next_joint, names, q), joints.msgtype))
-                next_joint += joint_ns
-            pose = dict(zip(names, trajectory.positions((stamp - START_NS) / NS_PER_S), strict=True))
-            msg = factory.image(stamp, "front_optical", draw_rig(pipeline, pose, background))
-            writer.write(image, stamp + 12_000_000, ts.serialize_cdr(msg, image.msgtype))
+    """The simulated rig's bag: /image_raw (rgb8) at 30 Hz, /joint_states at 200 Hz, 1.7 ms out of phase."""
+    write_sim_bag(RIG, path, duration_s=frames / 30, seed=3, start_ns=START_NS)
     return sum(f.stat().st_size for f in path.iterdir())
 
 
 def floor_rate(path: Path, pipeline: RoiPipeline | None = None) -> float:
     """Frames/s of reading, deserializing and viewing the pixels of every frame (and, given a pipeline, processing it)."""
-    trajectory = SwayTrajectory(list(pipeline.required_joints), seed=3) if pipeline else None
+    sim = SimRig(RIG, seed=3, start_ns=START_NS) if pipeline else None
     start = time.perf_counter()
     n = 0
     with AnyReader([path], default_typestore=typestore()) as reader:
-        conns = [c for c in reader.connections if c.topic == "/camera/image_raw"]
+        conns = [c for c in reader.connections if c.topic == "/image_raw"]
         for conn, _, raw in reader.messages(connections=conns):
             msg: Any = reader.deserialize(raw, conn.msgtype)
             image = image_from_msg(msg)
-            if pipeline is not None and trajectory is not None:
+            if pipeline is not None and sim is not None:
                 stamp = msg.header.stamp.sec * NS_PER_S + msg.header.stamp.nanosec
-                q = dict(zip(pipeline.required_joints, trajectory.positions((stamp - START_NS) / NS_PER_S), strict=True))
+                q = dict(zip(sim.required_joints, sim.positions(stamp), strict=True))
                 pipeline.process(image, stamp, n, SyncResult("interpolate", "ok", q, 0.0, stamp))
             n += 1
     return n / (time.perf_counter() - start)

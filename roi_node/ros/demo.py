@@ -246,7 +246,7 @@ def _summary(watch: _Watch, expected: int, logs: Path, validation: dict[str, Any
     images_in = recorded.get("/image_raw", (0, 0))[0]
     metadata = recorded.get("/roi/metadata", (0, 0))[0]
     bag = validation["bags"][0] if validation.get("bags") else {}
-    failed = [g for g in bag.get("gates", []) if not g.get("passed", True)]
+    failed = [g for g in bag.get("gates", []) if g.get("status") == "fail"]
     return {
         "frames_published_by_sim": expected,
         "frames_recorded_in": images_in,
@@ -276,7 +276,8 @@ def _print_summary(s: dict[str, Any]) -> None:
     print(f"  frames: {s['frames_published_by_sim']} published, {s['frames_recorded_in']} recorded, "
           f"{s['roi_frames_out']} ROI frames out, dropped {s['dropped_frames']}")
     print(f"  camera -> ROI latency: p50 {s['latency_ms']['p50']:.1f} ms, p99 {s['latency_ms']['p99']:.1f} ms")
-    gates = "all passed" if s["gates_passed"] else f"FAILED: {[g.get('name') for g in s['gates_failed']]}"
+    failed = ", ".join(f"{g['gate']} ({g['arm']}: {g['value']:.3g} vs {g['op']} {g['threshold']:g})" for g in s["gates_failed"])
+    gates = "all passed" if s["gates_passed"] else f"FAILED: {failed}"
     print(f"  quality gates: {gates}")
     print(f"  live == offline: {'yes' if s['live_equals_offline'] else 'NO'} ({s['live_offline_frames_compared']} frames compared)")
     for name, path in s["paths"].items():

@@ -1,0 +1,227 @@
+"""SimRig: the simulated rig as a deterministic, time-ordered stream of messages.
+
+What a real rig delivers, with realistic timing: joint states faster than the
+camera and out of phase with it, each stamped at its measurement time with a
+small seeded jitter; for every frame a CameraInfo and an RGB image at the
+calibrated size, rendered from the robots' pose at capture time, whose header
+stamp is capture time + the camera delay (DESIGN.md: capture time =
+header.stamp - delay). Every image carries its ground truth (joint positions
+at capture, each gripper's drawn polygon and visibility).
+
+Pull-based: `events()` is a lazy iterator in stamp order, so a live publisher
+paces it with a wall clock and a bag writer drains it as fast as it renders.
+Everything is a function of (rig, seed, parameters): no clock, no global
+random state, the same events on every run.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+
+from ..core import topics
+from ..core.camera import CameraModel
+from ..core.config import RigConfig, load_rig_config
+from ..core.errors import ConfigError
+from ..core.sync import NS_PER_MS, NS_PER_S
+from ..core.transforms import Float64Array
+from .arms import load_arms, required_joints
+from .capsules import CameraView, ProjectedCapsule
+from .choreography import script_rig
+from .layout import plan_layout
+from .painter import RigPainter
+from .scene import render_static_scene
+from .truth import FrameTruth, gripper_truth
+
+_MASK64 = (1 << 64) - 1
+
+
+@dataclass(frozen=True)
+class JointStateEvent:
+    """One sensor_msgs/JointState: every required joint, prefixed as the rig names them."""
+
+    stamp_ns: int
+    names: tuple[str, ...]
+    positions: tuple[float, ...]
+    topic: ClassVar[str] = topics.JOINT_STATES
+
+
+@dataclass(frozen=True)
+class CameraInfoEvent:
+    """The rig's calibration, published with every frame (same stamp, just before the image)."""
+
+    stamp_ns: int
+    frame_id: str
+    camera: CameraModel
+    topic: ClassVar[str] = topics.CAMERA_INFO
+
+
+@dataclass(frozen=True, eq=False)
+class ImageEvent:
+    """One camera frame: RGB uint8 H x W x 3 at the calibrated size."""
+
+    stamp_ns: int  # header stamp = capture_ns + camera delay
+    capture_ns: int  # when the pictured pose was held
+    frame_index: int
+    frame_id: str
+    image: np.ndarray
+    truth: FrameTruth
+    topic: ClassVar[str] = topics.IMAGE
+
+
+SimEvent = JointStateEvent | CameraInfoEvent | ImageEvent
+_RANK: dict[type, int] = {JointStateEvent: 0, CameraInfoEvent: 1, ImageEvent: 2}
+
+
+def event_order(event: SimEvent) -> tuple[int, int]:
+    """Stamp order; at equal stamps joint states, then camera_info, then the image."""
+    return event.stamp_ns, _RANK[type(event)]
+
+
+class SimRig:
+    """A rig config brought to life: scripted arms, a rendered camera, timed message streams."""
+
+    def __init__(
+        self,
+        rig: RigConfig | str | Path,
+        *,
+        seed: int = 0,
+        rate_hz: float = 30.0,
+        joint_rate_hz: float = 200.0,
+        joint_phase_ms: float = 1.7,
+        jitter_ms: float = 0.3,
+        camera_delay_ms: float | None = None,
+        start_ns: int = 0,
+        intrinsics: CameraModel | None = None,
+    ) -> None:
+        """`camera_delay_ms=None` uses the rig's `camera.delay_ms`, so the pipeline's capture time is right.
+
+        Every stamp is `start_ns` + an offset; `start_ns` may be reassigned
+        before streaming (a live publisher sets it to the wall clock).
+        """
+        self.rig = rig if isinstance(rig, RigConfig) else load_rig_config(rig)
+        if not (rate_hz > 0 and joint_rate_hz > 0):
+            raise ConfigError(f"sim: rates must be > 0, got camera {rate_hz} Hz, joints {joint_rate_hz} Hz")
+        joint_period_ms = 1000.0 / joint_rate_hz
+        if not 0.0 <= jitter_ms < joint_period_ms / 2:
+            raise ConfigError(
+                f"sim: jitter_ms must be in [0, {joint_period_ms / 2:g}) (half the joint period) to keep stamps ordered, got {jitter_ms}"
+            )
+        delay_ms = self.rig.camera.delay_ms if camera_delay_ms is None else camera_delay_ms
+        if delay_ms < 0 or joint_phase_ms < 0:
+            raise ConfigError(f"sim: camera_delay_ms and joint_phase_ms must be >= 0, got {delay_ms} and {joint_phase_ms}")
+        camera = intrinsics or self.rig.camera.intrinsics
+        if camera is None:
+            raise ConfigError(f"{self.rig.path}: camera.intrinsics: the simulator needs a calibration file (or pass intrinsics)")
+        self.seed = seed
+        self.rate_hz = rate_hz
+        self.joint_rate_hz = joint_rate_hz
+        self.start_ns = int(start_ns)
+        self.delay_ns = round(delay_ms * NS_PER_MS)
+        self._phase_ns = round(joint_phase_ms * NS_PER_MS)
+        self._jitter_ns = jitter_ms * NS_PER_MS
+        self.camera = camera
+        self.frame_id = str(self.rig.camera.extrinsics_raw.get("child") or f"{self.rig.camera.id}_optical")
+        world_T_cam = self.rig.camera.world_T_cam
+        self.arms = load_arms(self.rig)
+        self.required_joints = required_joints(self.arms)
+        self.view = CameraView.of(camera, world_T_cam, self.rig.camera.z_min_m)
+        bases = [a.world_T_base.translation_m for a in self.arms]
+        self.layout = plan_layout(camera, world_T_cam, bases, max(a.reach_m for a in self.arms), seed)
+        self.scene = render_static_scene(camera, world_T_cam, self.layout, seed)
+        self.trajectory = script_rig(self.arms, self.view, self.layout.table_z_m, seed)
+        reference_depth = float(np.median(self.view.cam_T_world.apply(np.array(bases))[:, 2]))
+        self.painter = RigPainter(self.scene, max(reference_depth, self.view.z_near_m))
+
+    # --- timing -------------------------------------------------------------------------------
+    def frame_count(self, duration_s: float) -> int:
+        """Frames captured in `duration_s` seconds (the first one period after the start)."""
+        return math.floor(duration_s * self.rate_hz + 1e-9)
+
+    def capture_ns(self, frame_index: int) -> int:
+        """Capture time of frame k: one camera period after the start, then every period."""
+        return self.start_ns + round((frame_index + 1) * NS_PER_S / self.rate_hz)
+
+    def joint_stamp_ns(self, sample_index: int) -> int:
+        """Stamp of joint sample j: the phase-shifted joint grid plus seeded jitter."""
+        nominal = self._phase_ns + round(sample_index * NS_PER_S / self.joint_rate_hz)
+        return self.start_ns + nominal + round(self._jitter_ns * _unit_noise(self.seed, sample_index))
+
+    # --- state -------------------------------------------------------------------------------
+    def positions(self, t_ns: int) -> Float64Array:
+        """Positions of `required_joints` at sim time t_ns (the exact trajectory)."""
+        return self.trajectory.positions((t_ns - self.start_ns) / NS_PER_S)
+
+    def joint_state(self, stamp_ns: int) -> JointStateEvent:
+        return JointStateEvent(stamp_ns, self.required_joints, tuple(float(v) for v in self.positions(stamp_ns)))
+
+    def ground_truth(self, capture_ns: int) -> FrameTruth:
+        """What the camera sees at capture time (header stamp - delay), without rendering."""
+        return self._project(capture_ns)[0]
+
+    def render(self, capture_ns: int) -> tuple[np.ndarray, FrameTruth]:
+        truth, projected = self._project(capture_ns)
+        return self.painter.paint(projected), truth
+
+    def _project(self, capture_ns: int) -> tuple[FrameTruth, list[ProjectedCapsule]]:
+        q = self.positions(capture_ns)
+        by_name = dict(zip(self.required_joints, (float(v) for v in q), strict=True))
+        capsules = []
+        ee_points = []
+        for arm in self.arms:
+            pose = arm.pose(np.array([by_name[n] for n in arm.joint_names]))
+            capsules += arm.capsules(pose, self.view.cam_T_world)
+            ee_points.append((self.view.cam_T_world @ arm.world_T_base).apply(pose.base_T_ee.translation_m))
+        projected = self.view.project(capsules)
+        grippers = tuple(gripper_truth(arm.id, arm.index, projected, ee_points[arm.index], self.view) for arm in self.arms)
+        return FrameTruth(capture_ns, by_name, grippers), projected
+
+    # --- streams -----------------------------------------------------------------------------
+    def events(self, duration_s: float) -> Iterator[SimEvent]:
+        """Every message of `duration_s` seconds of the rig, lazily, in stamp order.
+
+        Frames are captured at start + k/rate for k = 1 .. floor(duration * rate);
+        joint states run from start + phase until one joint period past the
+        last capture, so every frame has a joint sample on both sides.
+        Parameters are checked here, before the first event is pulled.
+        """
+        if not duration_s > 0:
+            raise ConfigError(f"sim: duration must be > 0 s, got {duration_s}")
+        if self.joint_stamp_ns(0) < 0 or self.start_ns < 0:
+            raise ConfigError(f"sim: start_ns {self.start_ns} with the joint phase and jitter stamps before 0")
+        n_frames = self.frame_count(duration_s)
+        last_capture = self.capture_ns(n_frames - 1) if n_frames else self.start_ns
+        joints_until = max(last_capture, self.start_ns + round(duration_s * NS_PER_S)) + round(NS_PER_S / self.joint_rate_hz)
+        return heapq.merge(self._joint_events(joints_until), self._frame_events(n_frames), key=event_order)
+
+    def _joint_events(self, until_ns: int) -> Iterator[JointStateEvent]:
+        j = 0
+        while self.start_ns + self._phase_ns + round(j * NS_PER_S / self.joint_rate_hz) <= until_ns:
+            yield self.joint_state(self.joint_stamp_ns(j))
+            j += 1
+
+    def _frame_events(self, n_frames: int) -> Iterator[CameraInfoEvent | ImageEvent]:
+        for k in range(n_frames):
+            capture = self.capture_ns(k)
+            stamp = capture + self.delay_ns
+            yield CameraInfoEvent(stamp, self.frame_id, self.camera)
+            image, truth = self.render(capture)
+            yield ImageEvent(stamp, capture, k, self.frame_id, image, truth)
+
+
+def _unit_noise(seed: int, index: int) -> float:
+    """Uniform in [-1, 1) from (seed, index) by splitmix64: random access, identical on every platform."""
+    return _splitmix64(_splitmix64(seed & _MASK64) ^ index) / float(1 << 63) - 1.0
+
+
+def _splitmix64(x: int) -> int:
+    z = (x + 0x9E3779B97F4A7C15) & _MASK64
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK64
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK64
+    return z ^ (z >> 31)

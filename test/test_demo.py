@@ -1,0 +1,44 @@
+"""`roi-node demo` end to end: sim, live node and recorder as processes, then validate, replay, compare."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import yaml
+
+from .conftest import REPO
+from .live.harness import next_domain, ros_env
+
+
+def test_demo_runs_the_whole_job_and_live_equals_offline(tmp_path: Path) -> None:
+    out = tmp_path / "demo"
+    run = subprocess.run(
+        [sys.executable, "-m", "roi_node.cli", "demo", "--out", str(out), "--duration", "6"],
+        cwd=REPO, env=ros_env(next_domain()), capture_output=True, text=True, timeout=400,
+    )
+    summary = json.loads((out / "summary.json").read_text())
+    assert run.returncode == (0 if summary["gates_passed"] else 1), run.stdout + run.stderr
+    assert summary["frames_published_by_sim"] == 180
+    assert summary["dropped_frames"] == 0 and summary["roi_frames_out"] == 180
+    assert summary["live_equals_offline"] and summary["live_offline_frames_compared"] == 180
+    assert "live == offline: yes (180 frames compared)" in run.stdout
+    meta = yaml.safe_load((out / "session" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["custom_data"]["roi_node.status"] == "complete"
+    assert (out / "report" / "REPORT.md").read_text().startswith("#")
+    sheet = cv2.imread(str(out / "contact_sheet.png"))
+    assert sheet is not None and sheet.shape[0] > 256
+    video = cv2.VideoCapture(str(out / "strip.mp4"))
+    ok, frame = video.read()
+    assert ok and frame.shape == (256, 3 * 256, 3)
+
+
+def test_demo_refuses_a_folder_it_did_not_write(tmp_path: Path) -> None:
+    (tmp_path / "precious.txt").write_text("keep me")
+    run = subprocess.run([sys.executable, "-m", "roi_node.cli", "demo", "--out", str(tmp_path)], cwd=REPO,
+                         env=ros_env(next_domain()), capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "is not a previous demo output" in run.stderr
+    assert (tmp_path / "precious.txt").read_text() == "keep me"
