@@ -167,13 +167,18 @@ def test_bad_input_is_flagged_counted_and_the_node_keeps_publishing(tmp_path: Pa
     inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
     bad = inputs["bad_messages_by_kind"]
     assert bad["image"] == 4 and inputs["dropped_by_reason"]["bad_image"] == 4
-    assert bad["joint_state_nan"] >= 1 and bad["joint_state"] >= 1
+    assert bad["joint_state_nan"] >= 1 and bad["joint_state"] >= 1 and bad["joint_state_unknown_names"] >= 1
+    assert "unknown_0" in errors_of(inputs, "joint_state_unknown_names")
     errors = inputs["last_errors"]
     assert "step" in errors["image"] or "16UC1" in errors["image"] or "640x480" in errors["image"]
     assert "no positions" in errors["joint_state"]
     assert "image_raw" in log and "WARN" in log
     sync = diagnostics_values(collector.diagnostics, "roi_node: sync")
     assert sync["status_counts"]["missing"] >= 5
+
+
+def errors_of(inputs: dict[str, Any], kind: str) -> str:
+    return str(inputs["last_errors"][kind])
 
 
 def test_arm_behind_the_camera_is_flagged_and_the_other_arm_still_cropped(tmp_path: Path) -> None:

@@ -217,6 +217,12 @@ class RoiNode(Node):
                 return
             if skipped:
                 self.stats.bad_message("joint_state_nan", f"{topic}: non-finite position for {', '.join(skipped)}")
+            required = self._session.pipeline.required_joints
+            if names and not set(names) & set(required):
+                self.stats.bad_message(
+                    "joint_state_unknown_names",
+                    f"{topic}: none of {names[:3]}... is a joint this rig uses (expected names like {list(required[:3])})",
+                )
             self._lock.notify()
 
     def _on_command(self, msg: JointState) -> None:
