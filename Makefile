@@ -32,6 +32,10 @@ demo: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) bench/core.py
+	$(PY) bench/sim.py
+	$(PY) bench/replay.py
+	$(PY) bench/validate.py
+	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-73} $(PY) bench/live.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check roi_node test bench examples

@@ -43,6 +43,7 @@ class NodeParams:
     output_encoding: str
     global_view: bool
     diagnostics_period_s: float
+    opencv_threads: int
 
     def subscription_qos(self) -> QoSProfile:
         return _qos(self.subscription_reliability, self.subscription_depth)
@@ -88,6 +89,7 @@ def declare_and_read(node: Node) -> NodeParams:
         "output_encoding": p("output_encoding", "rgb8").value,
         "global_view": p("global_view", True).value,
         "diagnostics_period_s": p("diagnostics_period_s", 1.0).value,
+        "opencv_threads": p("opencv_threads", 1).value,
     }
     return _validate(values)
 
@@ -146,4 +148,5 @@ def _validate(v: dict[str, object]) -> NodeParams:
         output_encoding=_choice(v, "output_encoding", "output_encoding", OUTPUT_ENCODINGS),
         global_view=bool(v["global_view"]),
         diagnostics_period_s=period,
+        opencv_threads=_positive_int(v, "opencv_threads", "opencv_threads"),
     )
