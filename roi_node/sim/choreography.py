@@ -26,11 +26,11 @@ from .trajectory import LIMIT_MARGIN, Keyframe, KeyframeTrajectory, RigTrajector
 from .truth import GripperTruth, Visibility, gripper_truth
 
 # Mostly work in view, like a real task; one partial exit and one full exit per pass (~10-15% of the time).
-BEATS = ("work", "near", "work", "partial", "work", "far", "work", "out")
+BEATS = ("work", "near", "work", "partial", "work", "far", "work", "work", "out")
 CYCLES = 2  # distinct picks per beat before the script loops
-_ARM_BEAT_OFFSET = 3  # arm i starts its loop at beat 3i: the arms are rarely in the same beat
+_ARM_BEAT_OFFSET = 4  # arm i starts its loop at beat 4i (a work beat): the arms are rarely in the same beat
 _CANDIDATES = ((0.25, 100), (0.6, 120), (1.0, 200))  # (spread toward a uniform pose, count)
-_HOLD_S = {"work": (0.8, 1.6), "near": (0.6, 1.2), "far": (0.6, 1.2), "partial": (0.4, 0.7), "out": (0.4, 0.7), "home": (1.0, 1.0)}
+_HOLD_S = {"work": (0.8, 1.6), "near": (0.6, 1.2), "far": (0.6, 1.2), "partial": (0.3, 0.5), "out": (0.3, 0.5), "home": (1.0, 1.0)}
 _PEAK_SPEED = 1.6  # rad/s (m/s for prismatic joints) at the middle of the largest joint move
 _MIN_MOVE_S = 0.8
 _IN_MARGIN = 0.05  # of the smaller image side, kept between an in-frame gripper and the edge
