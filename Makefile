@@ -25,9 +25,11 @@ $(STAMP): setup.py setup.cfg package.xml
 	touch $(STAMP)
 
 test: $(STAMP)
+	$(PY) -m compileall -q roi_node test examples  # a cold first import must not slow the first live test
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-71} $(PY) -m pytest -q test
 
 demo: $(STAMP)
+	$(PY) -m compileall -q roi_node
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-72} $(VENV)/bin/roi-node demo --out $(DEMO_OUT)
 
 bench: $(STAMP)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,15 @@ def by_stamp(messages: list[tuple[int, Any]]) -> dict[int, Any]:
     return {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec: m for _, m in messages}
 
 
+def wait_for_log(log: Path, needles: list[str], timeout_s: float = 30.0) -> None:
+    """Until the recorder says it subscribed to every output, then a settle: its readers match a moment later."""
+    deadline = time.monotonic() + timeout_s
+    while not all(n in log.read_text() for n in needles):
+        assert time.monotonic() < deadline, f"recorder never subscribed: {log.read_text()}"
+        time.sleep(0.1)
+    time.sleep(1.5)
+
+
 def record_session(tmp_path: Path, frames: int) -> tuple[Path, dict[str, Any]]:
     domain = next_domain()
     env = ros_env(domain)
@@ -52,6 +62,7 @@ def record_session(tmp_path: Path, frames: int) -> tuple[Path, dict[str, Any]]:
     (tmp_path / "spec.json").write_text(json.dumps({"rig": str(BIMANUAL), "frames": frames, "min_subscribers": 2, "settle_s": 1.0}))
     with process(node_args(BIMANUAL), env, tmp_path / "node.log"):
         with process(["-m", "roi_node.cli", "record", "-o", str(bag), "--topics", *INPUTS, *OUTPUTS], env, tmp_path / "rec.log") as rec:
+            wait_for_log(tmp_path / "rec.log", [f"recording {t} " for t in OUTPUTS])
             pub = subprocess.run(
                 [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
                 cwd=REPO, env=env, capture_output=True, text=True, timeout=120,

@@ -257,6 +257,7 @@ def _summary(watch: _Watch, expected: int, logs: Path, validation: dict[str, Any
         "gates_failed": failed,
         "live_equals_offline": comparison.equal,
         "live_offline_frames_compared": comparison.frames,
+        "live_offline_frames_exempt": comparison.exempt,
         "live_offline_differences": comparison.differences[:5],
         "live_seconds": live_s,
         "paths": {
@@ -279,6 +280,8 @@ def _print_summary(s: dict[str, Any]) -> None:
     failed = ", ".join(f"{g['gate']} ({g['arm']}: {g['value']:.3g} vs {g['op']} {g['threshold']:g})" for g in s["gates_failed"])
     gates = "all passed" if s["gates_passed"] else f"FAILED: {failed}"
     print(f"  quality gates: {gates}")
-    print(f"  live == offline: {'yes' if s['live_equals_offline'] else 'NO'} ({s['live_offline_frames_compared']} frames compared)")
+    exempt = s["live_offline_frames_exempt"]
+    note = f", {exempt} released live before their joint sample arrived, not compared" if exempt else ""
+    print(f"  live == offline: {'yes' if s['live_equals_offline'] else 'NO'} ({s['live_offline_frames_compared']} frames compared{note})")
     for name, path in s["paths"].items():
         print(f"  {name}: {path}")

@@ -24,7 +24,7 @@ from ..core.errors import RoiNodeError
 from ..sim.rig_sim import CameraInfoEvent, ImageEvent, JointStateEvent, SimEvent, SimRig
 from .conversions import camera_info_msg, header, image_msg
 
-LEAD_NS = 300_000_000  # the first stamp lies this far ahead of start: rendering gets a head start
+LEAD_NS = 1_000_000_000  # the first stamp lies this far ahead of start: rendering gets a head start
 AHEAD_EVENTS = 256
 DISCOVERY_TIMEOUT_S = 30.0
 

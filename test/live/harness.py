@@ -110,11 +110,19 @@ class Collector:
             pass
 
     def wait_for_node(self, timeout_s: float = 30.0) -> None:
+        """Until every subscription here matched the node's publisher, plus a settle.
+
+        Reliable data sent before the reader side matched is lost, and discovery
+        takes 1-3 s here.
+        """
         deadline = time.monotonic() + timeout_s
-        while self.node.count_publishers("/roi/metadata") < 1:
+        subscriptions = [s for s in self.node.subscriptions if s.topic_name != "/diagnostics"]
+        while not all(s.get_publisher_count() >= 1 for s in subscriptions):
             if time.monotonic() > deadline:
-                raise TimeoutError("no roi_node publisher on /roi/metadata")
+                waiting = [s.topic_name for s in subscriptions if s.get_publisher_count() < 1]
+                raise TimeoutError(f"no roi_node publisher matched on {waiting}")
             time.sleep(0.05)
+        time.sleep(1.0)
 
     def wait_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
         deadline = time.monotonic() + timeout_s
