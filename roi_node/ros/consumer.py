@@ -83,7 +83,7 @@ class ObservationClient:
         self._cond = threading.Condition()
         self.dropped_unconsumed = 0  # complete observations pushed out of the full buffer
         self.dropped_incomplete = 0  # stamps evicted before every part arrived
-        qos = qos or QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        qos = qos or QoSProfile(depth=30, reliability=ReliabilityPolicy.RELIABLE)
         for arm in self.arm_ids:
             node.create_subscription(Image, topics.roi_image(arm), self._image_callback(arm), qos)
         if with_global:

@@ -81,7 +81,7 @@ def declare_and_read(node: Node) -> NodeParams:
         "subscription_depth": p("qos.subscription_depth", 5).value,
         "joint_state_depth": p("qos.joint_state_depth", 100).value,
         "publisher_reliability": p("qos.publisher_reliability", "reliable").value,
-        "publisher_depth": p("qos.publisher_depth", 10).value,
+        "publisher_depth": p("qos.publisher_depth", 30).value,
         "sync_policy": p("sync.policy", "").value,
         "max_skew_ms": p("sync.max_skew_ms", -1.0).value,
         "max_wait_ms": p("sync.max_wait_ms", -1.0).value,

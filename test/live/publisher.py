@@ -119,7 +119,8 @@ def main(spec_path: str, truth_path: str) -> int:
     for f in frames:
         events.append((f["index"] * period_ns, 1, "frame", f))
     n_joint = int(n * period_ns / joint_period_ns) + 10
-    for j in range(-5, n_joint):
+    warmup = int(spec.get("joint_warmup_s", 2.0) * NS / joint_period_ns)  # joint states stream before the camera starts
+    for j in range(-warmup, n_joint):
         rel = offset_ns + j * joint_period_ns
         frame_k = max(0, rel // period_ns)
         if frame_k < no_joints_before:
@@ -129,8 +130,9 @@ def main(spec_path: str, truth_path: str) -> int:
     events.sort(key=lambda e: (e[0], e[1]))
 
     # stamps are wall-clock capture times: each message goes out when its stamp comes
-    t0 = time.time_ns() + NS // 10
-    start = time.monotonic_ns() + NS // 10
+    lead_ns = NS // 10 + warmup * joint_period_ns  # the earliest (warm-up) joint state goes out 0.1 s from now
+    t0 = time.time_ns() + lead_ns
+    start = time.monotonic_ns() + lead_ns
     # messages are built before sending (as a driver's capture buffer would be); the stamp is set at send time
     built = {f["index"]: image_message(0, f["pixels"], spec, None) for f in frames[:distinct] if not compressed and not f["fault"]}
     for f in frames:
