@@ -23,6 +23,7 @@ import contextlib
 from collections.abc import Callable, Iterator, Sequence
 
 import rclpy
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
@@ -43,17 +44,29 @@ def spin_node(make_node: Callable[[], Node], ros_args: Sequence[str] = ()) -> in
     spins, so a bad start fails at once with the config error.
     """
     with ros_context(ros_args):
-        node = make_node()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
+        node: Node | None = None
+        try:
+            node = make_node()
+            executor = SingleThreadedExecutor()
+            executor.add_node(node)
+        except RCLError:
+            if node is not None:
+                _close(node)
+            if rclpy.ok():
+                raise
+            return 0  # SIGINT/SIGTERM arrived while the node was starting: a clean stop
         try:
             executor.spin()
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
         finally:
-            close = getattr(node, "close", None)
-            if close is not None:
-                close()
+            _close(node)
             executor.shutdown(timeout_sec=1.0)
-            node.destroy_node()
     return 0
+
+def _close(node: Node) -> None:
+    """Stop the node's own threads (if it has any), then destroy it."""
+    close = getattr(node, "close", None)
+    if close is not None:
+        close()
+    node.destroy_node()
