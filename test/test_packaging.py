@@ -4,14 +4,17 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tarfile
+import time
 from pathlib import Path
 
 import pytest
 
 from .conftest import REPO
+from .live.harness import next_domain, ros_env
 
 
 def _tracked_files() -> list[str]:
@@ -41,7 +44,8 @@ def test_colcon_build_installs_executables_index_marker_and_config(tmp_path: Pat
     assert (install / "lib" / "roi_node" / "roi-node").is_file()
     assert (install / "share" / "ament_index" / "resource_index" / "packages" / "roi_node").is_file()
     assert (install / "share" / "roi_node" / "package.xml").is_file()
-    for name in ("rig_demo_bimanual.yaml", "front_intrinsics.yaml", "metadata.schema.json"):
+    for name in ("rig_demo_bimanual.yaml", "front_intrinsics.yaml", "metadata.schema.json", "roi_node.params.yaml", "fastdds_shm.xml",
+                 "gates.yaml", "manifest.schema.json"):
         assert (install / "share" / "roi_node" / "config" / name).is_file()
     # the installed executable runs from the install space and finds its config through the ament prefix
     site = next(install.glob("lib/python3*/site-packages"))
@@ -58,3 +62,19 @@ def test_colcon_build_installs_executables_index_marker_and_config(tmp_path: Pat
     module_file, config_dir = probe.stdout.split()
     assert module_file.startswith(str(install)), probe.stdout
     assert config_dir == str(install / "share" / "roi_node" / "config")
+
+    # `ros2 run roi_node roi_node --ros-args -p config:=rig_demo_bimanual.yaml`: the bundled rig resolves in share/
+    node_env = {**ros_env(next_domain()), "PYTHONPATH": str(site), "AMENT_PREFIX_PATH": str(install)}
+    log = tmp_path / "node.log"
+    with log.open("wb") as sink:
+        node = subprocess.Popen(
+            [sys.executable, str(install / "lib" / "roi_node" / "roi_node"), "--ros-args", "-p", "config:=rig_demo_bimanual.yaml"],
+            cwd=tmp_path, env=node_env, stdout=sink, stderr=subprocess.STDOUT,
+        )
+        deadline = time.monotonic() + 60
+        while "rig demo_bimanual" not in log.read_text() and node.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        node.send_signal(signal.SIGINT)
+        node.wait(timeout=20)
+    assert node.returncode == 0, log.read_text()
+    assert f"rig demo_bimanual ({install / 'share' / 'roi_node' / 'config' / 'rig_demo_bimanual.yaml'})" in log.read_text()

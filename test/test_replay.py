@@ -254,7 +254,7 @@ def test_commanded_joint_states_give_the_teleop_residual(
 
 def test_ctrl_c_leaves_a_finalized_readable_bag_holding_what_was_done(tmp_path: Path) -> None:
     rig = small_rig(tmp_path)
-    spec = write_bag(tmp_path / "long", RoiPipeline(load_rig_config(rig)), frames=900)
+    spec = write_bag(tmp_path / "long", RoiPipeline(load_rig_config(rig)), frames=2000)
     out = tmp_path / "out"
     proc = subprocess.Popen(
         [sys.executable, "-m", "roi_node.cli", "replay", str(spec.path), "-o", str(out), "--config", str(rig)],
@@ -264,7 +264,7 @@ def test_ctrl_c_leaves_a_finalized_readable_bag_holding_what_was_done(tmp_path: 
     )
     mcap = out / "out.mcap"
     deadline = time.monotonic() + 120
-    while not (mcap.exists() and mcap.stat().st_size > 4_000_000):  # a few frames written
+    while not (mcap.exists() and mcap.stat().st_size > 1_000_000):  # the first chunk is out: a few frames written
         assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
         time.sleep(0.01)
     proc.send_signal(signal.SIGINT)
@@ -274,7 +274,7 @@ def test_ctrl_c_leaves_a_finalized_readable_bag_holding_what_was_done(tmp_path: 
     match = re.search(note, stderr)
     assert match, stderr
     done = int(match.group(1))
-    assert 0 < done < 900 and "(interrupted)" in stdout
+    assert 0 < done < 2000 and "(interrupted)" in stdout
     inspection = inspect_bag(out)
     assert inspection.status == "interrupted"
     counts = {name: count for name, _, count in inspection.topics}
