@@ -261,6 +261,8 @@ def test_ctrl_c_leaves_a_finalized_readable_bag_holding_what_was_done(tmp_path: 
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        # a test run started in the background inherits SIGINT ignored; a user's shell does not
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     mcap = out / "out.mcap"
     deadline = time.monotonic() + 120
