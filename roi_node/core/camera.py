@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from .errors import CalibrationError
 from .transforms import Float64Array
+from .yaml_file import read_yaml
 
 SUPPORTED_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
 _RADTAN_COEFFS = 8  # k1 k2 p1 p2 k3 k4 k5 k6
@@ -193,14 +194,7 @@ def camera_from_info(
 
 def load_calibration_yaml(path: Path, *, rectified: bool = False) -> CameraModel:
     """Read a ROS camera_calibration YAML (the file `camera_calibration` writes)."""
-    try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError as exc:
-        raise CalibrationError(f"{path}: calibration file not found") from exc
-    except IsADirectoryError as exc:
-        raise CalibrationError(f"{path}: is a directory, expected a camera_calibration YAML file") from exc
-    except yaml.YAMLError as exc:
-        raise CalibrationError(f"{path}: not valid YAML: {exc}") from exc
+    data = read_yaml(path, "calibration file", CalibrationError)
     if not isinstance(data, Mapping):
         raise CalibrationError(f"{path}: expected a mapping with image_width, image_height, camera_matrix, ...")
     where = str(path)

@@ -14,12 +14,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from .camera import CameraModel, load_calibration_yaml
 from .errors import CalibrationError, ConfigError
 from .robot_models import EXAMPLE_ROBOT_DATA_PREFIX, resolve_robot_reference
 from .transforms import Transform
+from .yaml_file import read_yaml
 
 RIG_SCHEMA = "roi_node/rig/v1"
 SYNC_POLICIES = ("interpolate", "nearest", "exact", "latest")
@@ -223,16 +222,7 @@ def _resolve_path(base: Path, value: str) -> Path:
 def load_rig_config(path: str | Path) -> RigConfig:
     """Load and validate a rig config; raises ConfigError naming file, key and problem."""
     file = Path(path)
-    try:
-        text = file.read_text()
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{file}: rig config not found") from exc
-    except IsADirectoryError as exc:
-        raise ConfigError(f"{file}: is a directory, expected a rig config YAML file") from exc
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{file}: not valid YAML: {exc}") from exc
+    doc = read_yaml(file, "rig config")
     root = _Node(doc, "", file)
     root.check_keys(("schema", "rig_id", "camera", "robots", "arms", "output", "sync"))
     schema = root.text("schema")

@@ -17,10 +17,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from ..core.errors import ConfigError
 from ..core.resources import config_dir
+from ..core.yaml_file import read_yaml
 from .drift import DRIFT_METRICS
 from .stats import ARM_METRICS, BAG_METRICS, Metric
 
@@ -140,16 +139,7 @@ def _params(file: Path, node: object) -> GateParams:
 def load_gates(path: Path | None = None) -> GateSet:
     """Load and check a gates file (default: config/gates.yaml); ConfigError names file, key and value."""
     file = Path(path) if path is not None else default_gates_path()
-    try:
-        data = file.read_bytes()
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{file}: gates file not found") from exc
-    except IsADirectoryError as exc:
-        raise ConfigError(f"{file}: is a directory, expected a gates YAML file") from exc
-    try:
-        doc = yaml.safe_load(data)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{file}: not valid YAML: {exc}") from exc
+    doc = read_yaml(file, "gates file")
     if not isinstance(doc, Mapping):
         raise ConfigError(f"{file}: expected a mapping with schema, gates and params")
     for key in doc:
@@ -159,7 +149,8 @@ def load_gates(path: Path | None = None) -> GateSet:
         raise ConfigError(f"{file}: schema: expected {GATES_SCHEMA!r}, got {doc.get('schema')!r}")
     if "gates" not in doc:
         raise ConfigError(f"{file}: gates: missing")
-    return GateSet(file, "sha256:" + hashlib.sha256(data).hexdigest(), _gates(file, doc["gates"]), _params(file, doc.get("params")))
+    digest = "sha256:" + hashlib.sha256(file.read_bytes()).hexdigest()
+    return GateSet(file, digest, _gates(file, doc["gates"]), _params(file, doc.get("params")))
 
 
 def _verdict(gate: Gate, arm: str, value: Metric) -> GateResult:
