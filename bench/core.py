@@ -17,7 +17,6 @@ import yaml
 
 from roi_node.core.camera import calibration_yaml_text, camera_from_info
 from roi_node.core.config import load_rig_config
-from roi_node.core.metadata import dumps
 from roi_node.core.pipeline import RoiPipeline
 from roi_node.core.sync import SyncResult
 from roi_node.sim.rig_sim import SimRig
@@ -71,7 +70,7 @@ def bench(width: int, height: int, frames: int, tmp: Path) -> None:
         t2 = time.perf_counter()
         cv2.resize(image, pipeline.rig.output.global_size_px, interpolation=cv2.INTER_AREA)
         t3 = time.perf_counter()
-        dumps(result.record)
+        result.record.to_json()
         t4 = time.perf_counter()
         copy_ms.append((t1 - t0) * 1e3)
         total_ms.append((t2 - t1) * 1e3)
@@ -83,12 +82,12 @@ def bench(width: int, height: int, frames: int, tmp: Path) -> None:
         assert result.global_view is not None and fast_result.global_view is not None
         psnr_global.append(psnr_db(result.global_view, fast_result.global_view))
         psnr_roi.extend(psnr_db(a.image, b.image) for a, b in zip(result.rois, fast_result.rois, strict=True) if a.image.any())
-        windows.extend(a["crop_size"][0] for a in result.record["arms"])
+        windows.extend(a.crop_size[0] for a in result.record.arms)
     print(f"{width}x{height}, 2 arms + global view + metadata, {frames} frames (ROI windows {min(windows)}-{max(windows)} px):")
     print(f"  plain frame copy (baseline) {stats(copy_ms)}")
     print(f"  core pipeline, whole frame  {stats(total_ms)}   ratio to copy: {np.median(total_ms) / np.median(copy_ms):.1f}x")
     print(f"    of which global view (INTER_AREA, whole frame) {stats(global_ms)}")
-    print(f"    of which metadata json.dumps                   {stats(json_ms)}")
+    print(f"    of which metadata to_json                      {stats(json_ms)}")
     rest = np.median(total_ms) - np.median(global_ms) - np.median(json_ms)
     print(f"    remainder: FK, projection, 2 ROI crops+resizes ~{rest:.3f} ms")
     print(f"  core pipeline, area_pyramid {stats(fast_ms)}   ratio to copy: {np.median(fast_ms) / np.median(copy_ms):.1f}x")

@@ -9,12 +9,14 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import traceback
 from collections.abc import Sequence
 
 from . import __version__
 from .core.errors import RoiNodeError
 
 EXIT_ERROR = 2
+DEBUG_FLAG = "--debug"
 
 
 VERB_MODULES = ("roi_node.ros.verbs", "roi_node.bag.verbs", "roi_node.report.verbs", "roi_node.sim.verbs")
@@ -24,6 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
     """Each layer registers its own verbs; none imports rclpy until its verb runs."""
     parser = argparse.ArgumentParser(prog="roi-node", description="Hand-centric ROI crops from one fixed camera via FK projection.")
     parser.add_argument("--version", action="version", version=f"roi_node {__version__}")
+    parser.add_argument(DEBUG_FLAG, action="store_true", help="print the traceback of an unexpected error (any position)")
     verbs = parser.add_subparsers(dest="verb", required=True, metavar="<verb>")
     for name in VERB_MODULES:
         importlib.import_module(name).register(verbs)
@@ -36,20 +39,38 @@ def main(argv: Sequence[str] | None = None) -> int:
     if "--ros-args" in argv:  # everything from --ros-args on belongs to rclpy
         cut = argv.index("--ros-args")
         argv, ros_args = argv[:cut], argv[cut:]
+    debug = DEBUG_FLAG in argv  # accepted before or after the verb
+    argv = [a for a in argv if a != DEBUG_FLAG]
     args = build_parser().parse_args(argv)
     args.ros_args = ros_args
+    args.debug = debug
     try:
         code: int = args.func(args)
-    except RoiNodeError as exc:
-        print(f"roi-node {args.verb}: error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
     except KeyboardInterrupt:
         print(f"roi-node {args.verb}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # `roi-node inspect BAG | head`: the reader left, nothing is wrong
         sys.stderr.close()
         return 0
+    except Exception as exc:  # every failure is one line; the traceback only on request
+        if debug:
+            traceback.print_exc()
+        print(f"roi-node {args.verb}: error: {describe_failure(exc)}", file=sys.stderr)
+        return EXIT_ERROR
     return code
+
+
+def describe_failure(exc: BaseException) -> str:
+    """One line for any exception: ours say what is wrong; the environment's say which resource; the rest are bugs."""
+    if isinstance(exc, RoiNodeError):
+        return str(exc)
+    if isinstance(exc, MemoryError):
+        return "out of memory (an input is far larger than expected, or the machine has too little free memory)"
+    if isinstance(exc, OSError):
+        target = exc.filename if exc.filename is not None else "an output or input file"
+        return f"{target}: {exc.strerror or exc}"
+    detail = str(exc).splitlines()[0][:200] if str(exc) else ""
+    return f"internal error {type(exc).__name__}{': ' + detail if detail else ''} (a bug; rerun with --debug for the traceback)"
 
 
 def ros2_run_main() -> int:

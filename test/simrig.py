@@ -1,4 +1,4 @@
-"""A moving simulated rig for tests: event streams, RoiSession runs, rig variants.
+"""A moving simulated rig for tests: event streams, stream-engine runs, rig variants.
 
 `SimRig` renders the rig's robots through its camera and knows the truth of
 every frame (joint positions at capture, each gripper's drawn polygon), so a
@@ -16,7 +16,7 @@ from typing import Any
 from roi_node.core.camera import CameraModel, calibration_yaml_text, camera_from_info
 from roi_node.core.config import RigConfig, load_rig_config
 from roi_node.core.pipeline import FrameResult
-from roi_node.core.session import RoiSession
+from roi_node.core import engine
 from roi_node.sim.rig_sim import CameraInfoEvent, ImageEvent, JointStateEvent, SimEvent
 from roi_node.sim.truth import GripperTruth
 
@@ -52,23 +52,26 @@ def collect(events: Iterable[SimEvent]) -> SimStream:
 
 
 def run_session(rig: RigConfig, events: Iterable[SimEvent]) -> list[tuple[ImageEvent, FrameResult]]:
-    """Drive a RoiSession as the live node would (each message released at its stamp), then flush.
+    """Drive a StreamEngine as the live node would (each message released at its stamp), then flush.
 
     Returns every processed frame with the image event (and so the ground truth) it came from.
     """
-    session = RoiSession(rig)
+    stream = engine.StreamEngine(rig)
     images: dict[int, ImageEvent] = {}
     out: list[tuple[ImageEvent, FrameResult]] = []
 
     def drain(now_ns: int | None) -> None:
-        for ready in session.pop_ready(now_ns):
-            out.append((images.pop(ready.payload.frame_index), session.process(ready)))
+        for ready in stream.pop_ready(now_ns):
+            result = stream.run(ready)
+            assert result is not None
+            out.append((images.pop(ready.payload.stamp_ns), result))
 
     for event in events:
         if isinstance(event, JointStateEvent):
-            session.add_joint_state(event.stamp_ns, event.names, event.positions)
+            stream.feed(engine.JointStateEvent(event.stamp_ns, event.names, event.positions))
         elif isinstance(event, ImageEvent):
-            images[session.add_frame(event.stamp_ns, event.image, arrival_ns=event.stamp_ns)] = event
+            images[event.stamp_ns] = event
+            stream.feed(engine.FrameEvent(event.stamp_ns, event.image, arrival_ns=event.stamp_ns))
         drain(event.stamp_ns)
     drain(None)
     return out

@@ -162,7 +162,7 @@ def test_document_that_is_not_a_mapping_is_rejected(tmp_path: Path) -> None:
             ("sync", "policy"), "fastest", "sync.policy", ["interpolate, nearest, exact, latest", "got 'fastest'"], id="unknown-sync-policy"
         ),
         pytest.param(("sync", "max_skew_ms"), 0, "sync.max_skew_ms", ["> 0", "got 0"], id="zero-skew"),
-        pytest.param(("output", "size"), [256, 0], "output.size", ["positive integers", "got [256, 0]"], id="output-size-zero"),
+        pytest.param(("output", "size"), [256, 0], "output.size", ["integers 1..4096", "got [256, 0]"], id="output-size-zero"),
         pytest.param(("output", "size"), [256], "output.size", ["[width, height]", "got [256]"], id="output-size-one-value"),
         pytest.param(("output", "size"), [256.5, 256], "output.size", ["integers", "got [256.5, 256]"], id="output-size-float"),
         pytest.param(("output", "resize_policy"), "crop", "output.resize_policy", ["stretch, letterbox", "got 'crop'"], id="resize-policy"),
@@ -304,7 +304,7 @@ def test_load_calibration_invalid_yaml(tmp_path: Path) -> None:
     [
         pytest.param("camera_matrix", DELETE, ["'camera_matrix'", "missing"], id="missing-k"),
         pytest.param("image_width", "1280", ["image_width", "integer", "'1280'"], id="width-string"),
-        pytest.param("image_height", 0, ["image size must be positive", "1280x0"], id="height-zero"),
+        pytest.param("image_height", 0, ["image size must be 1..16384 px per side", "1280x0"], id="height-zero"),
         pytest.param("distortion_model", "fisheye", ["distortion_model", "'fisheye'", "equidistant"], id="unsupported-model"),
         pytest.param(
             "distortion_coefficients",
@@ -330,7 +330,7 @@ def test_too_many_equidistant_coefficients(tmp_path: Path) -> None:
     calib_path = _write_calibration(tmp_path / "fisheye.yaml", calib)
     with pytest.raises(CalibrationError) as info:
         load_calibration_yaml(calib_path)
-    _assert_error(str(info.value), calib_path, "<file>.distortion_coefficients: ", "at most 4 coefficients, got 5")
+    _assert_error(str(info.value), calib_path, "<file>.distortion_coefficients: ", "equidistant takes 4 coefficients, got 5")
 
 
 # --- positive cases ------------------------------------------------------------------------

@@ -45,7 +45,7 @@ def test_markers_at_projected_wrists_land_where_the_metadata_says(pipeline: RoiP
         frame, markers = draw_markers(pipeline, positions)
         result = pipeline.process(frame, 1, 0, ok_sync(positions))
         for roi in result.rois:
-            rec = roi.record
+            rec = roi.record.as_dict()
             if rec["in_frame_ratio"] < 1.0:
                 continue
             np.testing.assert_allclose(rec["projected_center"], markers[roi.arm_id], atol=1e-3)
@@ -59,7 +59,7 @@ def test_markers_at_projected_wrists_land_where_the_metadata_says(pipeline: RoiP
 def test_inward_offset_moves_the_centre_toward_the_tip(pipeline: RoiPipeline) -> None:
     result = pipeline.process(np.zeros((720, 1280, 3), np.uint8), 0, 0, ok_sync(bimanual_positions()))
     for roi, arm in zip(result.rois, pipeline.rig.arms, strict=True):
-        rec = roi.record
+        rec = roi.record.as_dict()
         shift = np.subtract(rec["offset_center"], rec["projected_center"])
         assert np.linalg.norm(shift) == pytest.approx(arm.offset_px, abs=2e-3)
         assert np.linalg.norm(rec["inward_dir"]) == pytest.approx(1.0, abs=1e-5)
@@ -74,13 +74,13 @@ def test_roi_virtual_camera_projects_3d_points_onto_the_same_content(pipeline: R
     result = pipeline.process(np.zeros((720, 1280, 3), np.uint8), 0, 0, ok_sync(positions))
     left = result.rois[0]
     assert left.camera is not None
-    centre = np.asarray(left.record["ee_point_camera"])
+    centre = np.asarray(left.record.as_dict()["ee_point_camera"])
     rng = np.random.default_rng(3)
     points = centre + rng.uniform(-0.05, 0.05, (50, 3))
     uv_image, _ = pipeline.camera.project(points)
     uv_roi, valid = left.camera.project(points)
     assert valid.all()
-    a, _, b, _, c, d = left.record["roi_to_image"]
+    a, _, b, _, c, d = left.record.as_dict()["roi_to_image"]
     np.testing.assert_allclose(np.stack([a * uv_roi[:, 0] + b, c * uv_roi[:, 1] + d], axis=1), uv_image, atol=1e-6)
     # content: a dot drawn at a projected point shows up in the ROI at the ROI camera's projection
     frame = np.zeros((720, 1280, 3), np.uint8)
@@ -102,7 +102,7 @@ def test_every_record_validates_and_same_inputs_give_identical_bytes(bimanual_ri
         out = []
         for i, positions in enumerate(poses):
             result = pipe.process(frames[i % 3], 1_000 + i, i, ok_sync(positions))
-            jsonschema.validate(result.record, schema)
+            jsonschema.validate(result.record.as_dict(), schema)
             assert result.global_view is not None and result.global_view.shape == (256, 256, 3)
             out.append((result.record_json, [r.image.tobytes() for r in result.rois], result.global_view.tobytes()))
         runs.append(out)
@@ -113,7 +113,7 @@ def test_information_density_fine_pattern_survives_in_roi_not_in_global(pipeline
     """The method's claim: 1280 -> 256 global (s = 0.2) vs a ~256 px window -> 256: ~5x density."""
     positions = bimanual_positions()
     probe = pipeline.process(np.zeros((720, 1280, 3), np.uint8), 0, 0, ok_sync(positions))
-    x0, y0, x1, y1 = probe.rois[0].record["crop_box"]
+    x0, y0, x1, y1 = probe.rois[0].record.as_dict()["crop_box"]
     frame = np.full((720, 1280, 3), 128, np.uint8)
     # 5 px period (2 bright, 3 dark): one period per global-view pixel footprint (1280 / 256 = 5)
     stripes = (((np.arange(1280) % 5) < 2) * 200 + 28).astype(np.uint8)
@@ -128,7 +128,7 @@ def test_information_density_fine_pattern_survives_in_roi_not_in_global(pipeline
     global_contrast = global_patch.std(axis=1).mean()
     assert roi_contrast > 60.0  # stripes of 200 grey levels still resolved (std of this square wave ~98)
     assert global_contrast < 0.1 * roi_contrast  # averaged away in the global view
-    density = result.rois[0].record["scale_factor"] / np.sqrt(256 / 1280 * 256 / 720)
+    density = result.rois[0].record.as_dict()["scale_factor"] / np.sqrt(256 / 1280 * 256 / 720)
     window = x1 - x0
     assert density == pytest.approx(256 / window / np.sqrt(0.2 * 256 / 720), rel=1e-3)
     # for a 256 px window and a 1280 -> 256 horizontal global scale, rho = 256 / (0.2 * 256) = 5
@@ -144,14 +144,14 @@ def test_arm_behind_camera_and_missing_joints_are_flagged_not_dropped(tmp_path: 
     positions = bimanual_positions()
     del positions["right_panda_joint3"]
     result = pipe.process(np.full((720, 1280, 3), 9, np.uint8), 5, 0, ok_sync(positions))
-    jsonschema.validate(result.record, metadata_schema())
+    jsonschema.validate(result.record.as_dict(), metadata_schema())
     left, right = result.rois
-    assert left.record["projection_valid"] is False and "behind_camera" in left.record["flags"]
-    assert left.record["projected_center"] is None and left.record["depth_m"] < 0
-    assert "no_joint_state" in right.record["flags"] and right.record["ee_pose_base"] is None
+    assert left.record.as_dict()["projection_valid"] is False and "behind_camera" in left.record.as_dict()["flags"]
+    assert left.record.as_dict()["projected_center"] is None and left.record.as_dict()["depth_m"] < 0
+    assert "no_joint_state" in right.record.as_dict()["flags"] and right.record.as_dict()["ee_pose_base"] is None
     for roi in result.rois:
         assert roi.image.shape == (256, 256, 3) and not roi.image.any()
-        assert roi.record["confidence"] == 0.0 and roi.record["padding_ratio"] == 1.0
+        assert roi.record.as_dict()["confidence"] == 0.0 and roi.record.as_dict()["padding_ratio"] == 1.0
 
 
 def test_fully_out_of_frame_arm_gives_zero_roi_and_zero_in_frame_ratio(tmp_path: Path) -> None:
@@ -160,7 +160,7 @@ def test_fully_out_of_frame_arm_gives_zero_roi_and_zero_in_frame_ratio(tmp_path:
     doc["camera"]["extrinsics"]["rotation_xyzw"] = look_at_quat_xyzw([1.9, 0.0, 1.15], [0.35, 3.5, 0.35])
     pipe = RoiPipeline(load_rig_config(write_rig(tmp_path, doc)))
     result = pipe.process(np.full((720, 1280, 3), 200, np.uint8), 0, 0, ok_sync(bimanual_positions()))
-    right = result.rois[1].record
+    right = result.rois[1].record.as_dict()
     assert right["projection_valid"] is True and right["depth_m"] > 0
     assert right["in_frame_ratio"] == 0.0 and "fully_out_of_frame" in right["flags"]
     assert not result.rois[1].image.any() and right["confidence"] == 0.0
@@ -177,8 +177,8 @@ def test_nan_joint_is_skipped_by_sync_and_reported_as_missing(pipeline: RoiPipel
     sync = buffer.resolve(0, pipeline.required_joints, "interpolate", 20_000_000)
     assert sync.status == "missing" and sync.missing == ("left_panda_joint2",)
     result = pipeline.process(np.zeros((720, 1280, 3), np.uint8), 0, 0, sync)
-    assert "no_joint_state" in result.rois[0].record["flags"] and "sync_missing" in result.rois[0].record["flags"]
-    assert result.rois[1].record["projection_valid"] is True
+    assert "no_joint_state" in result.rois[0].record.as_dict()["flags"] and "sync_missing" in result.rois[0].record.as_dict()["flags"]
+    assert result.rois[1].record.as_dict()["projection_valid"] is True
 
 
 @pytest.mark.parametrize(
@@ -223,10 +223,10 @@ def test_bimanual_from_one_urdf_baxter(tmp_path: Path) -> None:
     result = pipe.process(frame, 0, 0, ok_sync(positions))
     assert [r.arm_id for r in result.rois] == ["left", "right"]
     for roi in result.rois:
-        assert roi.record["projection_valid"] and roi.record["crop_size"] == [200, 200]
-        np.testing.assert_allclose(roi.record["projected_center"], markers[roi.arm_id], atol=1e-3)
+        assert roi.record.as_dict()["projection_valid"] and roi.record.as_dict()["crop_size"] == [200, 200]
+        np.testing.assert_allclose(roi.record.as_dict()["projected_center"], markers[roi.arm_id], atol=1e-3)
     # left arm appears on the right of the image for a camera facing the robot
-    assert result.rois[0].record["projected_center"][0] > result.rois[1].record["projected_center"][0]
+    assert result.rois[0].record.as_dict()["projected_center"][0] > result.rois[1].record.as_dict()["projected_center"][0]
 
 
 def test_bimanual_from_two_prefixed_copies_of_so101(tmp_path: Path) -> None:
@@ -252,7 +252,7 @@ def test_bimanual_from_two_prefixed_copies_of_so101(tmp_path: Path) -> None:
     positions = {j: 0.2 for j in pipe.required_joints}
     frame, markers = draw_markers(pipe, positions)
     result = pipe.process(frame, 0, 0, ok_sync(positions))
-    left, right = (r.record for r in result.rois)
+    left, right = (r.record.as_dict() for r in result.rois)
     assert left["projection_valid"] and right["projection_valid"]
     np.testing.assert_allclose(left["projected_center"], markers["left"], atol=1e-3)
     # same joint values, mirrored bases: same pose in each base frame, different pixels
@@ -261,5 +261,5 @@ def test_bimanual_from_two_prefixed_copies_of_so101(tmp_path: Path) -> None:
     changed = copy.deepcopy(positions)
     changed["left/shoulder_pan"] = 0.5
     moved = pipe.process(frame, 0, 0, ok_sync(changed))
-    assert moved.rois[0].record["projected_center"] != left["projected_center"]
-    assert moved.rois[1].record["projected_center"] == right["projected_center"]
+    assert moved.rois[0].record.as_dict()["projected_center"] != left["projected_center"]
+    assert moved.rois[1].record.as_dict()["projected_center"] == right["projected_center"]

@@ -149,8 +149,8 @@ def test_camera_delay_shifts_the_header_stamp_and_the_pipeline_undoes_it(tmp_pat
         errors = [
             float(np.hypot(*(np.asarray(arm["projected_center"]) - image.truth.gripper(arm["arm_id"]).ee_px)))
             for image, result in run_session(rig, events)
-            for arm in result.record["arms"]
-            if arm["projection_valid"] and result.record["sync"]["status"] == "ok"
+            for arm in result.record.as_dict()["arms"]
+            if arm["projection_valid"] and result.record.as_dict()["sync"]["status"] == "ok"
         ]
         assert len(errors) >= 15
         return max(errors)
@@ -314,8 +314,8 @@ def test_pipeline_rois_contain_the_drawn_gripper(sim_10hz: SimRig) -> None:
     inside = {arm.id: 0 for arm in sim_10hz.arms}
     out_ratios: list[float] = []
     for image, result in results:
-        assert result.record["sync"]["status"] == "ok" and result.record["sync"]["residual_ms"] <= 2.5 + 0.3
-        for arm in result.record["arms"]:
+        assert result.record.as_dict()["sync"]["status"] == "ok" and result.record.as_dict()["sync"]["residual_ms"] <= 2.5 + 0.3
+        for arm in result.record.as_dict()["arms"]:
             truth = image.truth.gripper(arm["arm_id"])
             if truth.visibility is Visibility.IN:
                 assert arm["projection_valid"]

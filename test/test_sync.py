@@ -304,7 +304,7 @@ def test_synchronizer_output_does_not_depend_on_arrival_order_offline() -> None:
         return sync.pop_ready(None)
 
     reference = run(0)
-    assert [payload for payload, _, _ in reference] == frames
+    assert [f.payload for f in reference] == frames
     for seed in range(1, 15):
         assert run(seed) == reference, f"seed {seed}"
 
@@ -369,23 +369,19 @@ def test_repeated_joint_names_raise_naming_the_repeated_joint() -> None:
     assert buf.known_joints() == frozenset()
 
 
-def test_stamp_more_than_a_second_behind_newest_clears_buffer_and_counts_time_jump() -> None:
-    buf = JointStateBuffer()
-    buf.add(4 * S, ["old"], [1.0])
-    buf.add(5 * S, ["old"], [2.0])
-    buf.add(5 * S - S - 1, ["new"], [7.0])  # 1 s + 1 ns behind: a bag loop
-    assert buf.time_jumps == 1
-    assert buf.known_joints() == {"new"}
-    assert buf.newest_stamp_ns == 4 * S - 1
-    assert buf.resolve(5 * S, ["old"], "nearest", SKEW_NS).status == "missing"
-
-
-def test_stamp_exactly_one_second_behind_is_not_a_time_jump() -> None:
-    buf = JointStateBuffer()
-    buf.add(5 * S, ["j"], [2.0])
-    buf.add(4 * S, ["j"], [1.0])
-    assert buf.time_jumps == 0
-    assert buf.resolve(4500 * MS, ["j"], "interpolate", 600 * MS).positions["j"] == pytest.approx(1.5)
+def test_joint_samples_of_another_epoch_do_not_mix() -> None:
+    sync = _sync()
+    sync.add_joint_state(4 * S, ["j"], [1.0], epoch=0)
+    sync.add_joint_state(5 * S, ["j"], [2.0], epoch=0)
+    sync.add_joint_state(4 * S, ["j"], [7.0], epoch=1)  # the second pass of a looped bag
+    sync.add_joint_state(5 * S, ["j"], [8.0], epoch=1)
+    sync.add_frame(4500 * MS, payload="first pass", epoch=0)
+    sync.add_frame(4500 * MS, payload="second pass", epoch=1)
+    released = sync.pop_ready(None)
+    assert [f.payload for f in released] == ["first pass", "second pass"]
+    assert [f.sync.positions["j"] for f in released] == [pytest.approx(1.5), pytest.approx(7.5)]
+    assert sync.counters.epochs == 2
+    assert list(sync.buffers) == [1]  # epoch 0 is dropped once a frame of epoch 1 is released
 
 
 # --- rate ----------------------------------------------------------------------------------
@@ -451,7 +447,7 @@ def _sync(
 
 
 def _payloads(released: list[tuple[int, int, SyncResult]]) -> list[int]:
-    return [payload for payload, _, _ in released]
+    return [f.payload for f in released]
 
 
 def test_frames_added_out_of_order_are_released_in_stamp_order() -> None:
@@ -462,8 +458,8 @@ def test_frames_added_out_of_order_are_released_in_stamp_order() -> None:
         sync.add_frame(t * MS, payload=t, arrival_ns=t * MS)
     released = sync.pop_ready(now_ns=40 * MS)
     assert _payloads(released) == [10, 20, 30]
-    assert [stamp for _, stamp, _ in released] == [10 * MS, 20 * MS, 30 * MS]
-    assert [r.positions["j"] for _, _, r in released] == [1.0, 2.0, 3.0]
+    assert [f.capture_ns for f in released] == [10 * MS, 20 * MS, 30 * MS]
+    assert [f.sync.positions["j"] for f in released] == [1.0, 2.0, 3.0]
 
 
 def test_frame_is_held_until_a_sample_at_or_after_its_capture_time() -> None:
@@ -476,7 +472,7 @@ def test_frame_is_held_until_a_sample_at_or_after_its_capture_time() -> None:
     sync.add_joint_state(20 * MS, ["j"], [2.0])
     released = sync.pop_ready(now_ns=21 * MS)
     assert _payloads(released) == [1]
-    result = released[0][2]
+    result = released[0].sync
     assert result.status == "ok"
     assert result.positions["j"] == pytest.approx(1.5)  # 15 of 20 ms from 0.0 to 2.0
     assert result.residual_ms == pytest.approx(5.0)
@@ -490,8 +486,8 @@ def test_sample_exactly_at_capture_time_releases_the_frame() -> None:
     sync.add_joint_state(15 * MS, ["j"], [4.0])
     released = sync.pop_ready(now_ns=17 * MS)
     assert _payloads(released) == [1]
-    assert released[0][2].positions["j"] == 4.0
-    assert released[0][2].residual_ms == 0.0
+    assert released[0].sync.positions["j"] == 4.0
+    assert released[0].sync.residual_ms == 0.0
 
 
 def test_frame_waits_for_every_required_joint() -> None:
@@ -513,7 +509,7 @@ def test_frame_is_released_after_max_wait_with_extrapolated_status() -> None:
 
     released = sync.pop_ready(now_ns=16 * MS + 50 * MS)
     assert _payloads(released) == [1]
-    result = released[0][2]
+    result = released[0].sync
     assert result.status == "extrapolated"  # 5 ms past the newest sample, within 20 ms
     assert result.positions["j"] == 1.0
     assert result.residual_ms == pytest.approx(5.0)
@@ -525,7 +521,7 @@ def test_frame_released_after_max_wait_far_from_samples_is_stale() -> None:
     sync.add_joint_state(0, ["j"], [0.5])
     sync.add_frame(40 * MS, payload=1, arrival_ns=41 * MS)
     released = sync.pop_ready(now_ns=91 * MS)
-    result = released[0][2]
+    result = released[0].sync
     assert result.status == "stale"
     assert result.positions["j"] == 0.5
     assert result.residual_ms == pytest.approx(40.0)
@@ -535,7 +531,7 @@ def test_frame_released_after_max_wait_without_any_sample_is_missing() -> None:
     sync = _sync()
     sync.add_frame(40 * MS, payload=1, arrival_ns=41 * MS)
     assert sync.pop_ready(now_ns=90 * MS) == []
-    result = sync.pop_ready(now_ns=91 * MS)[0][2]
+    result = sync.pop_ready(now_ns=91 * MS)[0].sync
     assert result.status == "missing"
     assert result.missing == ("j",)
 
@@ -550,7 +546,7 @@ def test_pop_ready_none_flushes_every_pending_frame() -> None:
     assert _payloads(released) == [10, 20, 30]
     assert sync.pending == 0
     assert sync.counters.released == 3
-    assert all(r.status == "missing" for _, _, r in released)
+    assert all(f.sync.status == "missing" for f in released)
 
 
 def test_overflow_drops_the_oldest_frames_by_stamp_and_reports_them() -> None:
@@ -584,45 +580,37 @@ def test_frame_older_than_last_released_is_dropped_out_of_order() -> None:
     assert sync.counters.dropped_out_of_order == 1
     assert sync.pending == 0
     assert sync.pop_ready(None) == []
-    assert sync.counters.time_jumps == 0
 
 
-def test_frame_more_than_a_second_older_resets_and_is_accepted() -> None:
+def test_frame_of_a_later_epoch_is_never_out_of_order() -> None:
     drops: list[tuple[int, str]] = []
     sync = _sync(drops=drops)
     sync.add_frame(5 * S, payload=1)
     sync.pop_ready(None)
-
-    sync.add_frame(5 * S - S, payload=2)  # exactly 1 s older: still out of order
-    assert drops == [(2, "out_of_order")]
-
-    sync.add_frame(3900 * MS, payload=3)  # 1.1 s older: the source restarted
-    assert sync.counters.time_jumps == 1
-    assert sync.pending == 1
-    sync.add_frame(3950 * MS, payload=4)
-    assert _payloads(sync.pop_ready(None)) == [3, 4]
-    assert drops == [(2, "out_of_order")]
+    sync.add_frame(3 * S, payload=2, epoch=1)  # earlier stamp, but the stream restarted
+    sync.add_frame(2 * S, payload=3, epoch=0)  # an old-epoch straggler
+    assert drops == [(3, "out_of_order")]
+    assert _payloads(sync.pop_ready(None)) == [2]
 
 
-def test_joint_state_time_jump_is_counted_by_the_synchronizer() -> None:
+def test_joint_states_of_an_epoch_already_left_are_ignored() -> None:
     sync = _sync()
-    sync.add_joint_state(5 * S, ["j"], [1.0])
-    sync.add_joint_state(3 * S, ["j"], [2.0])
-    assert sync.counters.time_jumps == 1
-    assert sync.buffer.known_joints() == {"j"}
-    assert sync.buffer.newest_stamp_ns == 3 * S
+    sync.add_frame(3 * S, payload=1, epoch=1)
+    sync.pop_ready(None)
+    assert sync.add_joint_state(5 * S, ["j"], [1.0], epoch=0) == []
+    assert 0 not in sync.buffers
 
 
 def test_status_counts_add_up_to_released() -> None:
     sync = _sync()
     sync.add_frame(50 * MS, payload=0, arrival_ns=50 * MS)
-    assert sync.pop_ready(now_ns=100 * MS)[0][2].status == "missing"
+    assert sync.pop_ready(now_ns=100 * MS)[0].sync.status == "missing"
 
     sync.add_joint_state(100 * MS, ["j"], [0.0])
     sync.add_joint_state(110 * MS, ["j"], [1.0])
     for t in (105, 125, 200):  # between samples; 15 ms past the last; 90 ms past the last
         sync.add_frame(t * MS, payload=t)
-    statuses = [r.status for _, _, r in sync.pop_ready(None)]
+    statuses = [f.sync.status for f in sync.pop_ready(None)]
     assert statuses == ["ok", "extrapolated", "stale"]
 
     counts = sync.counters.status_counts
@@ -638,15 +626,15 @@ def test_latest_policy_live_releases_at_once_with_the_newest_sample() -> None:
     sync.add_frame(25 * MS, payload=1, arrival_ns=26 * MS)
     first = sync.pop_ready(now_ns=26 * MS)  # no bracketing sample, no waiting for max_wait
     assert _payloads(first) == [1]
-    assert first[0][2].positions["j"] == 1.0
-    assert first[0][2].residual_ms == pytest.approx(15.0)
+    assert first[0].sync.positions["j"] == 1.0
+    assert first[0].sync.residual_ms == pytest.approx(15.0)
 
     sync.add_frame(50 * MS, payload=2, arrival_ns=51 * MS)
     sync.add_joint_state(60 * MS, ["j"], [6.0])  # newer than the capture, arrived before processing
     second = sync.pop_ready(now_ns=61 * MS)
-    assert second[0][2].positions["j"] == 6.0
-    assert second[0][2].joint_stamp_ns == 60 * MS
-    assert second[0][2].residual_ms == pytest.approx(10.0)
+    assert second[0].sync.positions["j"] == 6.0
+    assert second[0].sync.joint_stamp_ns == 60 * MS
+    assert second[0].sync.residual_ms == pytest.approx(10.0)
 
 
 def test_latest_policy_flush_uses_newest_sample_at_or_before_capture() -> None:
@@ -656,7 +644,7 @@ def test_latest_policy_flush_uses_newest_sample_at_or_before_capture() -> None:
     sync.add_joint_state(10 * MS, ["j"], [1.0])
     sync.add_joint_state(30 * MS, ["j"], [3.0])
     sync.add_frame(25 * MS, payload=1)
-    result = sync.pop_ready(None)[0][2]
+    result = sync.pop_ready(None)[0].sync
     assert result.positions["j"] == 1.0
     assert result.joint_stamp_ns == 10 * MS
     assert result.residual_ms == pytest.approx(15.0)
@@ -678,7 +666,7 @@ def test_resolving_at_stamp_minus_delay_picks_the_sample_at_capture_time() -> No
         for k in range(21):
             sync.add_joint_state(k * 10 * MS, ["j"], [float(k * 10)])  # position = time in ms
         sync.add_frame(frame_stamp_ns, payload=1)
-        return sync.pop_ready(None)[0][2]
+        return sync.pop_ready(None)[0].sync
 
     result = run(header_stamp_ns - delay_ns)
     assert result.joint_stamp_ns == capture_ns

@@ -1,11 +1,12 @@
-"""Offline replay: a recorded bag through the live node's RoiSession into an ROI bag.
+"""Offline replay: a recorded bag through the live node's stream engine into an ROI bag.
 
-Two passes over the input. The first reads only joint states, commands and
-camera info (DESIGN.md "Sync policies": offline, all joint samples are known
-before a frame is released). The second reads the frames in bag order, each
-`add_frame` then `pop_ready(None)`, so frame_index is the frame's position in
-the image topic (frames that cannot be decoded never reach the session, as
-live) and the sync result depends on header stamps only. Outputs use
+Two passes over the input. The first feeds the engine only joint states,
+commands and camera info, in log order (docs/design.md "Offline feed": all
+joint samples are known before a frame is released). The second reads the
+frames in bag order, each fed and then released with `pop_ready(None)`, so
+frame_index is the frame's position among the frames the engine accepted
+(frames that cannot be decoded never reach it, as live) and the sync result
+depends on header stamps only. Outputs use
 the live node's topic names, carry the source frame's header stamp, and are
 logged at that stamp, so a replay of a live recording matches the live output.
 
@@ -17,26 +18,25 @@ An interrupt (Ctrl-C) finalizes the output with what was done.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
 
 from ..core import topics
 from ..core.config import RigConfig, load_rig_config
-from ..core.errors import BagError, CalibrationError, ConfigError, ImageError, JointStateError
+from ..core.engine import CameraInfoEvent, CommandEvent, Event, FrameEvent, JointStateEvent, StreamEngine
+from ..core.errors import BagError, CalibrationError, ConfigError, ImageError
 from ..core.pipeline import FrameResult
-from ..core.session import RoiSession
 from .inputs import InputSelection, check_frame_stream, decode_frame, select_inputs
 from .interrupt import DeferredInterrupt
 from .messages import MessageFactory
 from .progress import Progress
 from .reader import DESERIALIZE_ERRORS, check_bag_path, open_bag, read_messages, stamp_ns, topic_stats
-from .streams import BadMessages, IntrinsicsSchedule, Streams, read_streams
-from .summary import ReplaySummary, SummaryBuilder
+from .streams import BadMessages, Streams, read_streams
+from .summary import ReplaySummary, summary_from_stats
 from .writer import BagWriter, qos_profile
 
 __all__ = ["ReplayInterrupted", "ReplaySummary", "check_output_path", "replay_bag"]
@@ -109,45 +109,49 @@ def replay_bag(
 
 
 class _Replay:
-    """The second pass: frames in bag order through one RoiSession, results into a BagWriter."""
+    """The second pass: frames in bag order through the stream engine, results into a BagWriter.
+
+    The first pass (read_streams) fed every joint state, command and camera
+    info to the engine in log order, so a frame's pairing depends on stamps
+    only; frames then go through the same release rule as live, flushed.
+    """
 
     def __init__(self, rig: RigConfig, source: Path, selection: InputSelection, streams: Streams, from_bag: bool, progress: bool) -> None:
         self.rig = rig
         self.source = source
         self.selection = selection
         self.bad: BadMessages = streams.bad
-        self.stats = SummaryBuilder(tuple(arm.id for arm in rig.arms))
-        self.schedule: IntrinsicsSchedule | None = None
-        if from_bag:
-            if not streams.cameras:
-                raise BagError(f"{source}: {selection.camera_info_topic}: no usable CameraInfo message")
-            self.schedule = IntrinsicsSchedule(streams.cameras)
-        self.session = RoiSession(
-            rig,
-            intrinsics=self.schedule.first if self.schedule else None,
-            max_pending=selection.frame_count + 1,  # offline nothing waits, so nothing may overflow
-            on_drop=lambda _frame, reason: self.stats.drop(reason),
-        )
+        if from_bag and not streams.cameras:
+            raise BagError(f"{source}: {selection.camera_info_topic}: no usable CameraInfo message")
+        self.from_bag = from_bag
+        self.engine = StreamEngine(rig, intrinsics_from_stream=from_bag, max_pending=selection.frame_count + 1)
+        self.stats = self.engine.stats
+        self.frames_read = 0
+        self.frames_undecodable = 0
         self._check_joint_names(streams)
         self.joint_messages = len(streams.joints)
+        where_info = f"{source}: {selection.camera_info_topic}"
+        for stamp, camera in streams.cameras:
+            self._feed(CameraInfoEvent(stamp, camera, where_info))
         for sample in streams.joints:
-            self._feed(self.session.add_joint_state, sample.stamp_ns, sample.names, sample.positions, sample.where)
+            self._feed(JointStateEvent(sample.stamp_ns, sample.names, sample.positions, sample.where))
         for sample in streams.commands:
-            self._feed(self.session.add_command, sample.stamp_ns, sample.names, sample.positions, sample.where)
+            self._feed(CommandEvent(sample.stamp_ns, sample.names, sample.positions, sample.where))
         self.progress = Progress(source.name, selection.frame_count, progress)
         self.frame_where = f"{source}: {selection.image_topic}"
         self._stream_checked = False
         self._size_checked = False
 
-    def _feed(self, add: Callable[..., list[str]], stamp: int, names: Sequence[str], positions: np.ndarray, where: str) -> None:
-        try:
-            add(stamp, names, positions, where=where)
-        except JointStateError as exc:
-            self.bad.add(str(exc))
+    def _feed(self, event: Event) -> None:
+        refusal = self.engine.feed(event)
+        if refusal is not None:
+            self.bad.add(refusal.message)
 
     def _check_joint_names(self, streams: Streams) -> None:
         have = streams.joint_names()
-        required = self.session.pipeline.required_joints
+        pipeline = self.engine.pipeline
+        assert pipeline is not None  # the URDF comes from the rig's files offline
+        required = pipeline.required_joints
         missing = [j for j in required if j not in have]
         if missing:
             raise ConfigError(
@@ -171,7 +175,7 @@ class _Replay:
         with DeferredInterrupt() as interrupt:
             try:
                 with BagWriter(target, overwrite=overwrite) as writer:
-                    outputs = _OutputTopics(writer, self.session)
+                    outputs = _OutputTopics(writer, self.rig, self.engine.pipeline.arm_ids() if self.engine.pipeline else ())
                     if include_inputs:
                         _add_input_topics(writer, connections, outputs.names, self.source)
                     for connection, log_ns, raw in read_messages(reader, connections, self.source):
@@ -183,7 +187,7 @@ class _Replay:
                     if self.stats.frames_out == 0:
                         first = self.bad.examples[0] if self.bad.examples else "no frame was released"
                         raise ImageError(
-                            f"{self.frame_where}: none of the {self.stats.frames_in} frames could be used; first problem: {first}"
+                            f"{self.frame_where}: none of the {self.frames_read} frames could be used; first problem: {first}"
                         )
             except KeyboardInterrupt:
                 self.progress.finish()
@@ -195,8 +199,8 @@ class _Replay:
         return summary
 
     def _frame(self, reader: AnyReader, raw: bytes, outputs: _OutputTopics) -> None:
-        index = self.stats.frames_in
-        self.stats.frames_in += 1
+        index = self.frames_read
+        self.frames_read += 1
         msgtype = self.selection.image_type
         try:
             msg: Any = reader.deserialize(raw, msgtype)
@@ -208,28 +212,31 @@ class _Replay:
             check_frame_stream(msg, msgtype, self.frame_where)  # the rig cannot use this stream at all: fatal
             self._stream_checked = True
         where = f"{self.frame_where}: message {index} (stamp {stamp})"
-        pipeline = self.session.pipeline
         try:
             image = decode_frame(msg, msgtype, where)
-            if self.schedule is not None and (camera := self.schedule.at(stamp)) is not pipeline.camera:
-                pipeline.set_intrinsics(camera)
-            if not self._size_checked:
-                self._check_size(image.shape[1], image.shape[0])
-            pipeline.check_image(image, where)
         except ImageError as exc:
             self._bad_frame(str(exc))
             return
-        self.session.add_frame(stamp, image)
-        for ready in self.session.pop_ready(None):  # offline every joint sample is loaded: release at once
-            result = self.session.process(ready)
+        if not self._size_checked:
+            self._check_size(stamp, image.shape[1], image.shape[0])
+        refusal = self.engine.feed(FrameEvent(stamp, image, where=self.frame_where))
+        if refusal is not None:
+            self._bad_frame(refusal.message)
+            return
+        for ready in self.engine.pop_ready(None):  # offline every joint sample is loaded: release at once
+            started = time.perf_counter()
+            result = self.engine.run(ready)
+            if result is None:
+                continue
             outputs.write(result, msg.header.frame_id)
-            self.stats.add(result, ready.sync)
-        self.progress.update(self.stats.frames_in)
+            self.stats.frame_out(result.record, None, (time.perf_counter() - started) * 1000)
+        self.progress.update(self.frames_read)
 
-    def _check_size(self, width: int, height: int) -> None:
-        camera = self.session.pipeline.camera
-        if (width, height) != (camera.width_px, camera.height_px):
-            source = "the bag's camera info" if self.schedule else f"the rig config {self.rig.path}"
+    def _check_size(self, stamp: int, width: int, height: int) -> None:
+        """The first frame decides whether this stream fits the rig's camera at all."""
+        camera = self.engine.camera_at(stamp) or self.engine.first_camera()
+        if camera is not None and (width, height) != (camera.width_px, camera.height_px):
+            source = "the bag's camera info" if self.from_bag else f"the rig config {self.rig.path}"
             raise CalibrationError(
                 f"{self.frame_where}: frames are {width}x{height} but the intrinsics from {source} are for "
                 f"{camera.width_px}x{camera.height_px}; use the rig config that matches this camera"
@@ -237,30 +244,25 @@ class _Replay:
         self._size_checked = True
 
     def _bad_frame(self, message: str) -> None:
-        self.stats.frames_bad += 1
+        self.frames_undecodable += 1
         self.bad.add(message)
-        self.progress.update(self.stats.frames_in)
+        self.progress.update(self.frames_read)
 
     def _summary(self, target: Path, status: str, started: float) -> ReplaySummary:
-        stats = self.stats
-        intrinsics = f"{self.selection.camera_info_topic} in the bag" if self.schedule else f"the rig config {self.rig.path}"
-        return ReplaySummary(
+        intrinsics = f"{self.selection.camera_info_topic} in the bag" if self.from_bag else f"the rig config {self.rig.path}"
+        return summary_from_stats(
+            self.stats,
             input_path=self.source,
             output_path=target,
             status=status,
             image_topic=self.selection.image_topic,
             joint_topics=self.selection.joint_topics,
             intrinsics_source=intrinsics,
-            frames_in=stats.frames_in,
-            frames_out=stats.frames_out,
-            frames_bad=stats.frames_bad,
-            frames_dropped=dict(stats.dropped),
+            frames_read=self.frames_read,
+            frames_bad=self.frames_undecodable,
             joint_messages=self.joint_messages,
-            bad_messages=self.bad.count - stats.frames_bad,
+            bad_messages=self.bad.count - self.frames_undecodable,
             problems=tuple(self.bad.examples),
-            arms=stats.arms(),
-            residual_ms=stats.residual_stats(),
-            sync_status=stats.status_counts(),
             elapsed_s=time.perf_counter() - started,
         )
 
@@ -268,14 +270,12 @@ class _Replay:
 class _OutputTopics:
     """The live node's output topics in one bag; every message logged at the source frame's stamp."""
 
-    def __init__(self, writer: BagWriter, session: RoiSession) -> None:
+    def __init__(self, writer: BagWriter, rig: RigConfig, arm_ids: Sequence[str]) -> None:
         self.writer = writer
         self.factory = MessageFactory(writer.typestore)
-        rig = session.rig
         self.size = rig.output.size_px
         self.arm_topics = {
-            arm: (topics.absolute(topics.roi_image(arm)), topics.absolute(topics.roi_camera_info(arm)))
-            for arm in session.pipeline.arm_ids()
+            arm: (topics.absolute(topics.roi_image(arm)), topics.absolute(topics.roi_camera_info(arm))) for arm in arm_ids
         }
         self.global_topic = topics.absolute(topics.GLOBAL_IMAGE)
         self.metadata_topic = topics.absolute(topics.METADATA)

@@ -9,7 +9,6 @@ The pass only touches these (small) messages.
 
 from __future__ import annotations
 
-import bisect
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -45,29 +44,6 @@ class BadMessages:
         self.count += 1
         if len(self.examples) < MAX_REPORTED:
             self.examples.append(message)
-
-
-class IntrinsicsSchedule:
-    """The camera in effect at each stamp: the newest CameraInfo at or before it.
-
-    Frames before the first CameraInfo use the first one. Consecutive infos
-    with the same content collapse, so a steady camera_info stream is one entry.
-    """
-
-    def __init__(self, stamped: list[tuple[int, CameraModel]]) -> None:
-        entries: list[tuple[int, CameraModel]] = []
-        for stamp, camera in sorted(stamped, key=lambda item: item[0]):
-            if not entries or (entries[-1][1] is not camera and entries[-1][1].content_version() != camera.content_version()):
-                entries.append((stamp, camera))
-        self._stamps = [stamp for stamp, _ in entries]
-        self._cameras = [camera for _, camera in entries]
-
-    @property
-    def first(self) -> CameraModel:
-        return self._cameras[0]
-
-    def at(self, stamp: int) -> CameraModel:
-        return self._cameras[max(bisect.bisect_right(self._stamps, stamp) - 1, 0)]
 
 
 @dataclass

@@ -6,13 +6,10 @@ back to the parent; `lines()` is what `roi-node replay` prints.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
-from ..core.pipeline import FrameResult
-from ..core.sync import STATUS_ORDER, SyncResult
+from ..core.stream_stats import StreamStats
 
 
 @dataclass(frozen=True)
@@ -67,54 +64,42 @@ class ReplaySummary:
         return out
 
 
-@dataclass
-class SummaryBuilder:
-    """Accumulates per-frame results while the replay runs."""
-
-    arm_ids: tuple[str, ...]
-    frames_in: int = 0
-    frames_out: int = 0
-    frames_bad: int = 0
-    dropped: dict[str, int] = field(default_factory=lambda: {"out_of_order": 0, "overflow": 0})
-    _in_frame: dict[str, list[float]] = field(default_factory=dict)
-    _flagged: dict[str, int] = field(default_factory=dict)
-    _flags: dict[str, dict[str, int]] = field(default_factory=dict)
-    _residuals: list[float] = field(default_factory=list)
-    _status: dict[str, int] = field(default_factory=lambda: {s: 0 for s in STATUS_ORDER})
-
-    def __post_init__(self) -> None:
-        for arm in self.arm_ids:
-            self._in_frame[arm] = []
-            self._flagged[arm] = 0
-            self._flags[arm] = {}
-
-    def add(self, result: FrameResult, sync: SyncResult) -> None:
-        self.frames_out += 1
-        self._status[sync.status] += 1
-        if sync.residual_ms is not None:
-            self._residuals.append(sync.residual_ms)
-        for roi in result.rois:
-            record = roi.record
-            self._in_frame[roi.arm_id].append(float(record["in_frame_ratio"]))
-            if record["flags"]:
-                self._flagged[roi.arm_id] += 1
-            for flag in record["flags"]:
-                self._flags[roi.arm_id][flag] = self._flags[roi.arm_id].get(flag, 0) + 1
-
-    def drop(self, reason: str) -> None:
-        self.dropped[reason] = self.dropped.get(reason, 0) + 1
-
-    def residual_stats(self) -> dict[str, float] | None:
-        if not self._residuals:
-            return None
-        values = np.asarray(self._residuals)
-        return {"p50": float(np.percentile(values, 50)), "p95": float(np.percentile(values, 95)), "max": float(values.max())}
-
-    def arms(self) -> dict[str, ArmStats]:
-        return {
-            arm: ArmStats(float(np.mean(self._in_frame[arm])) if self._in_frame[arm] else None, self._flagged[arm], dict(self._flags[arm]))
-            for arm in self.arm_ids
-        }
-
-    def status_counts(self) -> dict[str, int]:
-        return dict(self._status)
+def summary_from_stats(
+    stats: StreamStats,
+    *,
+    input_path: Path,
+    output_path: Path,
+    status: str,
+    image_topic: str,
+    joint_topics: tuple[str, ...],
+    intrinsics_source: str,
+    frames_read: int,
+    frames_bad: int,
+    joint_messages: int,
+    bad_messages: int,
+    problems: tuple[str, ...],
+    elapsed_s: float,
+) -> ReplaySummary:
+    """A replay's summary from the engine's statistics (the same type the live node's /diagnostics reports)."""
+    return ReplaySummary(
+        input_path=input_path,
+        output_path=output_path,
+        status=status,
+        image_topic=image_topic,
+        joint_topics=joint_topics,
+        intrinsics_source=intrinsics_source,
+        frames_in=frames_read,
+        frames_out=stats.frames_out,
+        frames_bad=frames_bad,
+        frames_dropped={"out_of_order": 0, "overflow": 0, **dict(stats.drops)},
+        joint_messages=joint_messages,
+        bad_messages=bad_messages,
+        problems=problems,
+        arms={
+            arm: ArmStats(stats.in_frame_mean(arm), stats.flagged_frames[arm], stats.arm_flags(arm))
+            for arm in stats.arm_ids
+        },
+        residual_ms=stats.residual_summary(),
+        sync_status=dict(stats.status),
+        elapsed_s=elapsed_s,
+    )

@@ -27,6 +27,12 @@ from .yaml_file import read_yaml
 SUPPORTED_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
 _RADTAN_COEFFS = 8  # k1 k2 p1 p2 k3 k4 k5 k6
 _FISHEYE_COEFFS = 4  # k1 k2 k3 k4
+# coefficient counts a CameraInfo may carry per model (0: an uncalibrated or distortion-free camera)
+DISTORTION_COUNTS = {"plumb_bob": (0, 4, 5), "rational_polynomial": (0, 8), "equidistant": (0, 4)}
+MAX_DISTORTION_COEFF = 1e4  # real lenses are within +-1e3 (rational k4..k6 included)
+MAX_IMAGE_SIDE_PX = 16384
+MAX_FOCAL_PX = 1e6
+MAX_PIXEL_COORD = 1e7  # a projection farther from the image than this is numerically meaningless
 
 
 @dataclass(frozen=True)
@@ -67,8 +73,9 @@ class CameraModel:
         if self.rectified:
             rect = front @ self.r.T
             hom = rect @ self.p[:, :3].T + self.p[:, 3]
-            uv[valid] = hom[:, :2] / hom[:, 2:3]
-            return uv, valid
+            with np.errstate(divide="ignore", invalid="ignore"):
+                uv[valid] = hom[:, :2] / hom[:, 2:3]
+            return _in_range(uv, valid)
         x = front[:, 0] / front[:, 2]
         y = front[:, 1] / front[:, 2]
         if self.distortion_model == "equidistant":
@@ -78,7 +85,7 @@ class CameraModel:
         k = self.k
         uv[valid, 0] = k[0, 0] * xd + k[0, 1] * yd + k[0, 2]
         uv[valid, 1] = k[1, 1] * yd + k[1, 2]
-        return uv, valid
+        return _in_range(uv, valid)
 
     def with_pixel_affine(self, image_from_new: Float64Array, width_px: int, height_px: int) -> CameraModel:
         """The camera whose pixels are `image_from_new` (2x3 affine) of this one's.
@@ -129,6 +136,13 @@ class CameraModel:
 
 
 
+def _in_range(uv: Float64Array, valid: NDArray[np.bool_]) -> tuple[Float64Array, NDArray[np.bool_]]:
+    """Points whose projection is not finite or absurdly far from the image are invalid too."""
+    ok = valid & np.isfinite(uv).all(axis=1) & (np.abs(uv) < MAX_PIXEL_COORD).all(axis=1)
+    uv[~ok] = np.nan
+    return uv, ok
+
+
 def _distort_radtan(x: Float64Array, y: Float64Array, d: Float64Array) -> tuple[Float64Array, Float64Array]:
     """OpenCV's rational/tangential model (plumb_bob is its first five terms)."""
     c = np.zeros(_RADTAN_COEFFS)
@@ -171,22 +185,32 @@ def camera_from_info(
     where: str = "camera_info",
 ) -> CameraModel:
     """Build a camera from CameraInfo-shaped fields (as in sensor_msgs/CameraInfo)."""
-    if int(width_px) <= 0 or int(height_px) <= 0:
-        raise CalibrationError(f"{where}: image size must be positive, got {width_px}x{height_px}")
+    if not (0 < int(width_px) <= MAX_IMAGE_SIDE_PX and 0 < int(height_px) <= MAX_IMAGE_SIDE_PX):
+        raise CalibrationError(f"{where}: image size must be 1..{MAX_IMAGE_SIDE_PX} px per side, got {width_px}x{height_px}")
     model = str(distortion_model) if distortion_model else "plumb_bob"
     if model not in SUPPORTED_DISTORTION_MODELS:
         raise CalibrationError(
             f"{where}: distortion_model {model!r} is not supported; expected one of {', '.join(SUPPORTED_DISTORTION_MODELS)}"
         )
     k_m = _matrix(k, (3, 3), f"{where}.camera_matrix")
-    if k_m[0, 0] <= 0 or k_m[1, 1] <= 0:
-        raise CalibrationError(f"{where}.camera_matrix: focal lengths must be positive, got fx={k_m[0, 0]}, fy={k_m[1, 1]}")
+    if not (0 < k_m[0, 0] <= MAX_FOCAL_PX and 0 < k_m[1, 1] <= MAX_FOCAL_PX):
+        raise CalibrationError(
+            f"{where}.camera_matrix: focal lengths must be in (0, {MAX_FOCAL_PX:g}] px, got fx={k_m[0, 0]:g}, fy={k_m[1, 1]:g}"
+        )
+    if not (abs(k_m[0, 2]) <= 2 * MAX_IMAGE_SIDE_PX and abs(k_m[1, 2]) <= 2 * MAX_IMAGE_SIDE_PX):
+        raise CalibrationError(f"{where}.camera_matrix: principal point ({k_m[0, 2]:g}, {k_m[1, 2]:g}) is far outside the image")
     d_v = np.asarray([] if d is None else d, dtype=np.float64).reshape(-1)
     if not np.all(np.isfinite(d_v)):
         raise CalibrationError(f"{where}.distortion_coefficients: values must be finite")
-    limit = _FISHEYE_COEFFS if model == "equidistant" else _RADTAN_COEFFS
-    if len(d_v) > limit:
-        raise CalibrationError(f"{where}.distortion_coefficients: {model} takes at most {limit} coefficients, got {len(d_v)}")
+    counts = DISTORTION_COUNTS[model]
+    if len(d_v) not in counts:
+        raise CalibrationError(
+            f"{where}.distortion_coefficients: {model} takes {' or '.join(str(c) for c in counts if c)} coefficients, got {len(d_v)}"
+        )
+    if np.any(np.abs(d_v) > MAX_DISTORTION_COEFF):
+        raise CalibrationError(
+            f"{where}.distortion_coefficients: {d_v.tolist()} has a coefficient beyond +-{MAX_DISTORTION_COEFF:g}; not a real lens"
+        )
     r_m = np.eye(3) if r is None or _all_zero(r) else _matrix(r, (3, 3), f"{where}.rectification_matrix")
     p_m = np.hstack([k_m, np.zeros((3, 1))]) if p is None or _all_zero(p) else _matrix(p, (3, 4), f"{where}.projection_matrix")
     return CameraModel(int(width_px), int(height_px), k_m, d_v, model, r_m, p_m, bool(rectified))

@@ -25,6 +25,11 @@ SYNC_POLICIES = ("interpolate", "nearest", "exact", "latest")
 RESIZE_POLICIES = ("stretch", "letterbox")
 INTERPOLATIONS = ("area", "area_pyramid")
 PADDING_MODES = ("zero",)
+MAX_TEXT_CHARS = 256  # ids, frame names, prefixes: copied into every record and topic name
+MAX_OUTPUT_SIDE_PX = 4096  # an ROI or global view larger than this is a mistake, not a rig
+MAX_WINDOW_SIDE_PX = 8192  # the crop window after `aspect`: the canvas is materialised
+MAX_TIME_MS = 10_000.0  # sync limits and camera delay: beyond 10 s nothing is synchronised any more
+MAX_DISTANCE_M = 1000.0
 
 
 @dataclass(frozen=True)
@@ -148,19 +153,34 @@ class _Node:
         if value is None:
             raise self.fail(key, "missing (expected a string)")
         if not isinstance(value, str) or not value:
-            raise self.fail(key, f"expected a non-empty string, got {value!r}")
+            raise self.fail(key, f"expected a non-empty string, got {_short(value)}")
+        if len(value) > MAX_TEXT_CHARS:
+            raise self.fail(key, f"{len(value)} characters; expected at most {MAX_TEXT_CHARS}")
         return value
 
-    def number(self, key: str, default: float | None = None, *, positive: bool = False, minimum: float | None = None) -> float:
+    def number(
+        self,
+        key: str,
+        default: float | None = None,
+        *,
+        maximum: float,
+        positive: bool = False,
+        minimum: float | None = None,
+        unit: str = "",
+    ) -> float:
+        """A finite number within [minimum, maximum] (`unit` is named in the message)."""
         value = self.data.get(key, default)
         if value is None:
-            raise self.fail(key, "missing (expected a number)")
+            raise self.fail(key, f"missing (expected a number{' in ' + unit if unit else ''})")
         if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise self.fail(key, f"expected a finite number, got {value!r}")
+            raise self.fail(key, f"expected a finite number{' in ' + unit if unit else ''}, got {_short(value)}")
+        suffix = f" {unit}" if unit else ""
         if positive and value <= 0:
-            raise self.fail(key, f"must be > 0, got {value!r}")
+            raise self.fail(key, f"must be > 0{suffix}, got {value!r}")
         if minimum is not None and value < minimum:
-            raise self.fail(key, f"must be >= {minimum}, got {value!r}")
+            raise self.fail(key, f"must be >= {minimum:g}{suffix}, got {value!r}")
+        if value > maximum:
+            raise self.fail(key, f"must be <= {maximum:g}{suffix}, got {value!r}")
         return float(value)
 
     def boolean(self, key: str, default: bool) -> bool:
@@ -175,29 +195,34 @@ class _Node:
             raise self.fail(key, f"expected one of {', '.join(choices)}, got {value!r}")
         return str(value)
 
-    def numbers(self, key: str, length: int, default: list[float] | None = None, *, positive: bool = False) -> tuple[float, ...]:
+    def numbers(
+        self, key: str, length: int, default: list[float] | None = None, *, limit: float, positive: bool = False
+    ) -> tuple[float, ...]:
+        """`length` finite numbers, each of magnitude at most `limit`."""
         value = self.data.get(key, default)
         if value is None:
             raise self.fail(key, f"missing (expected {length} numbers)")
         if not isinstance(value, list | tuple) or len(value) != length:
-            raise self.fail(key, f"expected a list of {length} numbers, got {value!r}")
+            raise self.fail(key, f"expected a list of {length} numbers, got {_short(value)}")
         out = []
         for item in value:
             if isinstance(item, bool) or not isinstance(item, int | float) or not math.isfinite(item):
-                raise self.fail(key, f"expected finite numbers, got {value!r}")
+                raise self.fail(key, f"expected finite numbers, got {_short(value)}")
             if positive and item <= 0:
                 raise self.fail(key, f"values must be > 0, got {value!r}")
+            if abs(item) > limit:
+                raise self.fail(key, f"values must be within +-{limit:g}, got {value!r}")
             out.append(float(item))
         return tuple(out)
 
-    def size(self, key: str, default: list[int]) -> tuple[int, int]:
+    def size(self, key: str, default: list[int], maximum: int = MAX_OUTPUT_SIDE_PX) -> tuple[int, int]:
         value = self.data.get(key, default)
         if (
             not isinstance(value, list | tuple)
             or len(value) != 2
-            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in value)
+            or not all(isinstance(v, int) and not isinstance(v, bool) and 0 < v <= maximum for v in value)
         ):
-            raise self.fail(key, f"expected [width, height] in pixels (positive integers), got {value!r}")
+            raise self.fail(key, f"expected [width, height] in pixels (integers 1..{maximum}), got {_short(value)}")
         return int(value[0]), int(value[1])
 
     def items(self, key: str) -> list[_Node]:
@@ -207,10 +232,16 @@ class _Node:
         return [_Node(item, f"{self._path(key)}[{i}]", self.file) for i, item in enumerate(value)]
 
 
+def _short(value: object) -> str:
+    """repr for a message, cut so that a 50 MB value does not become a 50 MB error line."""
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
 def _pose(node: _Node) -> Transform:
     node.check_keys(("parent", "child", "translation", "rotation_xyzw", "version"))
-    translation = node.numbers("translation", 3)
-    rotation = node.numbers("rotation_xyzw", 4)
+    translation = node.numbers("translation", 3, limit=MAX_DISTANCE_M)
+    rotation = node.numbers("rotation_xyzw", 4, limit=1e6)
     return Transform.from_xyz_quat(translation, rotation, where=f"{node.file}: {node.where}")
 
 
@@ -276,7 +307,9 @@ def _load_camera(node: _Node, base_dir: Path) -> CameraConfig:
         raise ext.fail("parent", f"must be 'world' (the pose of the camera optical frame in world), got {parent!r}")
     version = ext.data.get("version")
     if version is not None and not isinstance(version, str):
-        raise ext.fail("version", f"expected a string, got {version!r}")
+        raise ext.fail("version", f"expected a string, got {_short(version)}")
+    if version is not None:
+        ext.text("version")  # bounded like every string copied into records
     return CameraConfig(
         id=node.text("id"),
         intrinsics=intrinsics,
@@ -284,8 +317,8 @@ def _load_camera(node: _Node, base_dir: Path) -> CameraConfig:
         extrinsics_raw=dict(ext.data),
         extrinsics_version=version,
         rectified=rectified,
-        delay_ms=node.number("delay_ms", 0.0),
-        z_min_m=node.number("z_min_m", 0.01, positive=True),
+        delay_ms=node.number("delay_ms", 0.0, minimum=-MAX_TIME_MS, maximum=MAX_TIME_MS, unit="ms"),
+        z_min_m=node.number("z_min_m", 0.01, positive=True, maximum=100.0, unit="m"),
     )
 
 
@@ -306,8 +339,8 @@ def _load_robot(node: _Node, base_dir: Path) -> RobotConfig:
         world_T_base = Transform.identity()
         base_raw = {}
     prefix = node.data.get("joint_prefix", "")
-    if not isinstance(prefix, str):
-        raise node.fail("joint_prefix", f"expected a string, got {prefix!r}")
+    if not isinstance(prefix, str) or len(prefix) > MAX_TEXT_CHARS:
+        raise node.fail("joint_prefix", f"expected a string of at most {MAX_TEXT_CHARS} characters, got {_short(prefix)}")
     return RobotConfig(node.text("id"), urdf_path, world_T_base, prefix, base_raw)
 
 
@@ -323,7 +356,7 @@ def _load_arm(node: _Node, robot_ids: set[str]) -> ArmConfig:
     if tip_node.has("frame"):
         tip = TipSpec(frame=tip_node.text("frame"))
     else:
-        ox, oy, oz = tip_node.numbers("offset_m", 3)
+        ox, oy, oz = tip_node.numbers("offset_m", 3, limit=10.0)
         if ox == oy == oz == 0.0:
             raise tip_node.fail("offset_m", "must not be zero: it defines the inward direction d_in")
         tip = TipSpec(offset_m=(ox, oy, oz))
@@ -332,26 +365,29 @@ def _load_arm(node: _Node, robot_ids: set[str]) -> ArmConfig:
     scale: DepthScale | FixedScale
     if mode == "depth":
         scale_node.check_keys(("mode", "alpha", "radius_m", "min_px", "max_px"))
-        min_px = scale_node.number("min_px", 64, positive=True)
-        max_px = scale_node.number("max_px", 1024, positive=True)
+        min_px = scale_node.number("min_px", 64, positive=True, maximum=MAX_WINDOW_SIDE_PX, unit="px")
+        max_px = scale_node.number("max_px", 1024, positive=True, maximum=MAX_WINDOW_SIDE_PX, unit="px")
         if min_px > max_px:
             raise scale_node.fail("min_px", f"must be <= max_px ({max_px}), got {min_px}")
         scale = DepthScale(
-            alpha=scale_node.number("alpha", positive=True),
-            radius_m=scale_node.number("radius_m", positive=True),
+            alpha=scale_node.number("alpha", positive=True, maximum=100.0),
+            radius_m=scale_node.number("radius_m", positive=True, maximum=10.0, unit="m"),
             min_px=min_px,
             max_px=max_px,
         )
     else:
         scale_node.check_keys(("mode", "size_px"))
-        scale = FixedScale(size_px=scale_node.number("size_px", positive=True))
-    aspect = node.numbers("aspect", 2, [1.0, 1.0], positive=True)
+        scale = FixedScale(size_px=scale_node.number("size_px", positive=True, maximum=MAX_WINDOW_SIDE_PX, unit="px"))
+    aspect = node.numbers("aspect", 2, [1.0, 1.0], positive=True, limit=10.0)
+    largest_px = (scale.max_px if isinstance(scale, DepthScale) else scale.size_px) * max(aspect)
+    if largest_px > MAX_WINDOW_SIDE_PX:
+        raise node.fail("aspect", f"the largest window side would be {largest_px:g} px; scale x aspect must be <= {MAX_WINDOW_SIDE_PX} px")
     return ArmConfig(
         id=node.text("id"),
         robot=robot,
         ee_frame=node.text("ee_frame"),
         tip=tip,
-        offset_px=node.number("offset_px", 0.0),
+        offset_px=node.number("offset_px", 0.0, minimum=-MAX_WINDOW_SIDE_PX, maximum=MAX_WINDOW_SIDE_PX, unit="px"),
         scale=scale,
         aspect=(aspect[0], aspect[1]),
     )
@@ -379,6 +415,6 @@ def _load_sync(node: _Node) -> SyncConfig:
     node.check_keys(("policy", "max_skew_ms", "max_wait_ms"))
     return SyncConfig(
         policy=node.choice("policy", SYNC_POLICIES, "interpolate"),
-        max_skew_ms=node.number("max_skew_ms", 20.0, positive=True),
-        max_wait_ms=node.number("max_wait_ms", 50.0, minimum=0.0),
+        max_skew_ms=node.number("max_skew_ms", 20.0, positive=True, maximum=MAX_TIME_MS, unit="ms"),
+        max_wait_ms=node.number("max_wait_ms", 50.0, minimum=0.0, maximum=MAX_TIME_MS, unit="ms"),
     )

@@ -19,6 +19,16 @@ class KinematicsError(ConfigError):
     """A URDF cannot be loaded, or a frame/joint named in the config does not exist."""
 
 
+class UrdfStructureError(KinematicsError):
+    """A URDF that is not a well-formed kinematic tree (refused before placo, which may crash on it)."""
+
+    def __init__(self, urdf: str, element: str, problem: str) -> None:
+        super().__init__(f"{urdf}: {element}: {problem}")
+        self.urdf = urdf
+        self.element = element
+        self.problem = problem
+
+
 class ImageError(RoiNodeError):
     """An input image has the wrong size, channels, dtype, encoding or step."""
 

@@ -30,6 +30,7 @@ import placo
 
 from .errors import KinematicsError
 from .transforms import Transform
+from .urdf_check import MAX_URDF_BYTES, check_urdf_structure
 
 _GEOMETRY_ELEMENTS = re.compile(r"<(visual|collision)\b[^>]*?(/>|>.*?</\1\s*>)", re.S)
 MOVABLE_JOINT_TYPES = ("revolute", "continuous", "prismatic")
@@ -44,6 +45,8 @@ class UrdfJoint:
     mimic_of: str | None
     mimic_multiplier: float
     mimic_offset: float
+    lower: float | None = None  # URDF <limit>, radians or metres; None when unlimited (continuous) or not given
+    upper: float | None = None
 
 
 def strip_geometry(urdf_text: str) -> str:
@@ -60,19 +63,38 @@ def parse_joints(urdf_text: str, where: str) -> dict[str, UrdfJoint]:
         raise KinematicsError(f"{where}: root element is <{root.tag}>, expected <robot>")
     joints: dict[str, UrdfJoint] = {}
     for el in root.findall("joint"):
-        parent, child, mimic = el.find("parent"), el.find("child"), el.find("mimic")
+        parent, child, mimic, limit = el.find("parent"), el.find("child"), el.find("mimic"), el.find("limit")
+        joint_type = el.get("type", "")
+        limited = joint_type in ("revolute", "prismatic") and limit is not None and "lower" in limit.attrib and "upper" in limit.attrib
         if parent is None or child is None:
             raise KinematicsError(f"{where}: joint {el.get('name')!r} lacks <parent> or <child>")
         joints[el.get("name", "")] = UrdfJoint(
             name=el.get("name", ""),
-            type=el.get("type", ""),
+            type=joint_type,
             parent=parent.get("link", ""),
             child=child.get("link", ""),
             mimic_of=mimic.get("joint") if mimic is not None else None,
-            mimic_multiplier=float(mimic.get("multiplier", 1.0)) if mimic is not None else 1.0,
-            mimic_offset=float(mimic.get("offset", 0.0)) if mimic is not None else 0.0,
+            mimic_multiplier=_attribute_number(mimic, "multiplier", 1.0, where),
+            mimic_offset=_attribute_number(mimic, "offset", 0.0, where),
+            lower=_attribute_number(limit, "lower", 0.0, where) if limited else None,
+            upper=_attribute_number(limit, "upper", 0.0, where) if limited else None,
         )
     return joints
+
+
+def _attribute_number(el: ET.Element | None, key: str, default: float, where: str) -> float:
+    if el is None:
+        return default
+    text = el.get(key)
+    if text is None:
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise KinematicsError(f"{where}: <{el.tag} {key}={text!r}>: expected a finite number")
+    return value
 
 
 class RobotKinematics:
@@ -84,12 +106,20 @@ class RobotKinematics:
         where = str(urdf_path)
         if urdf_text is None:
             try:
-                urdf_text = urdf_path.read_text()
+                if urdf_path.stat().st_size > MAX_URDF_BYTES:
+                    raise KinematicsError(f"{urdf_path}: {urdf_path.stat().st_size} bytes; a URDF is at most {MAX_URDF_BYTES} bytes")
+                urdf_text = urdf_path.read_bytes().decode("utf-8")
+            except UnicodeDecodeError as exc:
+                raise KinematicsError(f"{urdf_path}: not a text file (byte {exc.start} is not UTF-8); expected a URDF") from exc
             except OSError as exc:
-                raise KinematicsError(f"{urdf_path}: cannot read URDF: {exc}") from exc
+                raise KinematicsError(f"{urdf_path}: cannot read URDF: {exc.strerror or exc}") from exc
+        check_urdf_structure(urdf_text, where)
         self.urdf_sha256 = hashlib.sha256(urdf_text.encode()).hexdigest()
         self._joints = parse_joints(urdf_text, where)
         self._joint_by_child = {j.child: j for j in self._joints.values()}
+        self._children: dict[str, list[str]] = {}
+        for j in self._joints.values():
+            self._children.setdefault(j.parent, []).append(j.child)
         self._robot = _load_placo(strip_geometry(urdf_text), where)
         self.frame_names: frozenset[str] = frozenset(self._robot.frame_names())
         self.movable_joints: frozenset[str] = frozenset(self._robot.joint_names())
@@ -116,9 +146,27 @@ class RobotKinematics:
             link = joint.parent
         return tuple(dict.fromkeys(reversed(names)))
 
-    def joint_child_frame(self, joint: str) -> str:
-        """The link a joint moves (its origin is the joint's origin)."""
-        return self._joints[joint].child
+    def joints_below(self, joint: str) -> tuple[str, ...]:
+        """Movable joints in the subtree that `joint` moves (a wrist joint: the hand and its fingers), URDF order."""
+        subtree = {self._joints[joint].child}
+        frontier = [self._joints[joint].child]
+        while frontier:
+            link = frontier.pop()
+            for child in self._children.get(link, ()):
+                subtree.add(child)
+                frontier.append(child)
+        return tuple(j.name for j in self._joints.values() if j.parent in subtree and j.type in MOVABLE_JOINT_TYPES)
+
+    def joint_names(self) -> tuple[str, ...]:
+        """Movable joints (mimic joints included), in URDF order."""
+        return tuple(j.name for j in self._joints.values() if j.type in MOVABLE_JOINT_TYPES)
+
+    def limits(self, joint: str) -> tuple[float, float] | None:
+        """(lower, upper) of a limited joint, in radians or metres."""
+        j = self._joints.get(joint)
+        if j is None or j.lower is None or j.upper is None:
+            return None
+        return j.lower, j.upper
 
     def is_continuous(self, joint: str) -> bool:
         return joint in self._continuous

@@ -1,9 +1,8 @@
 """The per-frame metadata record and its lineage tuple (DESIGN.md "Metadata record").
 
-The JSON is produced here and only here, with fixed key order, fixed float
-rounding and compact separators, so the live node and offline replay emit the
-same bytes for the same inputs. Its JSON Schema ships as
-config/metadata.schema.json.
+The record itself is typed (core/records.py) and serialised there; this module
+holds the lineage tuple, the content hashes and the rounding every record
+value goes through. The JSON Schema ships as config/metadata.schema.json.
 """
 
 from __future__ import annotations
@@ -71,11 +70,6 @@ def rnd(value: float | None, decimals: int) -> float | None:
 
 def rnd_list(values: object, decimals: int) -> list[float]:
     return [rnd(float(v), decimals) or 0.0 for v in values]  # type: ignore[attr-defined]
-
-
-def dumps(record: dict[str, Any]) -> str:
-    """The one serialisation of a record: key order as built, compact, no NaN."""
-    return json.dumps(record, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
 
 
 @cache

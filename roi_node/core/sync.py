@@ -3,28 +3,52 @@
 Decisions depend only on stamps, never on arrival order: samples are kept per
 joint, sorted by stamp; duplicate stamps with conflicting values resolve to the
 smaller value (order-independent) and are counted. Several JointState streams
-merge by joint name. The live node and offline replay both drive
-`FrameSynchronizer`; offline replay loads all joint states before it releases
-frames, the live node releases a frame once its bracketing sample arrived or
-`max_wait_ms` passed (DESIGN.md "Sync policies").
+merge by joint name. The stream engine (core/engine.py) drives
+`FrameSynchronizer` for both drivers: offline replay loads all joint states
+before it releases frames, the live node releases a frame once its bracketing
+sample arrived or `max_wait_ms` passed (docs/design.md "Sync").
+
+Samples and frames carry the epoch their stream's `StreamClock` gave them
+(core/stamps.py): a frame pairs only with joint samples of its own epoch, so a
+bag played in a loop pairs each pass with its own joint states.
 """
 
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Generic, TypeVar
 
 from .errors import JointStateError
 from .kinematics import wrap_angle
+from .stamps import NS_PER_MS, NS_PER_S
 
-NS_PER_MS = 1_000_000
-NS_PER_S = 1_000_000_000
-STATUS_ORDER = ("ok", "extrapolated", "stale", "missing")
-TIME_JUMP_RESET_NS = NS_PER_S  # a stamp this far behind the newest means a bag loop / clock reset
+__all__ = ["NS_PER_MS", "NS_PER_S", "FrameSynchronizer", "JointStateBuffer", "SyncResult", "SyncStatus"]
+
+
+class SyncStatus(StrEnum):
+    """How well a frame's joint state fits its capture time, from best to worst."""
+
+    OK = "ok"
+    EXTRAPOLATED = "extrapolated"
+    STALE = "stale"
+    MISSING = "missing"
+
+
+class SyncPolicy(StrEnum):
+    INTERPOLATE = "interpolate"
+    NEAREST = "nearest"
+    EXACT = "exact"
+    LATEST = "latest"
+
+
+STATUS_ORDER = tuple(SyncStatus)
 RATE_WINDOW_NS = NS_PER_S
+HISTORY_NS = 2 * NS_PER_S  # joint samples kept behind the newest released frame
 
 
 @dataclass(frozen=True)
@@ -41,10 +65,10 @@ class SyncResult:
 
     @property
     def usable(self) -> bool:
-        return self.status != "missing"
+        return self.status != SyncStatus.MISSING
 
 
-def _worse(a: str, b: str) -> str:
+def _worse(a: SyncStatus, b: SyncStatus) -> SyncStatus:
     return a if STATUS_ORDER.index(a) >= STATUS_ORDER.index(b) else b
 
 
@@ -83,17 +107,11 @@ class JointStateBuffer:
     def __init__(self, continuous_joints: Iterable[str] = ()) -> None:
         self._series: dict[str, _Series] = {}
         self._continuous = frozenset(continuous_joints)
-        self.newest_stamp_ns: int | None = None
-        self.time_jumps = 0
 
     @property
     def conflicting_duplicates(self) -> int:
         """(joint, stamp) pairs that arrived with different values: independent of arrival order."""
         return sum(len(series.conflicted) for series in self._series.values())
-
-    def clear(self) -> None:
-        self._series.clear()
-        self.newest_stamp_ns = None
 
     def add(self, stamp_ns: int, names: Sequence[str], positions: Sequence[float], *, where: str = "joint_states") -> list[str]:
         """Insert one JointState; returns names skipped for non-finite positions.
@@ -105,9 +123,6 @@ class JointStateBuffer:
             raise JointStateError(f"{where}: {len(names)} names but {len(positions)} positions")
         if len(set(names)) != len(names):
             raise JointStateError(f"{where}: repeated joint names {sorted(n for n in set(names) if list(names).count(n) > 1)}")
-        if self.newest_stamp_ns is not None and stamp_ns < self.newest_stamp_ns - TIME_JUMP_RESET_NS:
-            self.time_jumps += 1
-            self.clear()
         skipped = []
         for name, value in zip(names, positions, strict=True):
             v = float(value)
@@ -115,8 +130,6 @@ class JointStateBuffer:
                 skipped.append(name)
                 continue
             self._series.setdefault(name, _Series()).insert(stamp_ns, v)
-        if self.newest_stamp_ns is None or stamp_ns > self.newest_stamp_ns:
-            self.newest_stamp_ns = stamp_ns
         return skipped
 
     def known_joints(self) -> frozenset[str]:
@@ -167,7 +180,7 @@ class JointStateBuffer:
         """
         positions: dict[str, float] = {}
         missing: list[str] = []
-        status = "ok"
+        status: SyncStatus = SyncStatus.OK
         worst_residual: int | None = None
         worst_stamp: int | None = None
         for name in joints:
@@ -181,7 +194,7 @@ class JointStateBuffer:
             if worst_residual is None or residual > worst_residual:
                 worst_residual, worst_stamp = residual, used_stamp
         if missing:
-            status = "missing"
+            status = SyncStatus.MISSING
         rate = self.rate_hz(t_ns, joints[0]) if joints else None
         return SyncResult(
             policy=policy,
@@ -195,27 +208,27 @@ class JointStateBuffer:
 
     def _resolve_one(
         self, series: _Series, name: str, t_ns: int, policy: str, max_skew_ns: int, latest_limit_ns: int | None
-    ) -> tuple[float, int, int, str]:
+    ) -> tuple[float, int, int, SyncStatus]:
         stamps, values = series.stamps, series.values
-        if policy == "latest":
+        if policy == SyncPolicy.LATEST:
             limit = latest_limit_ns if latest_limit_ns is not None else stamps[-1]
             i = bisect.bisect_right(stamps, limit) - 1
             if i < 0:
                 i = 0
             residual = abs(t_ns - stamps[i])
-            return values[i], stamps[i], residual, "ok" if residual <= max_skew_ns else "stale"
+            return values[i], stamps[i], residual, SyncStatus.OK if residual <= max_skew_ns else SyncStatus.STALE
         hi = bisect.bisect_left(stamps, t_ns)
         if hi < len(stamps) and stamps[hi] == t_ns:
-            return values[hi], t_ns, 0, "ok"
+            return values[hi], t_ns, 0, SyncStatus.OK
         lo = hi - 1
-        if policy == "interpolate" and lo >= 0 and hi < len(stamps):
+        if policy == SyncPolicy.INTERPOLATE and lo >= 0 and hi < len(stamps):
             s0, s1 = stamps[lo], stamps[hi]
             frac = (t_ns - s0) / (s1 - s0)
             v0, v1 = values[lo], values[hi]
             delta = wrap_angle(v1 - v0) if name in self._continuous else v1 - v0
             nearer = s0 if t_ns - s0 <= s1 - t_ns else s1
             residual = min(t_ns - s0, s1 - t_ns)
-            status = "ok" if residual <= max_skew_ns else "stale"
+            status = SyncStatus.OK if residual <= max_skew_ns else SyncStatus.STALE
             return v0 + frac * delta, nearer, residual, status
         # nearest sample: the policy itself, or the fallback
         if lo < 0:
@@ -226,12 +239,12 @@ class JointStateBuffer:
             j = lo if t_ns - stamps[lo] <= stamps[hi] - t_ns else hi
         residual = abs(t_ns - stamps[j])
         outside = lo < 0 or hi >= len(stamps)
-        if residual > max_skew_ns or policy == "exact":
-            status = "stale"
-        elif policy == "interpolate" and outside:
-            status = "extrapolated"
+        if residual > max_skew_ns or policy == SyncPolicy.EXACT:
+            status = SyncStatus.STALE
+        elif policy == SyncPolicy.INTERPOLATE and outside:
+            status = SyncStatus.EXTRAPOLATED
         else:
-            status = "ok"
+            status = SyncStatus.OK
         return values[j], stamps[j], residual, status
 
 
@@ -240,7 +253,7 @@ def command_residual(command: JointStateBuffer, t_ns: int, measured: dict[str, f
     common = sorted(set(measured) & command.known_joints())
     if not common:
         return None
-    cmd = command.resolve(t_ns, common, "interpolate", max_skew_ns)
+    cmd = command.resolve(t_ns, common, SyncPolicy.INTERPOLATE, max_skew_ns)
     return math.sqrt(sum((cmd.positions[n] - measured[n]) ** 2 for n in common))
 
 
@@ -252,6 +265,19 @@ class PendingFrame(Generic[P]):
     capture_ns: int
     arrival_ns: int
     payload: P
+    epoch: int = 0
+
+    @property
+    def order(self) -> tuple[int, int]:
+        return self.epoch, self.capture_ns
+
+
+@dataclass(frozen=True)
+class ReleasedFrame(Generic[P]):
+    payload: P
+    capture_ns: int
+    epoch: int
+    sync: SyncResult
 
 
 @dataclass
@@ -259,17 +285,17 @@ class SyncCounters:
     released: int = 0
     dropped_overflow: int = 0
     dropped_out_of_order: int = 0
-    time_jumps: int = 0
-    status_counts: dict[str, int] = field(default_factory=lambda: {s: 0 for s in STATUS_ORDER})
+    epochs: int = 1  # 1 + the confirmed jumps back in time (loops) seen so far
+    status_counts: dict[str, int] = field(default_factory=lambda: {s.value: 0 for s in SyncStatus})
 
 
 class FrameSynchronizer(Generic[P]):
-    """Pending frames in stamp order, released when their joint state is known.
+    """Pending frames in (epoch, stamp) order, released when their joint state is known.
 
     Bounded: beyond `max_pending` frames the oldest are dropped and counted. A
-    frame older than the last released one is dropped (out of order), unless
-    it is more than a second older, which means the source restarted (a bag
-    loop): then the state resets.
+    frame older than the last released one of its epoch is dropped (out of
+    order). Joint samples are kept per epoch; an epoch's samples are dropped
+    once a frame of a later epoch is released.
     """
 
     def __init__(
@@ -280,41 +306,52 @@ class FrameSynchronizer(Generic[P]):
         max_wait_ms: float,
         *,
         continuous_joints: Iterable[str] = (),
+        extra_joints: Sequence[str] = (),
         max_pending: int = 8,
         on_drop: Callable[[PendingFrame[P], str], None] | None = None,
+        extra_ready: Callable[[PendingFrame[P]], bool] | None = None,
     ) -> None:
+        """`extra_joints` are resolved too (for the record) but never held back for; `extra_ready` is a
+        further condition a frame waits for (up to `max_wait_ms`), e.g. its camera info."""
         self.joints = tuple(joints)
+        self.extra_joints = tuple(j for j in extra_joints if j not in self.joints)
         self.policy = policy
         self.max_skew_ns = int(max_skew_ms * NS_PER_MS)
         self.max_wait_ns = int(max_wait_ms * NS_PER_MS)
         self.max_pending = max_pending
-        self.buffer = JointStateBuffer(continuous_joints)
+        self._continuous = tuple(continuous_joints)
+        self.buffers: dict[int, JointStateBuffer] = {}
         self.counters = SyncCounters()
         self._pending: list[PendingFrame[P]] = []
-        self._last_released_ns: int | None = None
+        self._last_released: tuple[int, int] | None = None
         self._on_drop = on_drop
+        self._extra_ready = extra_ready
 
     @property
     def pending(self) -> int:
         return len(self._pending)
 
-    def add_joint_state(self, stamp_ns: int, names: Sequence[str], positions: Sequence[float], *, where: str = "joint_states") -> list[str]:
-        jumps = self.buffer.time_jumps
-        skipped = self.buffer.add(stamp_ns, names, positions, where=where)
-        if self.buffer.time_jumps != jumps:
-            self.counters.time_jumps += 1
-        return skipped
+    def buffer(self, epoch: int) -> JointStateBuffer:
+        buf = self.buffers.get(epoch)
+        if buf is None:
+            buf = self.buffers[epoch] = JointStateBuffer(self._continuous)
+            self.counters.epochs = max(self.counters.epochs, epoch + 1)
+        return buf
 
-    def add_frame(self, capture_ns: int, payload: P, arrival_ns: int = 0) -> None:
-        last = self._last_released_ns
-        if last is not None and capture_ns <= last:
-            if capture_ns < last - TIME_JUMP_RESET_NS:
-                self.counters.time_jumps += 1
-                self._last_released_ns = None
-            else:
-                self._drop(PendingFrame(capture_ns, arrival_ns, payload), "out_of_order")
-                return
-        bisect.insort(self._pending, PendingFrame(capture_ns, arrival_ns, payload), key=lambda f: f.capture_ns)
+    def add_joint_state(
+        self, stamp_ns: int, names: Sequence[str], positions: Sequence[float], *, where: str = "joint_states", epoch: int = 0
+    ) -> list[str]:
+        if self._last_released is not None and epoch < self._last_released[0]:
+            return []  # an epoch whose frames are all released: nothing can pair with it any more
+        return self.buffer(epoch).add(stamp_ns, names, positions, where=where)
+
+    def add_frame(self, capture_ns: int, payload: P, arrival_ns: int = 0, epoch: int = 0) -> None:
+        frame = PendingFrame(capture_ns, arrival_ns, payload, epoch)
+        if self._last_released is not None and frame.order <= self._last_released:
+            self._drop(frame, "out_of_order")
+            return
+        self.counters.epochs = max(self.counters.epochs, epoch + 1)
+        bisect.insort(self._pending, frame, key=lambda f: f.order)
         while len(self._pending) > self.max_pending:
             self._drop(self._pending.pop(0), "overflow")
 
@@ -327,31 +364,34 @@ class FrameSynchronizer(Generic[P]):
             self._on_drop(frame, reason)
 
     def _ready(self, frame: PendingFrame[P], now_ns: int | None) -> bool:
-        if self.policy == "latest" or now_ns is None:
+        if self.policy == SyncPolicy.LATEST or now_ns is None:
             return True
-        if self.buffer.has_bracket(frame.capture_ns, self.joints):
+        settled = self._extra_ready is None or self._extra_ready(frame)
+        if settled and self.buffer(frame.epoch).has_bracket(frame.capture_ns, self.joints):
             return True
         return now_ns - frame.arrival_ns >= self.max_wait_ns
 
-    def pop_ready(self, now_ns: int | None, limit: int | None = None) -> list[tuple[P, int, SyncResult]]:
-        """Release frames in stamp order, at most `limit`; `now_ns=None` releases everything (flush).
+    def pop_ready(self, now_ns: int | None, limit: int | None = None) -> list[ReleasedFrame[P]]:
+        """Release frames in order, at most `limit`; `now_ns=None` releases everything (flush).
 
         A live worker takes one frame at a time so that frames arriving while
         it processes stay in the bounded pending queue (oldest dropped first).
         """
-        out: list[tuple[P, int, SyncResult]] = []
+        out: list[ReleasedFrame[P]] = []
         while self._pending and self._ready(self._pending[0], now_ns) and (limit is None or len(out) < limit):
             frame = self._pending.pop(0)
-            result = self.buffer.resolve(
-                frame.capture_ns,
-                self.joints,
-                self.policy,
-                self.max_skew_ns,
-                latest_limit_ns=None if now_ns is not None else frame.capture_ns,
-            )
+            buf = self.buffer(frame.epoch)
+            latest_limit = None if now_ns is not None else frame.capture_ns
+            result = buf.resolve(frame.capture_ns, self.joints, self.policy, self.max_skew_ns, latest_limit_ns=latest_limit)
+            extras = [j for j in self.extra_joints if j in buf.known_joints()]
+            if extras:
+                extra = buf.resolve(frame.capture_ns, extras, self.policy, self.max_skew_ns, latest_limit_ns=latest_limit)
+                result = dataclasses.replace(result, positions={**result.positions, **extra.positions})
             self.counters.released += 1
             self.counters.status_counts[result.status] += 1
-            self._last_released_ns = frame.capture_ns
-            self.buffer.prune_before(frame.capture_ns - 2 * NS_PER_S)
-            out.append((frame.payload, frame.capture_ns, result))
+            self._last_released = frame.order
+            for old in [e for e in self.buffers if e < frame.epoch]:
+                del self.buffers[old]
+            buf.prune_before(frame.capture_ns - HISTORY_NS)
+            out.append(ReleasedFrame(frame.payload, frame.capture_ns, frame.epoch, result))
         return out

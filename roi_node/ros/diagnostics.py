@@ -1,14 +1,17 @@
-"""LiveStats snapshot -> diagnostic_msgs/DiagnosticArray (what diagnostic_updater would publish).
+"""StreamStats snapshot -> diagnostic_msgs/DiagnosticArray (what diagnostic_updater would publish).
 
 One status per concern so a rig's diagnostic aggregator can route them:
-input, sync, one per arm, lineage. Levels: WARN when frames were dropped,
-messages were bad or frames were flagged in the window; ERROR when frames
-arrive but nothing can be published (no joint states, no intrinsics).
+input, processing, sync, one per arm, lineage. Levels: WARN when frames were
+dropped, messages were bad or frames were flagged; ERROR when the camera or a
+joint stream has been silent longer than `silence_timeout_s`, when frames
+arrive but nothing can be published (no joint states, no intrinsics, no
+URDF), and when processing raised in the last window.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -34,13 +37,43 @@ def _status(name: str, level: bytes, message: str, values: dict[str, object]) ->
     )
 
 
-def diagnostics_msg(stamp_ns: int, snap: dict[str, Any], lineage: Lineage | None, waiting_for: str | None) -> DiagnosticArray:
+class StreamHealth:
+    """When the camera and the joint streams were last heard from (monotonic ns), for the silence check."""
+
+    def __init__(self, start_ns: int, timeout_ns: int) -> None:
+        self.start_ns = start_ns
+        self.timeout_ns = timeout_ns
+        self.last_frame_ns: int | None = None
+        self.last_joints_ns: int | None = None
+
+    def frame_seen(self, now_ns: int) -> None:
+        self.last_frame_ns = now_ns
+
+    def joints_seen(self, now_ns: int) -> None:
+        self.last_joints_ns = now_ns
+
+    def silence(self, now_ns: int, image_topic: str, joint_topics: Sequence[str]) -> str | None:
+        """'no frames on X for N s' (and/or joint states) when a stream is silent too long, else None."""
+        problems = []
+        streams = ((f"frames on {image_topic}", self.last_frame_ns), (f"joint states on {', '.join(joint_topics)}", self.last_joints_ns))
+        for what, last in streams:
+            quiet_ns = now_ns - (last if last is not None else self.start_ns)
+            if quiet_ns > self.timeout_ns:
+                problems.append(f"no {what} for {quiet_ns / 1e9:.1f} s" + (" (none since start)" if last is None else ""))
+        return "; ".join(problems) or None
+
+
+def diagnostics_msg(
+    stamp_ns: int, snap: dict[str, Any], lineage: Lineage | None, waiting_for: str | None, silence: str | None = None
+) -> DiagnosticArray:
     statuses = []
     bad = snap["bad_messages"]
     drops = snap["drops"]
     input_level = DiagnosticStatus.OK
     input_message = f"frames {_fmt(snap['frame_rate_in_hz'])} Hz in, {_fmt(snap['frame_rate_out_hz'])} Hz out"
-    if waiting_for:
+    if silence:
+        input_level, input_message = DiagnosticStatus.ERROR, silence
+    elif waiting_for:
         input_level, input_message = DiagnosticStatus.ERROR, f"waiting for {waiting_for}"
     elif bad or drops:
         input_level = DiagnosticStatus.WARN
@@ -63,10 +96,30 @@ def diagnostics_msg(stamp_ns: int, snap: dict[str, Any], lineage: Lineage | None
             },
         )
     )
+    errors, window_errors = snap["processing_errors"], snap["processing_errors_window"]
+    processing_level = DiagnosticStatus.ERROR if window_errors else DiagnosticStatus.OK
+    processing_message = (
+        f"{sum(window_errors.values())} frames failed in the last window ({', '.join(sorted(window_errors))})"
+        if window_errors
+        else f"ok; {sum(errors.values())} frames failed since start"
+    )
+    statuses.append(
+        _status(
+            "processing",
+            processing_level,
+            processing_message,
+            {
+                "errors_by_type": errors,
+                "last_errors": {k: v for k, v in snap["last_errors"].items() if k.startswith("processing:")},
+                "process_ms": snap["process_ms"],
+            },
+        )
+    )
     status_counts = snap["sync_status"]
     not_ok = sum(v for k, v in status_counts.items() if k != "ok")
     sync_level = DiagnosticStatus.OK if not not_ok else DiagnosticStatus.WARN
-    if status_counts and status_counts.get("missing", 0) == sum(status_counts.values()):
+    released = sum(status_counts.values())
+    if released and status_counts.get("missing", 0) == released:
         sync_level = DiagnosticStatus.ERROR
     residual = snap["residual_ms"]
     statuses.append(

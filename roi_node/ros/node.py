@@ -1,21 +1,24 @@
-"""RoiNode: the live rclpy driver of RoiSession.
+"""RoiNode: the live rclpy driver of the stream engine (core/engine.py).
 
-Threads: the executor thread only converts and enqueues (a zero-copy view of
-an Image, a joint state into the buffer), so joint states are never starved
-by image work; one worker thread pops frames from the session in stamp order,
-runs the pipeline and publishes (see ros/spin.py for why one executor thread).
-Frames wait at most `max_wait_ms` for their bracketing joint sample; when the
-worker falls behind, the session's bounded queue drops the oldest frame and
-counts it. A bad message is counted, logged (throttled) and reported on
-/diagnostics; it never stops the node.
+Threads: the executor thread only converts messages into engine events (a
+zero-copy view of an Image, a joint state) under one lock, so joint states
+are never starved by image work; one worker thread pops frames in stamp
+order, runs the pipeline outside the lock and publishes (see ros/spin.py for
+why one executor thread). Every rule about what is used, flagged or refused
+is the engine's; this file only moves messages.
+
+The node never runs on pretending: a bad message is counted by kind, logged
+(throttled) and reported on /diagnostics; an exception while processing a
+frame is counted by type, reported at ERROR, and the node goes on with the
+next frame; if every frame fails for `max_failure_s`, or the worker thread
+itself dies, the node logs one line and stops, and `roi-node run` exits
+non-zero so that a supervisor restarts it.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -29,35 +32,30 @@ from std_msgs.msg import String
 
 from .. import __version__
 from ..core import topics
-from ..core.camera import CameraModel
 from ..core.config import RigConfig, load_rig_config
+from ..core.engine import (
+    CameraInfoEvent,
+    CommandEvent,
+    Event,
+    FrameEvent,
+    JointStateEvent,
+    PreparedFrame,
+    StreamEngine,
+    UrdfEvent,
+)
 from ..core.errors import ConfigError, RoiNodeError
 from ..core.image_codec import image_from_compressed, image_from_msg
-from ..core.live_stats import LiveStats
 from ..core.pipeline import FrameResult
 from ..core.resources import resolve_config_file
-from ..core.session import FramePayload, RoiSession
-from ..core.sync import NS_PER_MS, PendingFrame
+from ..core.stamps import NS_PER_MS, NS_PER_S
+from ..core.stream_stats import StreamStats
 from .conversions import camera_from_msg, camera_info_msg, image_msg, stamp_ns
-from .diagnostics import diagnostics_msg
-from .params import NodeParams, declare_and_read
+from .diagnostics import StreamHealth, diagnostics_msg
+from .params import apply_overrides, declare_and_read
 
 NODE_NAME = "roi_node"
 IDLE_WAIT_S = 0.1
 PENDING_POLL_S = 0.002
-EARLY_JOINT_STATES = 2000  # joint states kept while waiting for CameraInfo/URDF (2 s at 1 kHz)
-
-
-def _apply_overrides(rig: RigConfig, params: NodeParams) -> RigConfig:
-    """Parameters that override the rig config: sync policy and limits, global view on/off."""
-    sync = dataclasses.replace(
-        rig.sync,
-        policy=params.sync_policy or rig.sync.policy,
-        max_skew_ms=rig.sync.max_skew_ms if params.max_skew_ms is None else params.max_skew_ms,
-        max_wait_ms=rig.sync.max_wait_ms if params.max_wait_ms is None else params.max_wait_ms,
-    )
-    output = dataclasses.replace(rig.output, global_enabled=params.global_view and rig.output.global_enabled)
-    return dataclasses.replace(rig, sync=sync, output=output)
 
 
 class RoiNode(Node):
@@ -66,26 +64,32 @@ class RoiNode(Node):
     def __init__(self, *, parameter_overrides: list[Parameter] | None = None) -> None:
         super().__init__(NODE_NAME, parameter_overrides=parameter_overrides or [])
         self.params = declare_and_read(self)
-        # OpenCV's thread pool costs more than it saves on 256 px resizes: one thread measured 9.8 ms per
-        # 1080p frame against 13.0 ms with two (bench/live.py shows the node's CPU per frame)
+        # OpenCV's thread pool costs more than it saves on 256 px resizes (bench/live.py shows CPU per frame)
         cv2.setNumThreads(self.params.opencv_threads)
-        self.rig = _apply_overrides(load_rig_config(resolve_config_file(self.params.config)), self.params)
+        self.rig: RigConfig = apply_overrides(load_rig_config(resolve_config_file(self.params.config)), self.params)
         self._lock = threading.Condition()
         self._stop = threading.Event()
-        self._session: RoiSession | None = None
-        self._camera_info: CameraModel | None = None
-        self._pending_intrinsics: CameraModel | None = None
-        self._urdf_text: str | None = None
-        self._early_joints: deque[tuple[int, list[str], list[float], str]] = deque(maxlen=EARLY_JOINT_STATES)
+        self.failure: str | None = None  # set when the node stops because it cannot work
         self._frame_id = ""
         self._throttle: dict[str, float] = {}
-        self.stats = LiveStats(tuple(a.id for a in self.rig.arms), time.monotonic_ns())
-        self._need_camera_info = self.params.use_camera_info or self.rig.camera.intrinsics is None
+        self._failing_since: float | None = None
+        start_ns = time.monotonic_ns()
+        self.stats = StreamStats(tuple(a.id for a in self.rig.arms), start_ns)
+        self.health = StreamHealth(start_ns, round(self.params.silence_timeout_s * NS_PER_S))
+        urdf_text = None
         if self.params.robot_description_source == "parameter":
             if not self.params.robot_description:
                 raise ConfigError("parameter robot_description: empty, but robot_description_source is 'parameter'")
-            self._urdf_text = self.params.robot_description
-        self._try_start_session()  # a bad URDF or calibration fails here, at start
+            urdf_text = self.params.robot_description
+        # a bad URDF or calibration in the rig config fails here, at start
+        self.engine = StreamEngine(
+            self.rig,
+            intrinsics_from_stream=self.params.use_camera_info,
+            urdf_text=urdf_text,
+            urdf_from_stream=self.params.robot_description_source == "topic",
+            max_pending=self.params.max_pending_frames,
+            stats=self.stats,
+        )
         self._create_endpoints()
         self._worker = threading.Thread(target=self._work, name="roi_node_worker", daemon=True)
         self._worker.start()
@@ -106,7 +110,7 @@ class RoiNode(Node):
             self.create_subscription(JointState, topic, self._joint_callback(topic), p.joint_state_qos())
         if p.command_topic:
             self.create_subscription(JointState, p.command_topic, self._on_command, p.joint_state_qos())
-        if self._need_camera_info:
+        if self.engine.intrinsics_from_stream:
             self.create_subscription(CameraInfo, p.camera_info_topic, self._on_camera_info, sub_qos)
         if p.robot_description_source == "topic":
             latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -123,33 +127,6 @@ class RoiNode(Node):
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
 
-    def _waiting_for(self) -> str | None:
-        missing = []
-        if self._need_camera_info and self._camera_info is None:
-            missing.append(f"CameraInfo on {self.resolve_topic_name(self.params.camera_info_topic)}")
-        if self.params.robot_description_source == "topic" and self._urdf_text is None:
-            missing.append(f"URDF on {self.resolve_topic_name(topics.ROBOT_DESCRIPTION)}")
-        return " and ".join(missing) or None
-
-    def _try_start_session(self) -> None:
-        """Build the session once the intrinsics and URDF it needs are known."""
-        if self._session is not None or self._waiting_for() is not None:
-            return
-        urdf_texts = {r.id: self._urdf_text for r in self.rig.robots} if self._urdf_text is not None else None
-        self._session = RoiSession(
-            self.rig,
-            intrinsics=self._camera_info,
-            urdf_texts=urdf_texts,
-            max_pending=self.params.max_pending_frames,
-            on_drop=self._on_sync_drop,
-        )
-        for stamp, names, positions, topic in self._early_joints:
-            try:
-                self._session.add_joint_state(stamp, names, positions, where=topic)
-            except RoiNodeError as exc:
-                self.stats.bad_message("joint_state", str(exc))
-        self._early_joints.clear()
-
     def _log_start(self) -> None:
         p = self.params
         arms = ", ".join(f"{a.id} ({a.robot}:{a.ee_frame})" for a in self.rig.arms)
@@ -159,15 +136,34 @@ class RoiNode(Node):
         inputs += [self.resolve_topic_name(t) for t in p.joint_state_topics]
         if p.command_topic:
             inputs.append(f"{self.resolve_topic_name(p.command_topic)} (commands)")
-        lineage = self._session.pipeline.lineage.as_dict() if self._session else {}
+        waiting = self.engine.waiting_for()
+        pipeline = self.engine.pipeline
+        lineage = pipeline.lineage.as_dict() if pipeline is not None and pipeline.lineage is not None else "pending"
         self.get_logger().info(
             f"roi_node {__version__}: rig {self.rig.rig_id} ({self.rig.path}); camera {self.rig.camera.id}; arms {arms}; "
             f"inputs {', '.join(inputs)}; outputs {outputs}; sync {self.rig.sync.policy} "
-            f"max_skew {self.rig.sync.max_skew_ms:g} ms max_wait {self.rig.sync.max_wait_ms:g} ms; "
-            f"lineage {lineage or 'pending'}" + (f"; waiting for {self._waiting_for()}" if self._waiting_for() else "")
+            f"max_skew {self.rig.sync.max_skew_ms:g} ms max_wait {self.rig.sync.max_wait_ms:g} ms; lineage {lineage}"
+            + (f"; waiting for {waiting}" if waiting else "")
         )
 
-    # -- callbacks (executor threads) ---------------------------------------------------------------
+    # -- callbacks (executor thread) ----------------------------------------------------------------
+
+    def _feed(self, event: Event) -> None:
+        """Hand one event to the engine under the lock; a refusal is logged (throttled), the engine counted it."""
+        with self._lock:
+            refusal = self.engine.feed(event)
+            self._lock.notify()
+        if refusal is not None:
+            self._warn(refusal.kind, refusal.message)
+
+    def _refused(self, kind: str, message: str) -> None:
+        """A message that could not even become an event (undecodable): counted like an engine refusal."""
+        with self._lock:
+            self.stats.bad_message(kind, message)
+            if kind == "image":
+                self.stats.frame_in()
+                self.stats.drop("bad_image")
+        self._warn(kind, message)
 
     def _on_image(self, msg: Image) -> None:
         self._offer_frame(msg.header, lambda: image_from_msg(msg, self._image_topic))
@@ -177,154 +173,103 @@ class RoiNode(Node):
 
     def _offer_frame(self, msg_header: Any, decode: Callable[[], Any]) -> None:
         arrival_ns = time.monotonic_ns()
-        with self._lock:
-            self.stats.frame_in()
-            session = self._session
-            if session is None:
-                self.stats.drop("waiting_for_" + ("camera_info" if self._camera_info is None and self._need_camera_info else "urdf"))
-                return
+        self.health.frame_seen(arrival_ns)
         try:
             pixels = decode()
-            session.pipeline.check_image(pixels, self._image_topic)
+            stamp = stamp_ns(msg_header)
         except RoiNodeError as exc:
-            self._warn("image", str(exc))
-            with self._lock:
-                self.stats.bad_message("image", str(exc))
-                self.stats.drop("bad_image")
+            self._refused("image", str(exc))
             return
-        with self._lock:
-            self._frame_id = msg_header.frame_id
-            session.add_frame(stamp_ns(msg_header), pixels, arrival_ns)
-            self._lock.notify()
+        self._frame_id = msg_header.frame_id
+        self._feed(FrameEvent(stamp, pixels, arrival_ns, self._image_topic))
 
     def _joint_callback(self, topic: str) -> Callable[[JointState], None]:
         def callback(msg: JointState) -> None:
-            self._on_joint_state(msg, topic)
+            self.health.joints_seen(time.monotonic_ns())
+            self._feed(JointStateEvent(stamp_ns(msg.header), list(msg.name), list(msg.position), topic))
 
         return callback
 
-    def _on_joint_state(self, msg: JointState, topic: str) -> None:
-        names, positions = list(msg.name), list(msg.position)
-        with self._lock:
-            self.stats.joint_msg_in()
-            if not positions and names:
-                self.stats.bad_message("joint_state", f"{topic}: {len(names)} names but no positions (effort/velocity only?)")
-                return
-            if self._session is None:  # kept for the session that starts once CameraInfo/URDF arrive
-                self._early_joints.append((stamp_ns(msg.header), names, positions, topic))
-                return
-            try:
-                skipped = self._session.add_joint_state(stamp_ns(msg.header), names, positions, where=topic)
-            except RoiNodeError as exc:
-                self.stats.bad_message("joint_state", str(exc))
-                self._warn("joint_state", str(exc))
-                return
-            if skipped:
-                self.stats.bad_message("joint_state_nan", f"{topic}: non-finite position for {', '.join(skipped)}")
-            required = self._session.pipeline.required_joints
-            if names and not set(names) & set(required):
-                self.stats.bad_message(
-                    "joint_state_unknown_names",
-                    f"{topic}: none of {names[:3]}... is a joint this rig uses (expected names like {list(required[:3])})",
-                )
-            self._lock.notify()
-
     def _on_command(self, msg: JointState) -> None:
-        with self._lock:
-            if self._session is None or not msg.position:
-                return
-            try:
-                self._session.add_command(stamp_ns(msg.header), list(msg.name), list(msg.position), where=self.params.command_topic)
-            except RoiNodeError as exc:
-                self.stats.bad_message("command", str(exc))
+        self._feed(CommandEvent(stamp_ns(msg.header), list(msg.name), list(msg.position), self.params.command_topic))
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         where = self.resolve_topic_name(self.params.camera_info_topic)
         try:
             camera = camera_from_msg(msg, self.rig.camera.rectified, where)
-            rig_camera = self.rig.camera.intrinsics
-            if rig_camera is not None:
-                camera.check_image_size(rig_camera.width_px, rig_camera.height_px, f"{where} (rig calibration size)")
         except RoiNodeError as exc:
-            with self._lock:
-                self.stats.bad_message("camera_info", str(exc))
-            self._warn("camera_info", str(exc))
+            self._refused("camera_info", str(exc))
             return
-        with self._lock:
-            if self._camera_info is not None and self._camera_info.content_version() == camera.content_version():
-                return
-            first = self._camera_info is None
-            self._camera_info = camera
-            if self._session is None:
-                self._start_or_report()
-            else:
-                self._pending_intrinsics = camera  # applied by the worker between frames
-        if first:
+        first = self.engine.waiting_for() is not None
+        self._feed(CameraInfoEvent(stamp_ns(msg.header), camera, where))
+        if first and self.engine.waiting_for() is None:
             self.get_logger().info(f"intrinsics from {where}: {camera.width_px}x{camera.height_px} {camera.content_version()}")
 
     def _on_robot_description(self, msg: String) -> None:
-        with self._lock:
-            if self._urdf_text == msg.data:
-                return
-            if self._session is not None:
-                self.stats.bad_message("robot_description", "a new URDF arrived after start; restart the node to use it")
-                return
-            self._urdf_text = msg.data
-            self._start_or_report()
-        self.get_logger().info(f"URDF from {self.resolve_topic_name(topics.ROBOT_DESCRIPTION)} ({len(msg.data)} bytes)")
+        where = self.resolve_topic_name(topics.ROBOT_DESCRIPTION)
+        self._feed(UrdfEvent(self.get_clock().now().nanoseconds, msg.data, where))
+        self.get_logger().info(f"URDF from {where} ({len(msg.data)} bytes)")
 
-    def _start_or_report(self) -> None:
-        try:
-            self._try_start_session()
-        except RoiNodeError as exc:
-            self._urdf_text = None if self.params.robot_description_source == "topic" else self._urdf_text
-            self.stats.bad_message("startup", str(exc))
-            self._warn("startup", str(exc))
-            return
-        if self._session is not None:
-            self.get_logger().info(f"processing started; lineage {self._session.pipeline.lineage.as_dict()}")
-
-    def _on_sync_drop(self, frame: PendingFrame[FramePayload], reason: str) -> None:
-        self.stats.drop(reason)  # called by the session under self._lock
-
-    def _warn(self, kind: str, error: str) -> None:
-        """Log at most once per second per kind; the caller counts it in the stats."""
+    def _warn(self, kind: str, error: str, *, error_level: bool = False) -> None:
+        """Log at most once per second per kind; the caller counted it in the stats."""
         now = time.monotonic()
         if now - self._throttle.get(kind, 0.0) >= 1.0:
             self._throttle[kind] = now
-            self.get_logger().warning(f"{kind}: {error}")
+            log = self.get_logger()
+            (log.error if error_level else log.warning)(f"{kind}: {error}")
 
     # -- worker thread --------------------------------------------------------------------------
 
     def _work(self) -> None:
-        while not self._stop.is_set():
-            with self._lock:
-                session = self._session
-                ready = session.pop_ready(time.monotonic_ns(), limit=1) if session is not None else []
-                if not ready:
-                    pending = session.synchronizer.pending if session is not None else 0
-                    self._lock.wait(PENDING_POLL_S if pending else IDLE_WAIT_S)
-                    continue
-                intrinsics, self._pending_intrinsics = self._pending_intrinsics, None
-                frame_id = self._frame_id
-            assert session is not None
-            if intrinsics is not None:
-                session.pipeline.set_intrinsics(intrinsics)
-            start = time.perf_counter()
-            try:
-                now_ns = self.get_clock().now().nanoseconds
-                latency_ms = (now_ns - ready[0].capture_ns) / NS_PER_MS if now_ns > 0 else None
-                result = session.process(ready[0], latency_ms)
-                self._publish(result, frame_id)
-            except RoiNodeError as exc:
-                self._warn("frame", str(exc))
+        try:
+            while not self._stop.is_set():
                 with self._lock:
-                    self.stats.bad_message("frame", str(exc))
-                    self.stats.drop("processing_error")
-                continue
-            process_ms = (time.perf_counter() - start) * 1000
+                    ready = self.engine.pop_ready(time.monotonic_ns(), limit=1)
+                    if not ready:
+                        self._lock.wait(PENDING_POLL_S if self.engine.pending else IDLE_WAIT_S)
+                        continue
+                    prepared = self.engine.prepare(ready[0])
+                    frame_id = self._frame_id
+                if prepared is not None:
+                    self._process(prepared, frame_id)
+        except BaseException as exc:  # the worker itself must never die silently: stop the node and say why
+            self._fail(f"the processing thread failed: {type(exc).__name__}: {exc}")
+
+    def _process(self, prepared: PreparedFrame, frame_id: str) -> None:
+        start = time.perf_counter()
+        try:
+            now_ns = self.get_clock().now().nanoseconds
+            latency_ms = (now_ns - prepared.ready.capture_ns) / NS_PER_MS if now_ns > 0 else None
+            result = self.engine.process(prepared, latency_ms)
+            self._publish(result, frame_id)
+        except Exception as exc:  # any failure on one frame is counted and reported; the next frame is tried
             with self._lock:
-                self.stats.frame_out(result.record, latency_ms, process_ms)
+                line = self.stats.processing_error(exc)
+                self.stats.drop("processing_error")
+            self._warn("processing", f"frame stamp {prepared.ready.payload.stamp_ns}: {line}", error_level=True)
+            self._check_persistent_failure(line)
+            return
+        self._failing_since = None
+        process_ms = (time.perf_counter() - start) * 1000
+        with self._lock:
+            self.stats.frame_out(result.record, latency_ms, process_ms)
+
+    def _check_persistent_failure(self, line: str) -> None:
+        now = time.monotonic()
+        if self._failing_since is None:
+            self._failing_since = now
+        elif now - self._failing_since >= self.params.max_failure_s:
+            limit = self.params.max_failure_s
+            self._fail(f"every frame failed for {now - self._failing_since:.1f} s (max_failure_s {limit:g}); last: {line}")
+
+    def _fail(self, message: str) -> None:
+        """Stop the node: one line in the log, the context shut down, `roi-node run` exits non-zero."""
+        if self.failure is not None:
+            return
+        self.failure = message
+        self._stop.set()
+        self.get_logger().fatal(message)
+        self.context.try_shutdown()
 
     def _publish(self, result: FrameResult, frame_id: str) -> None:
         out_w, out_h = self.rig.output.size_px
@@ -338,14 +283,17 @@ class RoiNode(Node):
         self._metadata_pub.publish(String(data=result.record_json))
 
     def _publish_diagnostics(self) -> None:
+        now_ns = time.monotonic_ns()
         with self._lock:
-            snap = self.stats.snapshot(time.monotonic_ns())
-            lineage = self._session.pipeline.lineage if self._session is not None else None
-            waiting = self._waiting_for()
-            if self._session is not None:
-                counters = self._session.synchronizer.counters
-                snap["sync_counters"] = {"time_jumps": counters.time_jumps, "pending": self._session.synchronizer.pending}
-        self._diagnostics_pub.publish(diagnostics_msg(self.get_clock().now().nanoseconds, snap, lineage, waiting))
+            snap = self.stats.snapshot(now_ns)
+            pipeline = self.engine.pipeline
+            lineage = pipeline.lineage if pipeline is not None else None
+            waiting = self.engine.waiting_for()
+            sync = self.engine.synchronizer
+            if sync is not None:
+                snap["sync_counters"] = {"epochs": sync.counters.epochs, "pending": sync.pending}
+        silence = self.health.silence(now_ns, self.resolve_topic_name(self._image_topic), self.params.joint_state_topics)
+        self._diagnostics_pub.publish(diagnostics_msg(self.get_clock().now().nanoseconds, snap, lineage, waiting, silence))
 
     # -- shutdown -----------------------------------------------------------------------------------
 
@@ -356,6 +304,6 @@ class RoiNode(Node):
             self._lock.notify_all()
         self._worker.join(timeout=5.0)
         with self._lock:
-            if self._session is not None and self._session.synchronizer.pending:
-                self.stats.drop("shutdown", self._session.synchronizer.pending)
+            if self.engine.pending:
+                self.stats.drop("shutdown", self.engine.pending)
 

@@ -6,12 +6,14 @@ with a ConfigError naming the parameter, never later.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from ..core.config import SYNC_POLICIES
+from ..core.config import MAX_TIME_MS, SYNC_POLICIES, RigConfig
 from ..core.errors import ConfigError
 from ..core.image_codec import OUTPUT_ENCODINGS
 
@@ -43,6 +45,8 @@ class NodeParams:
     output_encoding: str
     global_view: bool
     diagnostics_period_s: float
+    silence_timeout_s: float  # /diagnostics turns ERROR when the camera or a joint stream is silent this long
+    max_failure_s: float  # the node stops (exit non-zero) when every frame failed for this long
     opencv_threads: int
 
     def subscription_qos(self) -> QoSProfile:
@@ -64,54 +68,130 @@ def _qos(reliability: str, depth: int) -> QoSProfile:
     )
 
 
+# name -> default; the default's type is the parameter's type (an integer is accepted where a double is declared)
+DEFAULTS: dict[str, object] = {
+    "config": "",
+    "image_transport": "raw",
+    "image_topic": "image_raw",
+    "camera_info_topic": "camera_info",
+    "use_camera_info": False,
+    "joint_state_topics": ["joint_states"],
+    "command_topic": "",
+    "robot_description_source": "config",
+    "robot_description": "",
+    "qos.subscription_reliability": "best_effort",
+    "qos.subscription_depth": 5,
+    "qos.joint_state_depth": 100,
+    "qos.publisher_reliability": "reliable",
+    "qos.publisher_depth": 30,
+    "sync.policy": "",
+    "sync.max_skew_ms": -1.0,
+    "sync.max_wait_ms": -1.0,
+    "sync.max_pending_frames": 8,
+    "output_encoding": "rgb8",
+    "global_view": True,
+    "diagnostics_period_s": 1.0,
+    "silence_timeout_s": 2.0,
+    "max_failure_s": 5.0,
+    "opencv_threads": 1,
+}
+# declared by rclpy itself (and parameter-event and QoS-override namespaces it handles)
+RCLPY_PARAMETERS = ("use_sim_time",)
+RCLPY_PREFIXES = ("qos_overrides.",)
+
+
+def _type_name(value: object) -> str:
+    if isinstance(value, bool):
+        return "bool"
+    if isinstance(value, int):
+        return "integer"
+    if isinstance(value, float):
+        return "double"
+    if isinstance(value, str):
+        return "string"
+    if isinstance(value, list | tuple):
+        return "string array" if all(isinstance(v, str) for v in value) else "array"
+    return type(value).__name__
+
+
+def _typed(name: str, default: object, value: object) -> object:
+    """`value` as the type of `default`; ConfigError naming the parameter and both types otherwise."""
+    expected = _type_name(default)
+    if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(default, list) and isinstance(value, list | tuple) and all(isinstance(v, str) for v in value):
+        return list(value)
+    if _type_name(value) != expected:
+        raise ConfigError(f"parameter {name}: expected a {expected}, got {value!r} ({_type_name(value)})")
+    return value
+
+
 def declare_and_read(node: Node) -> NodeParams:
-    """Declare every parameter on `node` and return their validated values."""
-    p = node.declare_parameter
-    values = {
-        "config": p("config", "").value,
-        "image_transport": p("image_transport", "raw").value,
-        "image_topic": p("image_topic", "image_raw").value,
-        "camera_info_topic": p("camera_info_topic", "camera_info").value,
-        "use_camera_info": p("use_camera_info", False).value,
-        "joint_state_topics": p("joint_state_topics", ["joint_states"]).value,
-        "command_topic": p("command_topic", "").value,
-        "robot_description_source": p("robot_description_source", "config").value,
-        "robot_description": p("robot_description", "").value,
-        "subscription_reliability": p("qos.subscription_reliability", "best_effort").value,
-        "subscription_depth": p("qos.subscription_depth", 5).value,
-        "joint_state_depth": p("qos.joint_state_depth", 100).value,
-        "publisher_reliability": p("qos.publisher_reliability", "reliable").value,
-        "publisher_depth": p("qos.publisher_depth", 30).value,
-        "sync_policy": p("sync.policy", "").value,
-        "max_skew_ms": p("sync.max_skew_ms", -1.0).value,
-        "max_wait_ms": p("sync.max_wait_ms", -1.0).value,
-        "max_pending_frames": p("sync.max_pending_frames", 8).value,
-        "output_encoding": p("output_encoding", "rgb8").value,
-        "global_view": p("global_view", True).value,
-        "diagnostics_period_s": p("diagnostics_period_s", 1.0).value,
-        "opencv_threads": p("opencv_threads", 1).value,
-    }
+    """Declare every parameter on `node` and return their validated values.
+
+    Parameters are declared with dynamic typing so that a wrong type reaches
+    this function (rclpy would raise its own exception at declaration) and is
+    refused with one line; an override that names no parameter of the node
+    (`global_veiw:=false`) is refused too instead of being silently ignored.
+    """
+    descriptor = ParameterDescriptor(dynamic_typing=True)
+    values = {}
+    for name, default in DEFAULTS.items():
+        raw = node.declare_parameter(name, default, descriptor).value
+        values[name] = _typed(name, default, raw)
+    unknown = sorted(
+        name
+        for name in getattr(node, "_parameter_overrides", {})
+        if name not in DEFAULTS and name not in RCLPY_PARAMETERS and not name.startswith(RCLPY_PREFIXES)
+    )
+    if unknown:
+        raise ConfigError(
+            f"parameter {unknown[0]}: not a parameter of roi_node"
+            + (f" (nor {', '.join(unknown[1:])})" if len(unknown) > 1 else "")
+            + "; see config/roi_node.params.yaml for the list"
+        )
     return _validate(values)
 
 
-def _choice(values: dict[str, object], key: str, param: str, choices: tuple[str, ...]) -> str:
-    value = str(values[key])
+def apply_overrides(rig: RigConfig, params: NodeParams) -> RigConfig:
+    """Parameters that override the rig config: sync policy and limits, global view on/off."""
+    sync = dataclasses.replace(
+        rig.sync,
+        policy=params.sync_policy or rig.sync.policy,
+        max_skew_ms=rig.sync.max_skew_ms if params.max_skew_ms is None else params.max_skew_ms,
+        max_wait_ms=rig.sync.max_wait_ms if params.max_wait_ms is None else params.max_wait_ms,
+    )
+    output = dataclasses.replace(rig.output, global_enabled=params.global_view and rig.output.global_enabled)
+    return dataclasses.replace(rig, sync=sync, output=output)
+
+
+def _choice(values: dict[str, object], param: str, choices: tuple[str, ...]) -> str:
+    value = str(values[param])
     if value not in choices:
         raise ConfigError(f"parameter {param}: {value!r} is not one of {', '.join(choices)}")
     return value
 
 
-def _positive_int(values: dict[str, object], key: str, param: str) -> int:
-    value = values[key]
+def _positive_int(values: dict[str, object], param: str) -> int:
+    value = values[param]
     if not isinstance(value, int) or value < 1:
         raise ConfigError(f"parameter {param}: expected a positive integer, got {value!r}")
     return value
 
 
-def _optional_ms(values: dict[str, object], key: str) -> float | None:
+def _optional_ms(values: dict[str, object], param: str) -> float | None:
     """Negative means "the rig config's value"."""
-    value = float(values[key])  # type: ignore[arg-type]
+    value = float(values[param])  # type: ignore[arg-type]
+    if value > MAX_TIME_MS:
+        raise ConfigError(f"parameter {param}: must be <= {MAX_TIME_MS:g} ms, got {value:g}")
     return None if value < 0 else value
+
+
+def _positive_seconds(values: dict[str, object], param: str) -> float:
+    value = float(values[param])  # type: ignore[arg-type]
+    if not 0 < value <= 3600:
+        raise ConfigError(f"parameter {param}: expected seconds in (0, 3600], got {value:g}")
+    return value
 
 
 def _validate(v: dict[str, object]) -> NodeParams:
@@ -120,33 +200,32 @@ def _validate(v: dict[str, object]) -> NodeParams:
     topics = tuple(str(t) for t in v["joint_state_topics"])  # type: ignore[attr-defined]
     if not topics or any(not t for t in topics):
         raise ConfigError(f"parameter joint_state_topics: expected one or more topic names, got {list(topics)!r}")
-    policy = str(v["sync_policy"]) or None
+    policy = str(v["sync.policy"]) or None
     if policy is not None and policy not in SYNC_POLICIES:
         raise ConfigError(f"parameter sync.policy: {policy!r} is not one of {', '.join(SYNC_POLICIES)}")
-    period = float(v["diagnostics_period_s"])  # type: ignore[arg-type]
-    if period <= 0:
-        raise ConfigError(f"parameter diagnostics_period_s: expected > 0, got {period}")
     return NodeParams(
         config=str(v["config"]),
-        image_transport=_choice(v, "image_transport", "image_transport", TRANSPORTS),
+        image_transport=_choice(v, "image_transport", TRANSPORTS),
         image_topic=str(v["image_topic"]),
         camera_info_topic=str(v["camera_info_topic"]),
         use_camera_info=bool(v["use_camera_info"]),
         joint_state_topics=topics,
         command_topic=str(v["command_topic"]),
-        robot_description_source=_choice(v, "robot_description_source", "robot_description_source", ROBOT_DESCRIPTION_SOURCES),
+        robot_description_source=_choice(v, "robot_description_source", ROBOT_DESCRIPTION_SOURCES),
         robot_description=str(v["robot_description"]),
-        subscription_reliability=_choice(v, "subscription_reliability", "qos.subscription_reliability", RELIABILITIES),
-        subscription_depth=_positive_int(v, "subscription_depth", "qos.subscription_depth"),
-        joint_state_depth=_positive_int(v, "joint_state_depth", "qos.joint_state_depth"),
-        publisher_reliability=_choice(v, "publisher_reliability", "qos.publisher_reliability", RELIABILITIES),
-        publisher_depth=_positive_int(v, "publisher_depth", "qos.publisher_depth"),
+        subscription_reliability=_choice(v, "qos.subscription_reliability", RELIABILITIES),
+        subscription_depth=_positive_int(v, "qos.subscription_depth"),
+        joint_state_depth=_positive_int(v, "qos.joint_state_depth"),
+        publisher_reliability=_choice(v, "qos.publisher_reliability", RELIABILITIES),
+        publisher_depth=_positive_int(v, "qos.publisher_depth"),
         sync_policy=policy,
-        max_skew_ms=_optional_ms(v, "max_skew_ms"),
-        max_wait_ms=_optional_ms(v, "max_wait_ms"),
-        max_pending_frames=_positive_int(v, "max_pending_frames", "sync.max_pending_frames"),
-        output_encoding=_choice(v, "output_encoding", "output_encoding", OUTPUT_ENCODINGS),
+        max_skew_ms=_optional_ms(v, "sync.max_skew_ms"),
+        max_wait_ms=_optional_ms(v, "sync.max_wait_ms"),
+        max_pending_frames=_positive_int(v, "sync.max_pending_frames"),
+        output_encoding=_choice(v, "output_encoding", OUTPUT_ENCODINGS),
         global_view=bool(v["global_view"]),
-        diagnostics_period_s=period,
-        opencv_threads=_positive_int(v, "opencv_threads", "opencv_threads"),
+        diagnostics_period_s=_positive_seconds(v, "diagnostics_period_s"),
+        silence_timeout_s=_positive_seconds(v, "silence_timeout_s"),
+        max_failure_s=_positive_seconds(v, "max_failure_s"),
+        opencv_threads=_positive_int(v, "opencv_threads"),
     )

@@ -27,6 +27,8 @@ from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
+from ..core.errors import RoiNodeError
+
 
 @contextlib.contextmanager
 def ros_context(ros_args: Sequence[str] = ()) -> Iterator[None]:
@@ -41,7 +43,8 @@ def spin_node(make_node: Callable[[], Node], ros_args: Sequence[str] = ()) -> in
     """Create the node inside an rclpy context and spin it until shutdown; returns an exit code.
 
     Errors raised by `make_node` (a bad rig config) propagate before anything
-    spins, so a bad start fails at once with the config error.
+    spins, so a bad start fails at once with the config error; a node that
+    stops itself (`node.failure` set) raises NodeStoppedError after shutdown.
     """
     with ros_context(ros_args):
         node: Node | None = None
@@ -62,7 +65,14 @@ def spin_node(make_node: Callable[[], Node], ros_args: Sequence[str] = ()) -> in
         finally:
             _close(node)
             executor.shutdown(timeout_sec=1.0)
+        failure = getattr(node, "failure", None)
+        if failure is not None:  # the node stopped itself because it could not work
+            raise NodeStoppedError(failure)
     return 0
+
+
+class NodeStoppedError(RoiNodeError):
+    """A node stopped itself because it could not work; the message says why."""
 
 def _close(node: Node) -> None:
     """Stop the node's own threads (if it has any), then destroy it."""

@@ -1,8 +1,9 @@
-"""Windowed counters of a live node, the content of its /diagnostics.
+"""StreamStats: what a stream engine did, the one statistics type of /diagnostics, replay summaries and the demo.
 
-Pure bookkeeping (no rclpy): counts since start and over the last window,
-rates, sync residuals, per-arm validity and in-frame ratios, and every drop
-or bad message by reason, so nothing the node discards goes unreported.
+Pure bookkeeping (no rclpy): counts since start and over the last window
+(live diagnostics), rates, sync residuals, per-arm validity, in-frame ratios
+and flags, processing errors by exception type, and every drop or bad message
+by reason, so nothing a driver discards goes unreported.
 """
 
 from __future__ import annotations
@@ -13,7 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from .sync import NS_PER_S
+from .records import FrameRecord
+from .stamps import NS_PER_S
+from .sync import STATUS_ORDER
 
 
 @dataclass
@@ -25,24 +28,38 @@ class _Window:
     latency_ms: list[float] = field(default_factory=list)
     process_ms: list[float] = field(default_factory=list)
     valid: Counter[str] = field(default_factory=Counter)
-    in_frame_sum: Counter[str] = field(default_factory=Counter)
+    in_frame_sum: dict[str, float] = field(default_factory=dict)
     arm_frames: Counter[str] = field(default_factory=Counter)
+    errors: Counter[str] = field(default_factory=Counter)
 
 
-class LiveStats:
+class StreamStats:
     """Totals since start plus one diagnostics window (reset by `snapshot`)."""
 
-    def __init__(self, arm_ids: tuple[str, ...], start_ns: int) -> None:
+    def __init__(self, arm_ids: tuple[str, ...], start_ns: int = 0) -> None:
         self.arm_ids = arm_ids
         self.totals: Counter[str] = Counter()
         self.drops: Counter[str] = Counter()  # frames never published, by reason
         self.bad: Counter[str] = Counter()  # malformed or unusable messages, by kind
-        self.status: Counter[str] = Counter()
+        self.errors: Counter[str] = Counter()  # processing failures, by exception type
+        self.status: Counter[str] = Counter({s.value: 0 for s in STATUS_ORDER})
         self.flags: Counter[str] = Counter()
+        self.flagged_frames: Counter[str] = Counter()  # per arm
         self.last_error: dict[str, str] = {}
+        self.residuals_ms: list[float] = []  # every released frame's, for summaries
+        self.in_frame_sum: dict[str, float] = {}
+        self.arm_frames: Counter[str] = Counter()
         self._window = _Window()
         self._window_start_ns = start_ns
         self._recent_latency: deque[float] = deque(maxlen=1000)
+
+    @property
+    def frames_in(self) -> int:
+        return self.totals["frames_in"]
+
+    @property
+    def frames_out(self) -> int:
+        return self.totals["frames_out"]
 
     def frame_in(self) -> None:
         self.totals["frames_in"] += 1
@@ -59,25 +76,55 @@ class LiveStats:
         self.bad[kind] += 1
         self.last_error[kind] = error
 
-    def frame_out(self, record: dict[str, Any], latency_ms: float | None, process_ms: float) -> None:
+    def processing_error(self, exc: BaseException) -> str:
+        """Count an exception raised while processing a frame; returns its one-line description."""
+        kind = type(exc).__name__
+        text = str(exc).splitlines()[0][:300] if str(exc) else ""
+        line = f"{kind}: {text}" if text else kind
+        self.errors[kind] += 1
+        self._window.errors[kind] += 1
+        self.last_error[f"processing:{kind}"] = line
+        return line
+
+    def frame_out(self, record: FrameRecord, latency_ms: float | None, process_ms: float) -> None:
         w = self._window
         self.totals["frames_out"] += 1
         w.frames_out += 1
-        sync = record["sync"]
-        self.status[sync["status"]] += 1
-        if sync["residual_ms"] is not None:
-            w.residual_ms.append(sync["residual_ms"])
+        sync = record.sync
+        self.status[sync.status] += 1
+        if sync.residual_ms is not None:
+            w.residual_ms.append(sync.residual_ms)
+            self.residuals_ms.append(sync.residual_ms)
         if latency_ms is not None:
             w.latency_ms.append(latency_ms)
             self._recent_latency.append(latency_ms)
         w.process_ms.append(process_ms)
-        for arm in record["arms"]:
-            arm_id = arm["arm_id"]
+        for arm in record.arms:
+            arm_id = arm.arm_id
             w.arm_frames[arm_id] += 1
-            w.valid[arm_id] += int(arm["projection_valid"])
-            w.in_frame_sum[arm_id] += arm["in_frame_ratio"]
-            for flag in arm["flags"]:
+            w.valid[arm_id] += int(arm.projection_valid)
+            w.in_frame_sum[arm_id] = w.in_frame_sum.get(arm_id, 0.0) + arm.in_frame_ratio
+            self.arm_frames[arm_id] += 1
+            self.in_frame_sum[arm_id] = self.in_frame_sum.get(arm_id, 0.0) + arm.in_frame_ratio
+            if arm.flags:
+                self.flagged_frames[arm_id] += 1
+            for flag in arm.flags:
                 self.flags[f"{arm_id}:{flag}"] += 1
+
+    def arm_flags(self, arm_id: str) -> dict[str, int]:
+        prefix = arm_id + ":"
+        return {k[len(prefix):]: v for k, v in self.flags.items() if k.startswith(prefix)}
+
+    def in_frame_mean(self, arm_id: str) -> float | None:
+        n = self.arm_frames[arm_id]
+        return self.in_frame_sum[arm_id] / n if n else None
+
+    def residual_summary(self) -> dict[str, float] | None:
+        """p50, p95 and max of every released frame's sync residual."""
+        if not self.residuals_ms:
+            return None
+        values = np.asarray(self.residuals_ms)
+        return {"p50": float(np.percentile(values, 50)), "p95": float(np.percentile(values, 95)), "max": float(values.max())}
 
     def latency_percentiles(self) -> tuple[float, float] | None:
         if not self._recent_latency:
@@ -97,6 +144,8 @@ class LiveStats:
             "totals": dict(self.totals),
             "drops": dict(self.drops),
             "bad_messages": dict(self.bad),
+            "processing_errors": dict(self.errors),
+            "processing_errors_window": dict(w.errors),
             "last_errors": dict(self.last_error),
             "sync_status": dict(self.status),
             "residual_ms": _summary(w.residual_ms),

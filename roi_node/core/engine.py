@@ -1,0 +1,467 @@
+"""StreamEngine: the one owner of a stream's state, fed by the live node and by offline replay.
+
+Drivers turn their inputs into typed events (a frame, a joint state, a
+command, a camera info, a URDF), each with its stamp, and call `feed`; they
+call `pop_ready` to get the frames whose joint state is settled and `process`
+to run the pipeline on one. Every rule that decides what an output contains
+lives here, so live and offline agree because they run the same code:
+
+- stamps are judged per stream (core/stamps.py): zero and implausible stamps
+  are refused without disturbing other messages; a confirmed jump back in time
+  starts an epoch, and frames pair with joint states of their own epoch;
+- joint states: names and lengths checked, non-finite values skipped, values
+  beyond the URDF limits by more than `limit_margin` refused (the arms they
+  move are flagged `joint_out_of_limits` on the frames near them), names that
+  are no joint of the rig reported;
+- intrinsics and URDF take effect by stamp: a frame uses the newest camera
+  info (and URDF) stamped at or before its own stamp; while intrinsics come
+  from a stream, a frame also waits (up to `max_wait_ms`) for a camera info
+  stamped at or after it, so live sees the same camera info as offline does;
+- before a URDF is known, joint states are kept (bounded) and frames refused.
+
+Only `now_ns` (when a live frame stops waiting) and `latency_ms` depend on a
+clock, and the caller supplies both. Errors of the messages are counted in
+`stats` by kind and returned as a `Refusal`, never raised; `process` raises
+only for bugs or resource errors, which the driver counts.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .camera import CameraModel
+from .config import RigConfig
+from .errors import ImageError, JointStateError, RoiNodeError
+from .metadata import M_DECIMALS, MS_DECIMALS, rnd
+from .pipeline import FrameResult, RoiPipeline
+from .records import TeleopRecord
+from .stamps import NS_PER_MS, NS_PER_S, StreamClock
+from .stream_stats import StreamStats
+from .sync import FrameSynchronizer, JointStateBuffer, PendingFrame, SyncResult, command_residual
+
+EARLY_JOINT_STATES = 2000  # joint states kept while waiting for a URDF (2 s at 1 kHz)
+LIMIT_MARGIN_FRACTION = 0.05  # of the joint's range
+LIMIT_MARGIN_MIN = 0.02  # radians or metres: encoder noise at a hard stop stays inside
+
+
+@dataclass(frozen=True)
+class FrameEvent:
+    stamp_ns: int  # the header stamp: every output carries it
+    image: np.ndarray
+    arrival_ns: int = 0  # monotonic arrival time, live only (when the frame stops waiting)
+    where: str = "image_raw"
+
+
+@dataclass(frozen=True)
+class JointStateEvent:
+    stamp_ns: int
+    names: Sequence[str]
+    positions: Sequence[float] | NDArray[np.float64]
+    where: str = "joint_states"
+
+
+@dataclass(frozen=True)
+class CommandEvent:
+    stamp_ns: int
+    names: Sequence[str]
+    positions: Sequence[float] | NDArray[np.float64]
+    where: str = "joint_commands"
+
+
+@dataclass(frozen=True)
+class CameraInfoEvent:
+    stamp_ns: int
+    camera: CameraModel
+    where: str = "camera_info"
+
+
+@dataclass(frozen=True)
+class UrdfEvent:
+    stamp_ns: int  # robot_description carries no header: the receive (log) time
+    text: str
+    where: str = "robot_description"
+
+
+Event = FrameEvent | JointStateEvent | CommandEvent | CameraInfoEvent | UrdfEvent
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """An input the engine did not use: its kind (the diagnostics counter) and one line naming it."""
+
+    kind: str
+    message: str
+
+
+@dataclass(frozen=True)
+class FramePayload:
+    stamp_ns: int
+    frame_index: int
+    image: np.ndarray
+    where: str
+
+
+@dataclass(frozen=True)
+class ReadyFrame:
+    payload: FramePayload
+    capture_ns: int
+    epoch: int
+    sync: SyncResult
+    command_residual: float | None  # r_t, when a command stream is fed
+
+
+@dataclass(frozen=True)
+class PreparedFrame:
+    ready: ReadyFrame
+    pipeline: RoiPipeline  # the URDF in effect at the frame's stamp, its intrinsics set
+    flagged_joints: frozenset[str]
+
+
+@dataclass
+class _Stamped:
+    """Values that take effect by stamp: the newest at or before a frame's stamp applies to it."""
+
+    stamps: list[int] = field(default_factory=list)
+    values: list[object] = field(default_factory=list)
+
+    def add(self, stamp_ns: int, value: object) -> None:
+        i = bisect.bisect_right(self.stamps, stamp_ns)
+        self.stamps.insert(i, stamp_ns)
+        self.values.insert(i, value)
+
+    def at(self, stamp_ns: int) -> object | None:
+        i = bisect.bisect_right(self.stamps, stamp_ns) - 1
+        return self.values[i] if i >= 0 else None
+
+
+class StreamEngine:
+    """One rig's event streams in, FrameResults out, in stamp order (see the module docstring)."""
+
+    def __init__(
+        self,
+        rig: RigConfig,
+        *,
+        intrinsics_from_stream: bool = False,
+        urdf_text: str | None = None,
+        urdf_from_stream: bool = False,
+        max_pending: int = 8,
+        stats: StreamStats | None = None,
+    ) -> None:
+        self.rig = rig
+        self.stats = stats or StreamStats(tuple(a.id for a in rig.arms))
+        self.delay_ns = round(rig.camera.delay_ms * NS_PER_MS)
+        self.max_pending = max_pending
+        self.intrinsics_from_stream = intrinsics_from_stream or rig.camera.intrinsics is None
+        self._cameras = _Stamped()
+        self._newest_info_ns: int | None = None  # of any camera info, changed or not: what a waiting frame needs
+        if not self.intrinsics_from_stream:
+            self._cameras.add(-1, rig.camera.intrinsics)
+        self._urdf_from_stream = urdf_from_stream
+        self._pipelines = _Stamped()
+        self._urdf_texts: set[str] = set()
+        self.synchronizer: FrameSynchronizer[FramePayload] | None = None
+        self.commands: JointStateBuffer | None = None
+        self._early_joints: deque[JointStateEvent] = deque(maxlen=EARLY_JOINT_STATES)
+        self._clocks: dict[str, StreamClock] = {}
+        self._limit_refusals: dict[tuple[int, str], list[int]] = {}  # (epoch, joint) -> stamps of refused samples
+        self.frames_offered = 0
+        if not urdf_from_stream:
+            self._start(RoiPipeline(rig, urdf_texts=None if urdf_text is None else {r.id: urdf_text for r in rig.robots}), -1)
+
+    # -- set-up ---------------------------------------------------------------------------------
+
+    @property
+    def pipeline(self) -> RoiPipeline | None:
+        """The newest pipeline (the URDF most recently in effect)."""
+        return self._pipelines.values[-1] if self._pipelines.values else None  # type: ignore[return-value]
+
+    def _start(self, pipeline: RoiPipeline, stamp_ns: int) -> None:
+        self._pipelines.add(stamp_ns, pipeline)
+        self.synchronizer = FrameSynchronizer(
+            pipeline.required_joints,
+            self.rig.sync.policy,
+            self.rig.sync.max_skew_ms,
+            self.rig.sync.max_wait_ms,
+            continuous_joints=pipeline.continuous_joints,
+            extra_joints=pipeline.state_joints,
+            max_pending=self.max_pending,
+            on_drop=lambda _frame, reason: self.stats.drop(reason),
+            extra_ready=self._camera_settled,
+        )
+        self.commands = JointStateBuffer(pipeline.continuous_joints)
+        early, self._early_joints = list(self._early_joints), deque(maxlen=EARLY_JOINT_STATES)
+        for event in early:
+            self._feed_joint_state(event)
+
+    def waiting_for(self) -> str | None:
+        """What the engine still needs before it can process any frame, or None."""
+        missing = []
+        if self.intrinsics_from_stream and not self._cameras.stamps:
+            missing.append("CameraInfo")
+        if self.synchronizer is None:
+            missing.append("URDF (robot_description)")
+        return " and ".join(missing) or None
+
+    # -- events ---------------------------------------------------------------------------------
+
+    def feed(self, event: Event) -> Refusal | None:
+        """Take one input; a refused one is counted in `stats` and described in the returned Refusal."""
+        if isinstance(event, FrameEvent):
+            refusal = self._feed_frame(event)
+        elif isinstance(event, JointStateEvent):
+            self.stats.joint_msg_in()
+            refusal = self._feed_joint_state(event)
+        elif isinstance(event, CommandEvent):
+            refusal = self._feed_command(event)
+        elif isinstance(event, CameraInfoEvent):
+            refusal = self._feed_camera_info(event)
+        else:
+            refusal = self._feed_urdf(event)
+        if refusal is not None:
+            self.stats.bad_message(refusal.kind, refusal.message)
+        return refusal
+
+    def _check_stamp(self, stream: str, stamp_ns: int, where: str) -> tuple[int, Refusal | None]:
+        clock = self._clocks.setdefault(stream, StreamClock())
+        check = clock.check(stamp_ns)
+        if not check.accepted:
+            return check.epoch, Refusal(check.verdict.value, f"{where}: stamp {stamp_ns} refused: {check.reason}")
+        return check.epoch, None
+
+    def _feed_frame(self, event: FrameEvent) -> Refusal | None:
+        self.stats.frame_in()
+        epoch, refusal = self._check_stamp("frame", event.stamp_ns, event.where)
+        if refusal is not None:
+            self.stats.drop(refusal.kind)
+            return refusal
+        if self.synchronizer is None:
+            self.stats.drop("waiting_for_urdf")
+            return None
+        index = self.frames_offered
+        self.frames_offered += 1
+        payload = FramePayload(int(event.stamp_ns), index, event.image, event.where)
+        self.synchronizer.add_frame(int(event.stamp_ns) - self.delay_ns, payload, event.arrival_ns, epoch)
+        return None
+
+    def _feed_joint_state(self, event: JointStateEvent) -> Refusal | None:
+        where = event.where
+        names, positions = list(event.names), list(event.positions)
+        if not names:
+            return None
+        if not positions:
+            return Refusal("joint_state", f"{where}: {len(names)} names but no positions (effort/velocity only?)")
+        if self.synchronizer is None:
+            self._early_joints.append(event)
+            return None
+        epoch, refusal = self._check_stamp(f"joint:{where}", event.stamp_ns, where)
+        if refusal is not None:
+            return refusal
+        pipeline = self._pipelines.values[-1]
+        assert isinstance(pipeline, RoiPipeline)
+        if len(names) != len(positions):
+            return Refusal("joint_state", f"{where}: {len(names)} names but {len(positions)} positions")
+        out_of_limits = self._out_of_limits(pipeline, names, positions)
+        if out_of_limits:
+            for name, _value, _limits in out_of_limits:
+                stamps = self._limit_refusals.setdefault((epoch, name), [])
+                bisect.insort(stamps, event.stamp_ns)
+                if len(stamps) > EARLY_JOINT_STATES:
+                    del stamps[0]
+            bad = {name for name, _, _ in out_of_limits}
+            kept = [(n, p) for n, p in zip(names, positions, strict=True) if n not in bad]
+            names, positions = [n for n, _ in kept], [p for _, p in kept]
+        try:
+            skipped = self.synchronizer.add_joint_state(event.stamp_ns, names, positions, where=where, epoch=epoch)
+        except JointStateError as exc:
+            return Refusal("joint_state", str(exc))
+        if out_of_limits:
+            name, value, (lo, hi) = out_of_limits[0]
+            more = f" (and {len(out_of_limits) - 1} more)" if len(out_of_limits) > 1 else ""
+            return Refusal(
+                "joint_out_of_limits", f"{where}: {name} = {value:.6g} is outside its URDF limits [{lo:g}, {hi:g}]{more}; sample refused"
+            )
+        if skipped:
+            return Refusal("joint_state_nan", f"{where}: non-finite position for {', '.join(skipped)}")
+        if not set(names) & set(pipeline.state_joints):
+            return Refusal(
+                "joint_state_unknown_names",
+                f"{where}: none of {names[:3]}... is a joint of this rig (expected names like {list(pipeline.required_joints[:3])})",
+            )
+        return None
+
+    @staticmethod
+    def _out_of_limits(
+        pipeline: RoiPipeline, names: Sequence[str], positions: Sequence[float]
+    ) -> list[tuple[str, float, tuple[float, float]]]:
+        out = []
+        for name, value in zip(names, positions, strict=False):
+            limits = pipeline.joint_limits.get(name)
+            if limits is None:
+                continue
+            v = float(value)
+            lo, hi = limits
+            margin = max(LIMIT_MARGIN_MIN, LIMIT_MARGIN_FRACTION * (hi - lo))
+            if math.isfinite(v) and not lo - margin <= v <= hi + margin:
+                out.append((name, v, limits))
+        return out
+
+    def _feed_command(self, event: CommandEvent) -> Refusal | None:
+        if self.commands is None or not len(event.names) or not len(event.positions):
+            return None
+        _, refusal = self._check_stamp(f"command:{event.where}", event.stamp_ns, event.where)
+        if refusal is not None:
+            return refusal
+        try:
+            self.commands.add(event.stamp_ns, list(event.names), list(event.positions), where=event.where)
+        except JointStateError as exc:
+            return Refusal("command", str(exc))
+        return None
+
+    def _feed_camera_info(self, event: CameraInfoEvent) -> Refusal | None:
+        _, refusal = self._check_stamp("camera_info", event.stamp_ns, event.where)
+        if refusal is not None:
+            return refusal
+        rig_camera = self.rig.camera.intrinsics
+        camera = event.camera
+        if rig_camera is not None and (camera.width_px, camera.height_px) != (rig_camera.width_px, rig_camera.height_px):
+            return Refusal(
+                "camera_info",
+                f"{event.where}: CameraInfo is for {camera.width_px}x{camera.height_px} but the rig calibration is for "
+                f"{rig_camera.width_px}x{rig_camera.height_px}",
+            )
+        if self._newest_info_ns is None or event.stamp_ns > self._newest_info_ns:
+            self._newest_info_ns = event.stamp_ns
+        current = self._cameras.at(event.stamp_ns)
+        if isinstance(current, CameraModel) and (current is camera or current.content_version() == camera.content_version()):
+            return None  # a steady camera_info stream is one entry
+        self._cameras.add(event.stamp_ns, camera)
+        return None
+
+    def _feed_urdf(self, event: UrdfEvent) -> Refusal | None:
+        if event.text in self._urdf_texts:
+            return None
+        urdf_texts = {r.id: event.text for r in self.rig.robots}
+        try:
+            pipeline = RoiPipeline(self.rig, urdf_texts=urdf_texts)
+        except RoiNodeError as exc:
+            return Refusal("urdf", f"{event.where}: {exc}")
+        current = self.pipeline
+        if current is not None and pipeline.required_joints != current.required_joints:
+            return Refusal(
+                "urdf",
+                f"{event.where}: the new URDF changes the joints the rig's arms need "
+                f"({', '.join(current.required_joints)} -> {', '.join(pipeline.required_joints)}); restart with it instead",
+            )
+        self._urdf_texts.add(event.text)
+        if current is None:
+            self._start(pipeline, event.stamp_ns)
+        else:
+            self._pipelines.add(event.stamp_ns, pipeline)
+        return None
+
+    # -- release and processing -------------------------------------------------------------------
+
+    def _camera_settled(self, frame: PendingFrame[FramePayload]) -> bool:
+        """A frame whose intrinsics come from a stream waits for a camera info stamped at or after it."""
+        if not self.intrinsics_from_stream:
+            return True
+        return self._newest_info_ns is not None and self._newest_info_ns >= frame.payload.stamp_ns
+
+    def camera_at(self, stamp_ns: int) -> CameraModel | None:
+        """The intrinsics in effect at a frame stamp (None before the first camera info)."""
+        camera = self._cameras.at(stamp_ns)
+        return camera if isinstance(camera, CameraModel) else None
+
+    def first_camera(self) -> CameraModel | None:
+        camera = self._cameras.values[0] if self._cameras.values else None
+        return camera if isinstance(camera, CameraModel) else None
+
+    @property
+    def pending(self) -> int:
+        return self.synchronizer.pending if self.synchronizer is not None else 0
+
+    def pop_ready(self, now_ns: int | None, limit: int | None = None) -> list[ReadyFrame]:
+        """Frames whose joint state (and camera info) is settled or whose wait expired; `None` flushes all.
+
+        Everything that reads the joint buffers happens here, so a live driver
+        holds its lock only for this call and runs `process` outside it.
+        """
+        if self.synchronizer is None:
+            return []
+        ready = []
+        for released in self.synchronizer.pop_ready(now_ns, limit):
+            residual = None
+            if self.commands is not None and self.commands.known_joints() and released.sync.positions:
+                residual = command_residual(self.commands, released.capture_ns, released.sync.positions, self.synchronizer.max_skew_ns)
+                self.commands.prune_before(released.capture_ns - 2 * NS_PER_S)
+            ready.append(ReadyFrame(released.payload, released.capture_ns, released.epoch, released.sync, residual))
+        return ready
+
+    def prepare(self, ready: ReadyFrame) -> PreparedFrame | None:
+        """Fix what applies to a released frame (URDF, intrinsics, flags); None (counted) when it cannot be processed.
+
+        Reads the engine's schedules, so a live driver calls it under the lock
+        it feeds events under; `process` then runs outside it.
+        """
+        payload = ready.payload
+        stamp = payload.stamp_ns
+        pipeline = self._pipelines.at(stamp) or self._pipelines.values[0]
+        assert isinstance(pipeline, RoiPipeline)
+        camera = self._cameras.at(stamp)
+        if not isinstance(camera, CameraModel):
+            self._refuse_frame(Refusal("no_intrinsics", f"{payload.where}: frame stamp {stamp}: no CameraInfo stamped at or before it"))
+            return None
+        pipeline.set_intrinsics(camera)
+        try:
+            pipeline.check_image(payload.image, f"{payload.where} (stamp {stamp})")
+        except ImageError as exc:
+            self._refuse_frame(Refusal("image", str(exc)), "bad_image")
+            return None
+        return PreparedFrame(ready, pipeline, self._flagged_joints(ready))
+
+    def _refuse_frame(self, refusal: Refusal, drop_reason: str | None = None) -> None:
+        self.stats.bad_message(refusal.kind, refusal.message)
+        self.stats.drop(drop_reason or refusal.kind)
+
+    def _flagged_joints(self, ready: ReadyFrame) -> frozenset[str]:
+        if not self._limit_refusals:
+            return frozenset()
+        skew_ns = round(self.rig.sync.max_skew_ms * NS_PER_MS)
+        lo, hi = ready.capture_ns - skew_ns, ready.capture_ns + skew_ns
+        flagged = set()
+        for (epoch, joint), stamps in self._limit_refusals.items():
+            if epoch == ready.epoch:
+                i = bisect.bisect_left(stamps, lo)
+                if i < len(stamps) and stamps[i] <= hi:
+                    flagged.add(joint)
+        return frozenset(flagged)
+
+    @staticmethod
+    def process(prepared: PreparedFrame, latency_ms: float | None = None) -> FrameResult:
+        """Run the pipeline on a prepared frame; `latency_ms` (L_t) is live-only.
+
+        Touches no engine state, so a live driver runs it outside its lock.
+        Anything raised here is a bug or a resource error: the driver counts it.
+        """
+        ready = prepared.ready
+        payload, sync = ready.payload, ready.sync
+        teleop = TeleopRecord(
+            latency_ms=rnd(latency_ms, MS_DECIMALS),
+            control_hz=rnd(sync.joint_rate_hz, MS_DECIMALS),
+            command_residual=rnd(ready.command_residual, M_DECIMALS),
+        )
+        return prepared.pipeline.process(
+            payload.image, payload.stamp_ns, payload.frame_index, sync, teleop, flagged_joints=prepared.flagged_joints
+        )
+
+    def run(self, ready: ReadyFrame) -> FrameResult | None:
+        """`prepare` then `process`, for single-threaded drivers (offline replay, tests)."""
+        prepared = self.prepare(ready)
+        return None if prepared is None else self.process(prepared)

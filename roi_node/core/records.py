@@ -1,0 +1,156 @@
+"""The per-frame metadata record as typed, frozen values, serialised in exactly one place.
+
+`FrameRecord.to_json()` is the only way a record becomes bytes (fixed key
+order, values rounded when the record is built, compact separators, no NaN),
+so the live node and offline replay publish the same bytes for the same
+inputs. Field meanings and units are in config/metadata.schema.json, which the
+tests validate every record against.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any
+
+from .metadata import METADATA_SCHEMA, Lineage
+from .stamps import ns_to_stamp
+
+
+class ArmFlag(StrEnum):
+    """Why an arm's ROI is degraded; every flagged ROI is still published."""
+
+    SYNC_STALE = "sync_stale"
+    SYNC_EXTRAPOLATED = "sync_extrapolated"
+    SYNC_MISSING = "sync_missing"
+    SYNC_LATEST = "sync_latest_not_reproducible"
+    NO_JOINT_STATE = "no_joint_state"
+    JOINT_OUT_OF_LIMITS = "joint_out_of_limits"
+    BEHIND_CAMERA = "behind_camera"
+    FULLY_OUT_OF_FRAME = "fully_out_of_frame"
+    PARTIALLY_OUT_OF_FRAME = "partially_out_of_frame"
+    CENTER_OUT_OF_FRAME = "center_out_of_frame"
+    DEGENERATE_DIRECTION = "degenerate_inward_dir"
+
+
+@dataclass(frozen=True)
+class PoseRecord:
+    xyz: tuple[float, float, float]
+    quat_xyzw: tuple[float, float, float, float]
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"xyz": list(self.xyz), "quat_xyzw": list(self.quat_xyzw)}
+
+
+@dataclass(frozen=True)
+class ArmRecord:
+    """One arm's ROI on one frame; pixel values in original-image pixels, lengths in metres."""
+
+    arm_id: str
+    projected_center: tuple[float, float] | None
+    offset_center: tuple[float, float] | None
+    inward_dir: tuple[float, float]
+    crop_box: tuple[int, int, int, int]  # x0, y0, x1, y1 (exclusive), may extend past the image
+    crop_size: tuple[int, int]
+    scale_px: float
+    scale_factor: float
+    interpolation: str
+    depth_m: float | None
+    ee_pose_base: PoseRecord | None
+    ee_point_camera: tuple[float, float, float] | None
+    projection_valid: bool
+    confidence: float
+    in_frame_ratio: float
+    padding_ratio: float
+    roi_to_image: tuple[float, ...] | None  # 2x3 row-major: output pixel -> original-image pixel
+    flags: tuple[str, ...]
+    gripper_joints: tuple[str, ...]  # JointState names of this arm's gripper (keys of joint_positions)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "arm_id": self.arm_id,
+            "projected_center": _list(self.projected_center),
+            "offset_center": _list(self.offset_center),
+            "inward_dir": list(self.inward_dir),
+            "crop_box": list(self.crop_box),
+            "crop_size": list(self.crop_size),
+            "scale_px": self.scale_px,
+            "scale_factor": self.scale_factor,
+            "interpolation": self.interpolation,
+            "depth_m": self.depth_m,
+            "ee_pose_base": None if self.ee_pose_base is None else self.ee_pose_base.as_dict(),
+            "ee_point_camera": _list(self.ee_point_camera),
+            "projection_valid": self.projection_valid,
+            "confidence": self.confidence,
+            "in_frame_ratio": self.in_frame_ratio,
+            "padding_ratio": self.padding_ratio,
+            "roi_to_image": _list(self.roi_to_image),
+            "flags": list(self.flags),
+            "gripper_joints": list(self.gripper_joints),
+        }
+
+
+@dataclass(frozen=True)
+class SyncRecord:
+    policy: str
+    joint_stamp_ns: int | None
+    residual_ms: float | None
+    status: str
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"policy": self.policy, "joint_stamp_ns": self.joint_stamp_ns, "residual_ms": self.residual_ms, "status": self.status}
+
+
+@dataclass(frozen=True)
+class TeleopRecord:
+    """(L_t, f_t, r_t): camera-to-processing latency (live only), joint rate, command residual."""
+
+    latency_ms: float | None = None
+    control_hz: float | None = None
+    command_residual: float | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"latency_ms": self.latency_ms, "control_hz": self.control_hz, "command_residual": self.command_residual}
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    stamp_ns: int
+    frame_index: int
+    camera_id: str
+    robot_id: str
+    image_size: tuple[int, int]
+    sync: SyncRecord
+    joint_positions: tuple[tuple[str, float], ...]  # (JointState name, rad or m), arm and gripper joints
+    arms: tuple[ArmRecord, ...]
+    teleop: TeleopRecord
+    lineage: Lineage
+
+    def as_dict(self) -> dict[str, Any]:
+        sec, nanosec = ns_to_stamp(self.stamp_ns)
+        return {
+            "schema": METADATA_SCHEMA,
+            "stamp_ns": self.stamp_ns,
+            "stamp": {"sec": sec, "nanosec": nanosec},
+            "frame_index": self.frame_index,
+            "camera_id": self.camera_id,
+            "robot_id": self.robot_id,
+            "image_size": list(self.image_size),
+            "sync": self.sync.as_dict(),
+            "joint_positions": dict(self.joint_positions),
+            "arms": [arm.as_dict() for arm in self.arms],
+            "teleop": self.teleop.as_dict(),
+            "lineage": self.lineage.as_dict(),
+        }
+
+    def to_json(self) -> str:
+        """The one serialisation of a record: key order as built, compact, ASCII, no NaN."""
+        return json.dumps(self.as_dict(), separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+
+    def arm(self, arm_id: str) -> ArmRecord:
+        return next(a for a in self.arms if a.arm_id == arm_id)
+
+
+def _list(values: tuple[Any, ...] | None) -> list[Any] | None:
+    return None if values is None else list(values)

@@ -1,0 +1,58 @@
+"""StreamClock: zero and implausible stamps refused per stream, loops become epochs."""
+
+from __future__ import annotations
+
+from roi_node.core.stamps import CONFIRMING_STAMPS, NS_PER_S, StampVerdict, StreamClock, ns_to_stamp, stamp_to_ns
+
+T0 = 1_700_000_000 * NS_PER_S
+PERIOD = NS_PER_S // 30
+
+
+def _run(clock: StreamClock, stamps: list[int]) -> list[tuple[StampVerdict, int]]:
+    return [(c.verdict, c.epoch) for c in map(clock.check, stamps)]
+
+
+def test_stamp_round_trips_through_sec_nanosec() -> None:
+    for t in (1, NS_PER_S - 1, T0 + 123_456_789, (2**31 - 1) * NS_PER_S + 999_999_999):
+        assert stamp_to_ns(*ns_to_stamp(t)) == t
+
+
+def test_zero_stamp_is_refused_and_does_not_move_the_stream() -> None:
+    clock = StreamClock()
+    assert _run(clock, [T0, 0, T0 + PERIOD]) == [
+        (StampVerdict.ACCEPTED, 0),
+        (StampVerdict.ZERO, 0),
+        (StampVerdict.ACCEPTED, 0),
+    ]
+
+
+def test_one_far_future_stamp_is_refused_and_the_next_frames_are_not_disturbed() -> None:
+    clock = StreamClock()
+    stamps = [T0 + i * PERIOD for i in range(5)]
+    verdicts = _run(clock, [*stamps[:2], 10**18, *stamps[2:]])
+    assert [v for v, _ in verdicts] == [StampVerdict.ACCEPTED] * 2 + [StampVerdict.IMPLAUSIBLE] + [StampVerdict.ACCEPTED] * 3
+    assert clock.last_ns == stamps[-1]
+
+
+def test_a_loop_back_in_time_is_confirmed_then_starts_an_epoch() -> None:
+    clock = StreamClock()
+    one_pass = [T0 + i * PERIOD for i in range(60)]  # 2 s: the loop jumps back more than MAX_BACKWARD_NS
+    verdicts = _run(clock, one_pass + one_pass)
+    assert {e for _, e in verdicts[:60]} == {0}
+    refused = [v for v, _ in verdicts[60:] if v is not StampVerdict.ACCEPTED]
+    assert refused == [StampVerdict.IMPLAUSIBLE] * (CONFIRMING_STAMPS - 1)
+    assert [e for _, e in verdicts[60 + CONFIRMING_STAMPS - 1:]] == [1] * (60 - CONFIRMING_STAMPS + 1)
+
+
+def test_a_confirmed_jump_forward_keeps_the_epoch() -> None:
+    clock = StreamClock()
+    later = T0 + 120 * NS_PER_S  # a camera that paused for two minutes
+    verdicts = _run(clock, [T0, T0 + PERIOD, *(later + i * PERIOD for i in range(4))])
+    assert [v for v, _ in verdicts] == [StampVerdict.ACCEPTED] * 2 + [StampVerdict.IMPLAUSIBLE] * 2 + [StampVerdict.ACCEPTED] * 2
+    assert {e for _, e in verdicts} == {0}
+
+
+def test_a_small_step_back_is_accepted_for_the_synchronizer_to_order() -> None:
+    clock = StreamClock()
+    assert _run(clock, [T0, T0 - NS_PER_S // 2]) == [(StampVerdict.ACCEPTED, 0), (StampVerdict.ACCEPTED, 0)]
+    assert clock.last_ns == T0
