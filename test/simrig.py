@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from roi_node.core import engine
 from roi_node.core.camera import CameraModel, calibration_yaml_text, camera_from_info
 from roi_node.core.config import RigConfig, load_rig_config
 from roi_node.core.pipeline import FrameResult
-from roi_node.core import engine
 from roi_node.sim.rig_sim import CameraInfoEvent, ImageEvent, JointStateEvent, SimEvent
 from roi_node.sim.truth import GripperTruth
 

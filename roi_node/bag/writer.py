@@ -94,9 +94,6 @@ class BagWriter:
         )
         self.counts[topic] = 0
 
-    def has_topic(self, topic: str) -> bool:
-        return topic in self._connections
-
     def write(self, topic: str, stamp_ns: int, msg: Any) -> None:
         """Serialize a rosbags message; `stamp_ns` is the bag (log) time."""
         connection = self._connections[topic]

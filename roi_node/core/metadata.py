@@ -11,7 +11,6 @@ import hashlib
 import json
 from dataclasses import dataclass
 from functools import cache
-from pathlib import Path
 from typing import Any
 
 from .. import __version__
@@ -77,6 +76,3 @@ def metadata_schema() -> dict[str, Any]:
     loaded: dict[str, Any] = json.loads((config_dir() / "metadata.schema.json").read_text())
     return loaded
 
-
-def schema_path() -> Path:
-    return config_dir() / "metadata.schema.json"

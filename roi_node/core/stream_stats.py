@@ -126,12 +126,6 @@ class StreamStats:
         values = np.asarray(self.residuals_ms)
         return {"p50": float(np.percentile(values, 50)), "p95": float(np.percentile(values, 95)), "max": float(values.max())}
 
-    def latency_percentiles(self) -> tuple[float, float] | None:
-        if not self._recent_latency:
-            return None
-        values = np.asarray(self._recent_latency)
-        return float(np.percentile(values, 50)), float(np.percentile(values, 99))
-
     def snapshot(self, now_ns: int) -> dict[str, Any]:
         """Everything for one diagnostics message; starts a new window."""
         w = self._window

@@ -31,8 +31,9 @@ from ..core.metadata import METADATA_SCHEMA
 from ..core.resources import config_dir
 from .bagfiles import bag_files, fingerprint, relative_name, sha256_file
 from .gates import GATES_SCHEMA, GateParams, GateSet, load_gates
+from .results import VALIDATION_SCHEMA, BagScan
 from .schema_check import error_path
-from .validate import VALIDATION_SCHEMA, BagScan, judge, scan_bag, unique_names
+from .validate import judge, scan_bag, unique_names
 
 MANIFEST_SCHEMA = "roi_node/manifest/v1"
 RIG_CONFIG_KEY = "roi_node.rig_config"  # bag custom_data key a recorder may store the rig YAML under

@@ -13,7 +13,6 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-WHITE = (255, 255, 255)
 BLACK = (0, 0, 0)
 GRID = (225, 225, 225)
 TEXT = (40, 40, 40)

@@ -21,8 +21,8 @@ from .gates import GateSet, format_value
 from .roibag import GLOBAL_TOPIC, RoiBag, roi_image_topic
 
 if TYPE_CHECKING:
+    from .results import BagScan, BagValidation, ValidationRun
     from .samples import Sample
-    from .validate import BagScan, BagValidation, ValidationRun
 
 REPORT_NAME = "REPORT.md"
 JSON_NAME = "validation.json"

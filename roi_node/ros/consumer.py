@@ -75,7 +75,6 @@ class ObservationClient:
             raise ConfigError("ObservationClient: arm_ids is empty; pass the arm ids of the rig (its arms[].id)")
         self.arm_ids = tuple(arm_ids)
         self._expected = set(self.arm_ids) | ({GLOBAL} if with_global else set())
-        self._with_global = with_global
         self._partial: OrderedDict[int, _Partial] = OrderedDict()
         self._max_partial = max_partial
         self._ready: deque[Observation] = deque(maxlen=max_buffer)

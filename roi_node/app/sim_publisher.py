@@ -21,8 +21,8 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 
 from ..core import topics
 from ..core.errors import RoiNodeError
+from ..ros.conversions import camera_info_msg, header, image_msg
 from ..sim.rig_sim import CameraInfoEvent, ImageEvent, JointStateEvent, SimEvent, SimRig
-from .conversions import camera_info_msg, header, image_msg
 
 LEAD_NS = 1_000_000_000  # the first stamp lies this far ahead of start: rendering gets a head start
 AHEAD_EVENTS = 256
@@ -102,7 +102,7 @@ class SimPublisher:
 def run_live(
     config: Path, *, duration_s: float, rate_hz: float, joint_rate_hz: float, seed: int, min_subscribers: int, ros_args: list[str]
 ) -> int:
-    from .spin import ros_context
+    from ..ros.spin import ros_context
 
     with ros_context(ros_args):
         node = Node("roi_node_sim")

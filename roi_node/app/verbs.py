@@ -1,4 +1,4 @@
-"""`roi-node sim` and `roi-node demo`."""
+"""`roi-node sim` and `roi-node demo`: the verbs that span layers (the simulated rig live on DDS, the whole demo)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from ..core.errors import ConfigError
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     from ..core.resources import default_rig_path, resolve_config_file
-    from ..ros.demo import run_demo
+    from .demo import run_demo
 
     config = resolve_config_file(args.config) if args.config else default_rig_path()
     return run_demo(Path(args.out), config, duration_s=args.duration, rate_hz=args.rate_hz, seed=args.seed)
@@ -23,7 +23,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     if args.bag:
         if args.target == "live":
             raise ConfigError("sim: choose --bag OUT or live, not both")
-        from .bag_sink import write_sim_bag
+        from ..sim.bag_sink import write_sim_bag
 
         summary = write_sim_bag(
             config, Path(args.bag), duration_s=args.duration, rate_hz=args.rate_hz, joint_rate_hz=args.joint_rate_hz,
@@ -31,7 +31,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
         )
         print(f"roi-node sim: wrote {summary.path}: {summary.frames} frames on {summary.image_topic}, {summary.joint_states} joint states")
         return 0
-    from ..ros.sim_publisher import run_live
+    from .sim_publisher import run_live
 
     return run_live(config, duration_s=args.duration, rate_hz=args.rate_hz, joint_rate_hz=args.joint_rate_hz, seed=args.seed,
                     min_subscribers=args.min_subscribers, ros_args=args.ros_args)

@@ -1,0 +1,74 @@
+"""What validation produces: one bag's scan, its verdict, and a whole run's (shared by validate and the report)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .. import __version__
+from ..bag.reader import TopicStats
+from ..core.metadata import METADATA_SCHEMA
+from .gates import GateResult, GateSet
+from .samples import Sample
+from .stats import BagSummary
+
+VALIDATION_SCHEMA = "roi_node/validation/v1"
+
+
+@dataclass
+class BagScan:
+    """What one pass over a bag yields: its topics, bag information, statistics and samples."""
+
+    path: Path
+    topics: dict[str, TopicStats]
+    information: dict[str, Any]
+    start_ns: int
+    end_ns: int
+    summary: BagSummary
+    samples: list[Sample]
+
+
+@dataclass
+class BagValidation:
+    """The verdict on one bag, in JSON-ready form (the per-frame series are not kept)."""
+
+    path: Path
+    name: str
+    gates: list[GateResult]
+    result: dict[str, Any]
+    figures: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def failed(self) -> list[GateResult]:
+        return [g for g in self.gates if g.failed]
+
+    def as_dict(self) -> dict[str, Any]:
+        return {**self.result, "passed": not self.failed, "gates": [g.as_dict() for g in self.gates], "figures": dict(self.figures)}
+
+
+@dataclass
+class ValidationRun:
+    gates: GateSet
+    baseline: Path | None
+    bags: list[BagValidation]
+
+    @property
+    def passed(self) -> bool:
+        return not any(b.failed for b in self.bags)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "schema": VALIDATION_SCHEMA,
+            "roi_node_version": __version__,
+            "metadata_schema": METADATA_SCHEMA,
+            "gates": {
+                "path": str(self.gates.path),
+                "sha256": self.gates.sha256,
+                "params": {"stamp_gap_factor": self.gates.params.stamp_gap_factor, "window_fraction": self.gates.params.window_fraction},
+                "thresholds": [{"gate": g.metric, "scope": g.scope, "op": g.op, "threshold": g.threshold} for g in self.gates.gates],
+            },
+            "baseline": None if self.baseline is None else str(self.baseline),
+            "passed": self.passed,
+            "bags": [b.as_dict() for b in self.bags],
+        }
