@@ -204,7 +204,8 @@ def _wait_for_recorder(node: Node, record_topics: list[str], procs: dict[str, tu
             if proc.poll() is not None:
                 raise RoiNodeError(f"demo: {name} exited with {proc.returncode} at start; see {log}")
         ready = node.count_publishers(topics.METADATA) >= 1 and node.count_subscribers(topics.METADATA) >= 2
-        ready = ready and all(node.count_subscribers(t) >= 1 for t in record_topics if t.startswith("roi/"))  # inputs: see sim
+        outputs = [t for t in record_topics if t.startswith(topics.OUTPUT_NAMESPACE)]  # inputs: see sim
+        ready = ready and all(node.count_subscribers(t) >= 1 for t in outputs)
         if ready:
             break
         if time.monotonic() > deadline:
@@ -244,7 +245,7 @@ def _summary(watch: _Watch, expected: int, logs: Path, validation: dict[str, Any
     lat = np.asarray(watch.latency_ms) if watch.latency_ms else np.zeros(1)
     recorded = _recorded_counts(logs / "record.log")
     images_in = recorded.get("/image_raw", (0, 0))[0]
-    metadata = recorded.get("/roi/metadata", (0, 0))[0]
+    metadata = recorded.get(topics.absolute(topics.METADATA), (0, 0))[0]
     bag = validation["bags"][0] if validation.get("bags") else {}
     failed = [g for g in bag.get("gates", []) if g.get("status") == "fail"]
     return {

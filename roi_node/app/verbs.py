@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..core.errors import ConfigError
+from ..core.errors import UsageError
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -22,7 +22,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     config = resolve_config_file(args.config) if args.config else default_rig_path()
     if args.bag:
         if args.target == "live":
-            raise ConfigError("sim: choose --bag OUT or live, not both")
+            raise UsageError("sim: choose --bag OUT or live, not both")
         from ..sim.bag_sink import write_sim_bag
 
         summary = write_sim_bag(

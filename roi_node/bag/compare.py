@@ -38,7 +38,8 @@ def _outputs(bag: Path) -> tuple[dict[int, dict[str, Any]], dict[str, dict[int, 
     records: dict[int, dict[str, Any]] = {}
     images: dict[str, dict[int, bytes]] = {}
     with open_bag(bag) as reader:
-        wanted = [c for c in reader.connections if c.topic.startswith("/roi/") and c.msgtype in (topics.STRING_TYPE, topics.IMAGE_TYPE)]
+        outputs = (topics.STRING_TYPE, topics.IMAGE_TYPE)
+        wanted = [c for c in reader.connections if c.topic.startswith(topics.BAG_OUTPUT_PREFIX) and c.msgtype in outputs]
         for connection, _, raw in reader.messages(connections=wanted):
             msg: Any = reader.deserialize(raw, connection.msgtype)
             if connection.msgtype == topics.STRING_TYPE:

@@ -9,7 +9,7 @@ from rosbags.typesys.store import Typestore
 
 from ..core.camera import CameraModel, camera_info_fields
 from ..core.image_codec import output_pixels
-from ..core.sync import NS_PER_S
+from ..core.stamps import ns_to_stamp
 
 
 class MessageFactory:
@@ -27,7 +27,7 @@ class MessageFactory:
         self._string = types["std_msgs/msg/String"]
 
     def header(self, stamp_ns: int, frame_id: str) -> Any:
-        sec, nanosec = divmod(int(stamp_ns), NS_PER_S)
+        sec, nanosec = ns_to_stamp(stamp_ns)
         return self._header(stamp=self._time(sec=sec, nanosec=nanosec), frame_id=frame_id)
 
     def image(self, stamp_ns: int, frame_id: str, pixels: np.ndarray, encoding: str = "rgb8") -> Any:

@@ -27,6 +27,7 @@ from rosbags.rosbag2 import ReaderError
 from rosbags.serde import SerdeError
 
 from ..core.errors import BagError
+from ..core.stamps import stamp_to_ns
 from .writer import typestore
 
 BAG_FILE_SUFFIXES = (".mcap", ".db3")
@@ -115,7 +116,7 @@ def topic_stats(reader: AnyReader) -> dict[str, TopicStats]:
 
 def stamp_ns(header: Any) -> int:
     """A std_msgs/Header's stamp in nanoseconds: what sync and every output use, never the log time."""
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+    return stamp_to_ns(header.stamp.sec, header.stamp.nanosec)
 
 
 def bag_information(path: Path) -> dict[str, Any]:

@@ -28,7 +28,7 @@ from rosbags.interfaces import Connection
 from ..core import topics
 from ..core.config import RigConfig, load_rig_config
 from ..core.engine import CameraInfoEvent, CommandEvent, Event, FrameEvent, JointStateEvent, StreamEngine
-from ..core.errors import BagError, CalibrationError, ConfigError, ImageError
+from ..core.errors import BagError, BagWriteError, CalibrationError, ConfigError, ImageError, UsageError
 from ..core.pipeline import FrameResult
 from .inputs import InputSelection, check_frame_stream, decode_frame, select_inputs
 from .interrupt import DeferredInterrupt
@@ -59,9 +59,9 @@ def check_output_path(source: Path, target: Path, overwrite: bool) -> None:
     """Refuse an existing output (unless overwrite) and any output that would replace the input."""
     src, dst = source.resolve(), target.resolve()
     if dst == src or dst in src.parents or src in dst.parents:
-        raise BagError(f"{target}: output overlaps the input bag {source}; choose another path")
+        raise UsageError(f"{target}: output overlaps the input bag {source}; choose another path")
     if (target.exists() or target.is_symlink()) and not overwrite:
-        raise BagError(f"{target}: output exists; choose another path or pass --overwrite")
+        raise BagWriteError(f"{target}: output exists; choose another path or pass --overwrite")
 
 
 def replay_bag(

@@ -21,12 +21,12 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from ..core.errors import BagError
+from ..core.errors import BagWriteError
 
 ROSBAG2_VERSION: Literal[9] = 9
 STATUS_KEY = "roi_node.status"
 _ZERO = QosTime(0, 0)
-_INFINITE = QosTime(2147483647, 4294967295)
+INFINITE_DURATION = QosTime(2147483647, 4294967295)  # rmw's "infinite" as rosbag2 records it
 
 
 def typestore() -> Typestore:
@@ -41,10 +41,10 @@ def qos_profile(reliable: bool, depth: int = 10, transient_local: bool = False) 
         depth,
         QosReliability.RELIABLE if reliable else QosReliability.BEST_EFFORT,
         QosDurability.TRANSIENT_LOCAL if transient_local else QosDurability.VOLATILE,
-        _INFINITE,
-        _INFINITE,
+        INFINITE_DURATION,
+        INFINITE_DURATION,
         QosLiveliness.AUTOMATIC,
-        _INFINITE,
+        INFINITE_DURATION,
         False,
     )
 
@@ -56,13 +56,13 @@ class BagWriter:
         self.path = Path(path)
         if self.path.exists() or self.path.is_symlink():
             if not overwrite:
-                raise BagError(f"{self.path}: output exists; choose another path or pass --overwrite")
+                raise BagWriteError(f"{self.path}: output exists; choose another path or pass --overwrite")
             if self.path.is_dir():
                 shutil.rmtree(self.path)
             else:
                 self.path.unlink()
         if not self.path.parent.is_dir():
-            raise BagError(f"{self.path}: parent folder {self.path.parent} does not exist")
+            raise BagWriteError(f"{self.path}: parent folder {self.path.parent} does not exist")
         self.typestore = typestore()
         self._on_error = on_error
         self._writer = Writer(self.path, version=ROSBAG2_VERSION, storage_plugin=StoragePlugin.MCAP)

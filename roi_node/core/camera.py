@@ -9,8 +9,6 @@ never projected: the distortion polynomials happily map them to plausible pixels
 
 from __future__ import annotations
 
-import hashlib
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +19,7 @@ import yaml
 from numpy.typing import NDArray
 
 from .errors import CalibrationError
+from .metadata import content_hash
 from .transforms import Float64Array
 from .yaml_file import read_yaml
 
@@ -129,8 +128,7 @@ class CameraModel:
 
     def content_version(self) -> str:
         """`sha256:` + 16 hex digits of the canonical content: changes iff the projection does."""
-        blob = json.dumps(self.canonical(), sort_keys=True, separators=(",", ":")).encode()
-        return "sha256:" + hashlib.sha256(blob).hexdigest()[:16]
+        return content_hash(self.canonical())
 
 
 

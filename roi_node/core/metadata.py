@@ -45,14 +45,22 @@ class Lineage:
         }
 
 
+HASH_PREFIX = "sha256:"
+VERSION_HEX_DIGITS = 16
+
+
+def bytes_version(blob: bytes) -> str:
+    """`sha256:` + 16 hex digits: the form of every content version in a record's lineage."""
+    return HASH_PREFIX + hashlib.sha256(blob).hexdigest()[:VERSION_HEX_DIGITS]
+
+
 def content_hash(content: object) -> str:
-    """`sha256:` + 16 hex digits of canonical JSON: a version that changes iff content does."""
-    blob = json.dumps(content, sort_keys=True, separators=(",", ":"), default=str).encode()
-    return "sha256:" + hashlib.sha256(blob).hexdigest()[:16]
+    """The version of canonical JSON content: changes iff the content does."""
+    return bytes_version(json.dumps(content, sort_keys=True, separators=(",", ":"), default=str).encode())
 
 
 def text_hash(text: str) -> str:
-    return "sha256:" + hashlib.sha256(text.encode()).hexdigest()[:16]
+    return bytes_version(text.encode())
 
 
 def generator_version() -> str:

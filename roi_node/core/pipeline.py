@@ -19,10 +19,12 @@ from .config import ArmConfig, RigConfig
 from .errors import ImageError
 from .kinematics import RobotKinematics, unique_in_order
 from .metadata import (
+    HASH_PREFIX,
     M_DECIMALS,
     MS_DECIMALS,
     PX_DECIMALS,
     RATIO_DECIMALS,
+    VERSION_HEX_DIGITS,
     Lineage,
     content_hash,
     generator_version,
@@ -140,7 +142,7 @@ class RoiPipeline:
     def _fk_version(self) -> str:
         shas = {r.id: self._kinematics[r.id].urdf_sha256 for r in self.rig.robots}
         if len(shas) == 1:
-            return "sha256:" + next(iter(shas.values()))[:16]
+            return HASH_PREFIX + next(iter(shas.values()))[:VERSION_HEX_DIGITS]
         return text_hash(",".join(f"{k}={v}" for k, v in sorted(shas.items())))
 
     def _lineage(self, camera: CameraModel) -> Lineage:

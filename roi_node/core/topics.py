@@ -1,4 +1,4 @@
-"""Topic names and message types of the roi_node contract (DESIGN.md "Topics").
+"""Topic names and message types of the roi_node contract (docs/design.md "Topics").
 
 Relative names: the live node resolves them in its namespace (so remaps and
 namespaces work); bags store them fully qualified in the root namespace.
@@ -11,8 +11,10 @@ COMPRESSED_IMAGE = "image_raw/compressed"
 CAMERA_INFO = "camera_info"
 JOINT_STATES = "joint_states"
 ROBOT_DESCRIPTION = "robot_description"
-METADATA = "roi/metadata"
-GLOBAL_IMAGE = "roi/global/image_raw"
+OUTPUT_NAMESPACE = "roi/"  # every output of the node is under it (relative: the node's namespace applies)
+BAG_OUTPUT_PREFIX = "/" + OUTPUT_NAMESPACE  # ... and how a bag names them
+METADATA = OUTPUT_NAMESPACE + "metadata"
+GLOBAL_IMAGE = OUTPUT_NAMESPACE + "global/image_raw"
 DIAGNOSTICS = "/diagnostics"
 
 IMAGE_TYPE = "sensor_msgs/msg/Image"
@@ -23,11 +25,11 @@ STRING_TYPE = "std_msgs/msg/String"
 
 
 def roi_image(arm_id: str) -> str:
-    return f"roi/{arm_id}/image_raw"
+    return f"{OUTPUT_NAMESPACE}{arm_id}/image_raw"
 
 
 def roi_camera_info(arm_id: str) -> str:
-    return f"roi/{arm_id}/camera_info"
+    return f"{OUTPUT_NAMESPACE}{arm_id}/camera_info"
 
 
 def absolute(name: str) -> str:

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.errors import ConfigError
+from ..core.metadata import HASH_PREFIX
 from ..core.resources import config_dir
 from ..core.yaml_file import read_yaml
 from .drift import DRIFT_METRICS
@@ -149,7 +150,7 @@ def load_gates(path: Path | None = None) -> GateSet:
         raise ConfigError(f"{file}: schema: expected {GATES_SCHEMA!r}, got {doc.get('schema')!r}")
     if "gates" not in doc:
         raise ConfigError(f"{file}: gates: missing")
-    digest = "sha256:" + hashlib.sha256(file.read_bytes()).hexdigest()
+    digest = HASH_PREFIX + hashlib.sha256(file.read_bytes()).hexdigest()
     return GateSet(file, digest, _gates(file, doc["gates"]), _params(file, doc.get("params")))
 
 

@@ -59,7 +59,8 @@ def thresholds(gates: GateSet) -> dict[str, list[tuple[str, float]]]:
 
 def input_image_topic(scan: BagScan) -> str | None:
     """The recorded camera topic, when the ROI bag carries its inputs (replay --include-inputs)."""
-    candidates = sorted(t.name for t in scan.topics.values() if t.msgtype == topics.IMAGE_TYPE and not t.name.startswith("/roi/"))
+    names = [t.name for t in scan.topics.values() if t.msgtype == topics.IMAGE_TYPE]
+    candidates = sorted(n for n in names if not n.startswith(topics.BAG_OUTPUT_PREFIX))
     return candidates[0] if candidates else None
 
 

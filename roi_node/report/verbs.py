@@ -36,12 +36,12 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_manifest(args: argparse.Namespace) -> int:
-    from ..core.errors import ConfigError
+    from ..core.errors import UsageError
     from .manifest import build_manifest, find_bags, verify_manifest, write_manifest
 
     if args.verify:
         if args.inputs or args.output:
-            raise ConfigError("--verify takes only the manifest file")
+            raise UsageError("--verify takes only the manifest file")
         problems = verify_manifest(Path(args.verify))
         for line in problems:
             print(f"MISMATCH {line}")
@@ -51,7 +51,7 @@ def _cmd_manifest(args: argparse.Namespace) -> int:
         print(f"{args.verify}: every bag and file matches")
         return 0
     if not args.inputs or not args.output:
-        raise ConfigError("give BAG_OR_FOLDER... and -o manifest.json (or --verify manifest.json)")
+        raise UsageError("give BAG_OR_FOLDER... and -o manifest.json (or --verify manifest.json)")
     output = Path(args.output)
     bags = find_bags([Path(p) for p in args.inputs])
     manifest = build_manifest(

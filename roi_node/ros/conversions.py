@@ -18,15 +18,15 @@ from std_msgs.msg import Header
 
 from ..core.camera import CameraModel, camera_from_info, camera_info_fields
 from ..core.image_codec import output_pixels
-from ..core.sync import NS_PER_S
+from ..core.stamps import ns_to_stamp, stamp_to_ns
 
 
 def stamp_ns(header: Header) -> int:
-    return int(header.stamp.sec) * NS_PER_S + int(header.stamp.nanosec)
+    return stamp_to_ns(header.stamp.sec, header.stamp.nanosec)
 
 
 def time_msg(t_ns: int) -> Time:
-    sec, nanosec = divmod(int(t_ns), NS_PER_S)
+    sec, nanosec = ns_to_stamp(t_ns)
     return Time(sec=sec, nanosec=nanosec)
 
 

@@ -9,6 +9,7 @@ from rclpy.duration import Duration
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
+from ..bag.writer import INFINITE_DURATION
 from ..core.errors import BagError
 
 
@@ -23,7 +24,7 @@ def message_class(type_name: str) -> Any:
 
 def _time(d: Duration) -> QosTime:
     sec, nsec = divmod(d.nanoseconds, 1_000_000_000)
-    return QosTime(sec, nsec) if d.nanoseconds else QosTime(2147483647, 4294967295)
+    return QosTime(sec, nsec) if d.nanoseconds else INFINITE_DURATION
 
 
 def to_bag_qos(profile: QoSProfile) -> Qos:

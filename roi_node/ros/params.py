@@ -1,7 +1,7 @@
 """The live node's ROS parameters (config/roi_node.params.yaml documents each one).
 
 Declared with defaults and read once at start; a bad value fails the start
-with a ConfigError naming the parameter, never later.
+with a ParameterError naming the parameter, never later.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..core.config import MAX_TIME_MS, SYNC_POLICIES, RigConfig
-from ..core.errors import ConfigError
+from ..core.errors import ParameterError
 from ..core.image_codec import OUTPUT_ENCODINGS
 
 TRANSPORTS = ("raw", "compressed")
@@ -115,14 +115,14 @@ def _type_name(value: object) -> str:
 
 
 def _typed(name: str, default: object, value: object) -> object:
-    """`value` as the type of `default`; ConfigError naming the parameter and both types otherwise."""
+    """`value` as the type of `default`; ParameterError naming the parameter and both types otherwise."""
     expected = _type_name(default)
     if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
     if isinstance(default, list) and isinstance(value, list | tuple) and all(isinstance(v, str) for v in value):
         return list(value)
     if _type_name(value) != expected:
-        raise ConfigError(f"parameter {name}: expected a {expected}, got {value!r} ({_type_name(value)})")
+        raise ParameterError(name, f"expected a {expected}, got {value!r} ({_type_name(value)})")
     return value
 
 
@@ -145,10 +145,11 @@ def declare_and_read(node: Node) -> NodeParams:
         if name not in DEFAULTS and name not in RCLPY_PARAMETERS and not name.startswith(RCLPY_PREFIXES)
     )
     if unknown:
-        raise ConfigError(
-            f"parameter {unknown[0]}: not a parameter of roi_node"
+        raise ParameterError(
+            unknown[0],
+            "not a parameter of roi_node"
             + (f" (nor {', '.join(unknown[1:])})" if len(unknown) > 1 else "")
-            + "; see config/roi_node.params.yaml for the list"
+            + "; see config/roi_node.params.yaml for the list",
         )
     return _validate(values)
 
@@ -168,14 +169,14 @@ def apply_overrides(rig: RigConfig, params: NodeParams) -> RigConfig:
 def _choice(values: dict[str, object], param: str, choices: tuple[str, ...]) -> str:
     value = str(values[param])
     if value not in choices:
-        raise ConfigError(f"parameter {param}: {value!r} is not one of {', '.join(choices)}")
+        raise ParameterError(param, f"{value!r} is not one of {', '.join(choices)}")
     return value
 
 
 def _positive_int(values: dict[str, object], param: str) -> int:
     value = values[param]
     if not isinstance(value, int) or value < 1:
-        raise ConfigError(f"parameter {param}: expected a positive integer, got {value!r}")
+        raise ParameterError(param, f"expected a positive integer, got {value!r}")
     return value
 
 
@@ -183,26 +184,26 @@ def _optional_ms(values: dict[str, object], param: str) -> float | None:
     """Negative means "the rig config's value"."""
     value = float(values[param])  # type: ignore[arg-type]
     if value > MAX_TIME_MS:
-        raise ConfigError(f"parameter {param}: must be <= {MAX_TIME_MS:g} ms, got {value:g}")
+        raise ParameterError(param, f"must be <= {MAX_TIME_MS:g} ms, got {value:g}")
     return None if value < 0 else value
 
 
 def _positive_seconds(values: dict[str, object], param: str) -> float:
     value = float(values[param])  # type: ignore[arg-type]
     if not 0 < value <= 3600:
-        raise ConfigError(f"parameter {param}: expected seconds in (0, 3600], got {value:g}")
+        raise ParameterError(param, f"expected seconds in (0, 3600], got {value:g}")
     return value
 
 
 def _validate(v: dict[str, object]) -> NodeParams:
     if not v["config"]:
-        raise ConfigError("parameter config: the rig config path is required (--config rig.yaml or -p config:=rig.yaml)")
+        raise ParameterError("config", "the rig config path is required (--config rig.yaml or -p config:=rig.yaml)")
     topics = tuple(str(t) for t in v["joint_state_topics"])  # type: ignore[attr-defined]
     if not topics or any(not t for t in topics):
-        raise ConfigError(f"parameter joint_state_topics: expected one or more topic names, got {list(topics)!r}")
+        raise ParameterError("joint_state_topics", f"expected one or more topic names, got {list(topics)!r}")
     policy = str(v["sync.policy"]) or None
     if policy is not None and policy not in SYNC_POLICIES:
-        raise ConfigError(f"parameter sync.policy: {policy!r} is not one of {', '.join(SYNC_POLICIES)}")
+        raise ParameterError("sync.policy", f"{policy!r} is not one of {', '.join(SYNC_POLICIES)}")
     return NodeParams(
         config=str(v["config"]),
         image_transport=_choice(v, "image_transport", TRANSPORTS),

@@ -21,7 +21,7 @@ from pathlib import Path
 from rclpy.node import Node
 
 from ..bag.writer import BagWriter
-from ..core.errors import BagError
+from ..core.errors import BagError, UsageError
 from .msg_types import message_class, subscription_qos, to_bag_qos
 
 DISCOVERY_PERIOD_S = 0.5
@@ -32,7 +32,7 @@ class Recorder(Node):
     def __init__(self, out: Path, topics: Sequence[str], *, record_all: bool, overwrite: bool, duration_s: float | None) -> None:
         super().__init__("roi_node_recorder")
         if not topics and not record_all:
-            raise BagError("record: name the topics to record (--topics ...) or pass --all")
+            raise UsageError("record: name the topics to record (--topics ...) or pass --all")
         self.wanted = {t if t.startswith("/") else "/" + t for t in topics}
         self.record_all = record_all
         self.writer = BagWriter(out, overwrite=overwrite, on_error="finalize").__enter__()
