@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import itertools
+import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
@@ -133,7 +134,15 @@ def test_streams_have_realistic_ordered_timing(sim: SimRig, stream: SimStream) -
             assert info.frame_id == image.frame_id == "front_optical"
             assert rig.camera.intrinsics is not None and info.camera.canonical() == rig.camera.intrinsics.canonical()
             assert image.image.shape == (720, 1280, 3) and image.image.dtype == np.uint8
-    assert all(e.names == RoiPipeline(rig).required_joints == sim.required_joints for e in stream.joint_states[:1])
+    pipeline = RoiPipeline(rig)
+    assert pipeline.required_joints == sim.required_joints
+    assert all(e.names[: len(sim.required_joints)] == sim.required_joints for e in stream.joint_states)
+    # then every arm's fingers: the pipeline's gripper joints, which are the URDF's prismatic finger joints
+    gripper = stream.joint_states[0].names[len(sim.required_joints):]
+    assert gripper == tuple(g for arm in rig.arms for g in pipeline.gripper_joints()[arm.id])
+    urdf = ET.parse(rig.robots[0].urdf_path).getroot()
+    fingers = [j.get("name") for j in urdf.findall("joint") if j.get("type") == "prismatic" and "finger" in str(j.get("name"))]
+    assert len(fingers) == 2 and gripper == tuple(f"{robot.joint_prefix}{f}" for robot in rig.robots for f in fingers)
 
 
 def test_camera_delay_shifts_the_header_stamp_and_the_pipeline_undoes_it(tmp_path: Path) -> None:

@@ -170,13 +170,9 @@ class RoiPipeline:
     def arm_ids(self) -> tuple[str, ...]:
         return tuple(a.config.id for a in self._arms)
 
-    def arm_of_joint(self) -> dict[str, tuple[str, ...]]:
-        """JointState name -> the arms whose chain it moves."""
-        out: dict[str, list[str]] = {}
-        for arm in self._arms:
-            for j in arm.chain:
-                out.setdefault(arm.prefix + j, []).append(arm.config.id)
-        return {k: tuple(v) for k, v in out.items()}
+    def gripper_joints(self) -> dict[str, tuple[str, ...]]:
+        """Arm id -> JointState names of the joints below its wrist (hand, fingers)."""
+        return {arm.config.id: arm.gripper for arm in self._arms}
 
     def check_image(self, image: np.ndarray, where: str = "image") -> None:
         if not isinstance(image, np.ndarray) or image.dtype != np.uint8:

@@ -34,6 +34,7 @@ HOME_POSES: dict[str, float] = {
     "panda_joint6": 1.9,
     "panda_joint7": 0.8,
 }
+_GRIPPER_PERIOD_S = 2.5  # one open-close cycle of the simulated fingers
 _HOME_MARGIN = 0.1  # of the range, kept between home and a limit
 _UNLIMITED_HALF_RANGE = math.pi  # continuous joints: a full turn around home
 _PRISMATIC_DEFAULT_M = (0.0, 0.05)  # prismatic joints without <limit>
@@ -93,6 +94,10 @@ class SimArm:
         self.chain: tuple[str, ...] = unique_in_order(j for f in frames for j in kinematics.chain_joints(f))
         self.path_frames: tuple[str, ...] = _movable_path(arm.ee_frame, model.joints)
         self.ranges: tuple[JointRange, ...] = tuple(_range(name, model.joints, model.limits) for name in self.chain)
+        wrist_chain = kinematics.chain_joints(arm.ee_frame)
+        below = kinematics.joints_below(wrist_chain[-1]) if wrist_chain else ()
+        self.gripper: tuple[UrdfJoint, ...] = tuple(model.joints[j] for j in below if j not in self.chain)
+        self._gripper_limits = {j.name: model.limits.get(j.name, (0.0, 0.0)) for j in self.gripper}
         self.home = np.array([_home(r) for r in self.ranges])
         home_pose = self.pose(self.home)
         if float(np.linalg.norm(home_pose.tip_in_ee_m)) < _MIN_SEGMENT_M:
@@ -108,6 +113,23 @@ class SimArm:
     def joint_names(self) -> tuple[str, ...]:
         """The JointState names of this arm's chain (prefix + URDF name)."""
         return tuple(self.prefix + j for j in self.chain)
+
+    @property
+    def gripper_joint_names(self) -> tuple[str, ...]:
+        """The JointState names of the joints below the wrist (fingers), as the pipeline's `gripper_joints`."""
+        return tuple(self.prefix + j.name for j in self.gripper)
+
+    def gripper_positions(self, t_s: float) -> tuple[float, ...]:
+        """Finger positions at sim time t: opening and closing within the URDF limits, mimic joints following."""
+        phase = math.sin(2 * math.pi * t_s / _GRIPPER_PERIOD_S + self.index)
+        values: dict[str, float] = {}
+        for joint in self.gripper:
+            if joint.mimic_of is not None and joint.mimic_of in values:
+                values[joint.name] = joint.mimic_multiplier * values[joint.mimic_of] + joint.mimic_offset
+            else:
+                lo, hi = self._gripper_limits[joint.name]
+                values[joint.name] = lo + (hi - lo) * (0.5 + 0.45 * phase)
+        return tuple(values[j.name] for j in self.gripper)
 
     def pose(self, chain_positions: Float64Array) -> ArmPose:
         """FK for positions of `chain`, in order."""

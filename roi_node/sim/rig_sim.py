@@ -44,7 +44,7 @@ _MASK64 = (1 << 64) - 1
 
 @dataclass(frozen=True)
 class JointStateEvent:
-    """One sensor_msgs/JointState: every required joint, prefixed as the rig names them."""
+    """One sensor_msgs/JointState: every arm chain joint, then the fingers, prefixed as the rig names them."""
 
     stamp_ns: int
     names: tuple[str, ...]
@@ -131,6 +131,8 @@ class SimRig:
         world_T_cam = self.rig.camera.world_T_cam
         self.arms = load_arms(self.rig)
         self.required_joints = required_joints(self.arms)
+        # what the JointState carries: the arm chains, then every arm's fingers (the policy's full state s)
+        self.state_joints = (*self.required_joints, *(name for arm in self.arms for name in arm.gripper_joint_names))
         self.view = CameraView.of(camera, world_T_cam, self.rig.camera.z_min_m)
         bases = [a.world_T_base.translation_m for a in self.arms]
         self.layout = plan_layout(camera, world_T_cam, bases, max(a.reach_m for a in self.arms), seed)
@@ -159,7 +161,9 @@ class SimRig:
         return self.trajectory.positions((t_ns - self.start_ns) / NS_PER_S)
 
     def joint_state(self, stamp_ns: int) -> JointStateEvent:
-        return JointStateEvent(stamp_ns, self.required_joints, tuple(float(v) for v in self.positions(stamp_ns)))
+        t_s = (stamp_ns - self.start_ns) / NS_PER_S
+        fingers = tuple(v for arm in self.arms for v in arm.gripper_positions(t_s))
+        return JointStateEvent(stamp_ns, self.state_joints, (*(float(v) for v in self.positions(stamp_ns)), *fingers))
 
     def ground_truth(self, capture_ns: int) -> FrameTruth:
         """What the camera sees at capture time (header stamp - delay), without rendering."""
