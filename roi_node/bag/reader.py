@@ -30,9 +30,17 @@ from ..core.errors import BagError
 from ..core.stamps import stamp_to_ns
 from .writer import typestore
 
+try:
+    import apsw
+
+    _APSW_ERRORS: tuple[type[BaseException], ...] = (apsw.Error,)
+except ImportError:  # rosbags then reads db3 files through the standard sqlite3 module
+    _APSW_ERRORS = ()
+
 BAG_FILE_SUFFIXES = (".mcap", ".db3")
 EXPECTED = "expected a rosbag2 folder (with metadata.yaml) or a .mcap/.db3 file"
-# what rosbags' parsers raise on truncated or corrupt storage
+# what rosbags' parsers raise on truncated or corrupt storage: a corrupt length field can also ask
+# for an absurd allocation (MemoryError), and rosbags reads db3 files through apsw when it is installed
 _READ_ERRORS: tuple[type[BaseException], ...] = (
     AnyReaderError,
     ReaderError,
@@ -40,6 +48,8 @@ _READ_ERRORS: tuple[type[BaseException], ...] = (
     EOFError,
     struct.error,
     sqlite3.Error,
+    *_APSW_ERRORS,
+    MemoryError,
     TypeError,
     ValueError,
     IndexError,

@@ -11,6 +11,7 @@ recordings that cannot).
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 from pathlib import Path
 from types import TracebackType
@@ -100,7 +101,10 @@ class BagWriter:
         self.write_cdr(topic, stamp_ns, self.typestore.serialize_cdr(msg, connection.msgtype))
 
     def write_cdr(self, topic: str, stamp_ns: int, data: bytes | memoryview) -> None:
-        self._writer.write(self._connections[topic], int(stamp_ns), data)
+        try:
+            self._writer.write(self._connections[topic], int(stamp_ns), data)
+        except OSError as exc:  # disk full, file-size limit, I/O error: name the output, not a file descriptor
+            raise BagWriteError(f"{self.path}: cannot write the bag: {exc.strerror or exc}") from exc
         self.counts[topic] += 1
 
     def close(self, status: str = "complete") -> None:
@@ -109,13 +113,18 @@ class BagWriter:
             return
         self.status = status
         self._writer.set_custom_data(STATUS_KEY, status)
-        self._writer.close()
-        self._open = False
+        try:
+            self._writer.close()
+        except OSError as exc:
+            raise BagWriteError(f"{self.path}: cannot finalize the bag: {exc.strerror or exc}") from exc
+        finally:
+            self._open = False
 
     def discard(self) -> None:
         """Abort and remove the output: nothing partial is left looking complete."""
         if self._open:
-            self._writer.abort()
             self._open = False
+            with contextlib.suppress(OSError):  # the output goes anyway; the error that got us here is reported
+                self._writer.abort()
         shutil.rmtree(self.path, ignore_errors=True)
         self.status = "discarded"
