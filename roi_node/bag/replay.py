@@ -184,6 +184,7 @@ class _Replay:
                             writer.write_cdr(connection.topic, log_ns, raw)
                         if connection.topic == self.selection.image_topic:
                             self._frame(reader, raw, outputs)
+                    self.engine.finish()  # frames still held behind an unconfirmed stamp jump are refused
                     if self.stats.frames_out == 0:
                         first = self.bad.examples[0] if self.bad.examples else "no frame was released"
                         raise ImageError(

@@ -42,7 +42,7 @@ from .errors import ImageError, JointStateError, RoiNodeError
 from .metadata import M_DECIMALS, MS_DECIMALS, rnd
 from .pipeline import FrameResult, RoiPipeline
 from .records import TeleopRecord
-from .stamps import NS_PER_MS, NS_PER_S, StreamClock
+from .stamps import NS_PER_MS, NS_PER_S, StampVerdict, StreamClock
 from .stream_stats import StreamStats
 from .sync import FrameSynchronizer, JointStateBuffer, PendingFrame, SyncResult, command_residual
 
@@ -89,7 +89,8 @@ class UrdfEvent:
     where: str = "robot_description"
 
 
-Event = FrameEvent | JointStateEvent | CommandEvent | CameraInfoEvent | UrdfEvent
+StampedEvent = FrameEvent | JointStateEvent | CommandEvent | CameraInfoEvent  # judged by a StreamClock
+Event = StampedEvent | UrdfEvent
 
 
 @dataclass(frozen=True)
@@ -170,6 +171,7 @@ class StreamEngine:
         self.commands: JointStateBuffer | None = None
         self._early_joints: deque[JointStateEvent] = deque(maxlen=EARLY_JOINT_STATES)
         self._clocks: dict[str, StreamClock] = {}
+        self._held: dict[str, list[StampedEvent]] = {}  # per stream: messages behind an unconfirmed stamp jump
         self._limit_refusals: dict[tuple[int, str], list[int]] = {}  # (epoch, joint) -> stamps of refused samples
         self.frames_offered = 0
         if not urdf_from_stream:
@@ -198,7 +200,8 @@ class StreamEngine:
         self.commands = JointStateBuffer(pipeline.continuous_joints)
         early, self._early_joints = list(self._early_joints), deque(maxlen=EARLY_JOINT_STATES)
         for event in early:
-            self._feed_joint_state(event)
+            if (refusal := self._admit(event)) is not None:
+                self._refuse(event, refusal)
 
     def waiting_for(self) -> str | None:
         """What the engine still needs before it can process any frame, or None."""
@@ -214,33 +217,67 @@ class StreamEngine:
     def feed(self, event: Event) -> Refusal | None:
         """Take one input; a refused one is counted in `stats` and described in the returned Refusal."""
         if isinstance(event, FrameEvent):
-            refusal = self._feed_frame(event)
+            self.stats.frame_in()
         elif isinstance(event, JointStateEvent):
             self.stats.joint_msg_in()
-            refusal = self._feed_joint_state(event)
-        elif isinstance(event, CommandEvent):
-            refusal = self._feed_command(event)
-        elif isinstance(event, CameraInfoEvent):
-            refusal = self._feed_camera_info(event)
-        else:
-            refusal = self._feed_urdf(event)
+            if self.synchronizer is None:  # kept for when the URDF arrives
+                self._early_joints.append(event)
+                return None
+        refusal = self._feed_urdf(event) if isinstance(event, UrdfEvent) else self._admit(event)
         if refusal is not None:
-            self.stats.bad_message(refusal.kind, refusal.message)
+            self._refuse(event, refusal)
         return refusal
 
-    def _check_stamp(self, stream: str, stamp_ns: int, where: str) -> tuple[int, Refusal | None]:
-        clock = self._clocks.setdefault(stream, StreamClock())
-        check = clock.check(stamp_ns)
-        if not check.accepted:
-            return check.epoch, Refusal(check.verdict.value, f"{where}: stamp {stamp_ns} refused: {check.reason}")
-        return check.epoch, None
-
-    def _feed_frame(self, event: FrameEvent) -> Refusal | None:
-        self.stats.frame_in()
-        epoch, refusal = self._check_stamp("frame", event.stamp_ns, event.where)
-        if refusal is not None:
+    def _refuse(self, event: Event, refusal: Refusal) -> None:
+        self.stats.bad_message(refusal.kind, refusal.message)
+        if isinstance(event, FrameEvent):
             self.stats.drop(refusal.kind)
-            return refusal
+
+    def _admit(self, event: StampedEvent) -> Refusal | None:
+        """Judge the event's stamp on its stream's clock; use it, hold it, or refuse it (and settle held ones)."""
+        stream = f"{type(event).__name__}:{event.where}"
+        check = self._clocks.setdefault(stream, StreamClock()).check(event.stamp_ns)
+        held = self._held.setdefault(stream, [])
+        if check.drop_held:
+            for stray in held:
+                self._refuse(stray, self._stray(stray))
+            held.clear()
+        if check.verdict is StampVerdict.HELD:
+            held.append(event)
+            return None
+        if not check.accepted:
+            return Refusal(check.verdict.value, f"{event.where}: stamp {event.stamp_ns} refused: {check.reason}")
+        if check.release_held:
+            for confirmed in held:
+                if (refusal := self._use(confirmed, check.epoch)) is not None:
+                    self._refuse(confirmed, refusal)
+            held.clear()
+        return self._use(event, check.epoch)
+
+    @staticmethod
+    def _stray(event: Event) -> Refusal:
+        return Refusal(
+            StampVerdict.IMPLAUSIBLE.value,
+            f"{event.where}: stamp {event.stamp_ns} refused: far from the stream's own time, and the stream did not follow it",
+        )
+
+    def finish(self) -> None:
+        """End of input: messages still held for an unconfirmed stamp jump are refused (counted)."""
+        for held in self._held.values():
+            for stray in held:
+                self._refuse(stray, self._stray(stray))
+            held.clear()
+
+    def _use(self, event: StampedEvent, epoch: int) -> Refusal | None:
+        if isinstance(event, FrameEvent):
+            return self._use_frame(event, epoch)
+        if isinstance(event, JointStateEvent):
+            return self._use_joint_state(event, epoch)
+        if isinstance(event, CommandEvent):
+            return self._use_command(event)
+        return self._use_camera_info(event)
+
+    def _use_frame(self, event: FrameEvent, epoch: int) -> Refusal | None:
         if self.synchronizer is None:
             self.stats.drop("waiting_for_urdf")
             return None
@@ -250,19 +287,14 @@ class StreamEngine:
         self.synchronizer.add_frame(int(event.stamp_ns) - self.delay_ns, payload, event.arrival_ns, epoch)
         return None
 
-    def _feed_joint_state(self, event: JointStateEvent) -> Refusal | None:
+    def _use_joint_state(self, event: JointStateEvent, epoch: int) -> Refusal | None:
         where = event.where
         names, positions = list(event.names), list(event.positions)
         if not names:
             return None
         if not positions:
             return Refusal("joint_state", f"{where}: {len(names)} names but no positions (effort/velocity only?)")
-        if self.synchronizer is None:
-            self._early_joints.append(event)
-            return None
-        epoch, refusal = self._check_stamp(f"joint:{where}", event.stamp_ns, where)
-        if refusal is not None:
-            return refusal
+        assert self.synchronizer is not None
         pipeline = self._pipelines.values[-1]
         assert isinstance(pipeline, RoiPipeline)
         if len(names) != len(positions):
@@ -312,22 +344,16 @@ class StreamEngine:
                 out.append((name, v, limits))
         return out
 
-    def _feed_command(self, event: CommandEvent) -> Refusal | None:
+    def _use_command(self, event: CommandEvent) -> Refusal | None:
         if self.commands is None or not len(event.names) or not len(event.positions):
             return None
-        _, refusal = self._check_stamp(f"command:{event.where}", event.stamp_ns, event.where)
-        if refusal is not None:
-            return refusal
         try:
             self.commands.add(event.stamp_ns, list(event.names), list(event.positions), where=event.where)
         except JointStateError as exc:
             return Refusal("command", str(exc))
         return None
 
-    def _feed_camera_info(self, event: CameraInfoEvent) -> Refusal | None:
-        _, refusal = self._check_stamp("camera_info", event.stamp_ns, event.where)
-        if refusal is not None:
-            return refusal
+    def _use_camera_info(self, event: CameraInfoEvent) -> Refusal | None:
         rig_camera = self.rig.camera.intrinsics
         camera = event.camera
         if rig_camera is not None and (camera.width_px, camera.height_px) != (rig_camera.width_px, rig_camera.height_px):

@@ -10,11 +10,12 @@ live, log order offline, so both judge the same way):
 
 - zero: refused;
 - within [-`MAX_BACKWARD_NS`, +`MAX_FORWARD_NS`] of the last accepted stamp: accepted;
-- farther: refused, unless `CONFIRMING_STAMPS` consecutive stamps agree on the
-  new time; the last of them is accepted and the stream follows. A confirmed
-  jump backwards starts a new epoch (a bag played in a loop, a clock reset):
-  frames pair only with joint states of the same epoch, and epochs of
-  different streams pair by their count.
+- farther: held, until `CONFIRMING_STAMPS` consecutive stamps agree on the new
+  time (then the held messages are accepted too, and the stream follows) or a
+  stamp in the old range shows it was a stray (then the held ones are refused).
+  A confirmed jump backwards starts a new epoch (a bag played in a loop, a
+  clock reset): frames pair only with joint states of the same epoch, and
+  epochs of different streams pair by their count.
 """
 
 from __future__ import annotations
@@ -32,15 +33,18 @@ MAX_STAMP_NS = (1 << 63) - 1  # builtin_interfaces/Time as int64 nanoseconds
 
 class StampVerdict(StrEnum):
     ACCEPTED = "accepted"
+    HELD = "held"  # a jump, not yet confirmed: the driver keeps the message until the stream decides
     ZERO = "zero_stamp"
-    IMPLAUSIBLE = "implausible_stamp"
+    IMPLAUSIBLE = "implausible_stamp"  # the kind under which held messages that never got confirmed are refused
 
 
 @dataclass(frozen=True)
 class StampCheck:
     verdict: StampVerdict
-    epoch: int
-    reason: str = ""  # for a refusal: what the stamp was compared with
+    epoch: int  # for an accepted stamp (and the held ones it releases)
+    reason: str = ""  # for a held or refused stamp: what it was compared with
+    release_held: bool = False  # the held messages are accepted (before this one), in this epoch
+    drop_held: bool = False  # the held messages were strays: refuse them
 
     @property
     def accepted(self) -> bool:
@@ -70,18 +74,22 @@ class StreamClock:
             return StampCheck(StampVerdict.ZERO, self.epoch, "stamp is zero (never set by the driver)")
         last = self.last_ns
         if last is None or -MAX_BACKWARD_NS <= stamp_ns - last <= MAX_FORWARD_NS:
+            strays = bool(self._candidate)
             self._candidate.clear()
             self.last_ns = stamp_ns if last is None else max(last, stamp_ns)
-            return StampCheck(StampVerdict.ACCEPTED, self.epoch)
-        if self._candidate and -MAX_BACKWARD_NS <= stamp_ns - self._candidate[-1] <= MAX_FORWARD_NS:
-            self._candidate.append(stamp_ns)
-        else:
+            return StampCheck(StampVerdict.ACCEPTED, self.epoch, drop_held=strays)
+        restart = not (self._candidate and -MAX_BACKWARD_NS <= stamp_ns - self._candidate[-1] <= MAX_FORWARD_NS)
+        if restart:
+            dropped = bool(self._candidate)
             self._candidate = [stamp_ns]
+        else:
+            dropped = False
+            self._candidate.append(stamp_ns)
         if len(self._candidate) < CONFIRMING_STAMPS:
             jump_s = (stamp_ns - last) / NS_PER_S
-            return StampCheck(StampVerdict.IMPLAUSIBLE, self.epoch, f"{jump_s:+.3g} s from the stream's last stamp {last}")
+            return StampCheck(StampVerdict.HELD, self.epoch, f"{jump_s:+.6g} s from the stream's last stamp {last}", drop_held=dropped)
         if stamp_ns < last:
             self.epoch += 1
         self.last_ns = max(self._candidate)
         self._candidate.clear()
-        return StampCheck(StampVerdict.ACCEPTED, self.epoch)
+        return StampCheck(StampVerdict.ACCEPTED, self.epoch, release_held=True)

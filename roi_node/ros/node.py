@@ -304,6 +304,7 @@ class RoiNode(Node):
             self._lock.notify_all()
         self._worker.join(timeout=5.0)
         with self._lock:
+            self.engine.finish()
             if self.engine.pending:
                 self.stats.drop("shutdown", self.engine.pending)
 
