@@ -219,7 +219,7 @@ class _Replay:
             self._bad_frame(str(exc))
             return
         if not self._size_checked:
-            self._check_size(stamp, image.shape[1], image.shape[0])
+            self._check_size(image.shape[1], image.shape[0])
         refusal = self.engine.feed(FrameEvent(stamp, image, where=self.frame_where))
         if refusal is not None:
             self._bad_frame(refusal.message)
@@ -233,9 +233,9 @@ class _Replay:
             self.stats.frame_out(result.record, None, (time.perf_counter() - started) * 1000)
         self.progress.update(self.frames_read)
 
-    def _check_size(self, stamp: int, width: int, height: int) -> None:
+    def _check_size(self, width: int, height: int) -> None:
         """The first frame decides whether this stream fits the rig's camera at all."""
-        camera = self.engine.camera_at(stamp) or self.engine.first_camera()
+        camera = self.engine.first_camera()
         if camera is not None and (width, height) != (camera.width_px, camera.height_px):
             source = "the bag's camera info" if self.from_bag else f"the rig config {self.rig.path}"
             raise CalibrationError(

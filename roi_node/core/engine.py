@@ -160,10 +160,10 @@ class StreamEngine:
         self.delay_ns = round(rig.camera.delay_ms * NS_PER_MS)
         self.max_pending = max_pending
         self.intrinsics_from_stream = intrinsics_from_stream or rig.camera.intrinsics is None
-        self._cameras = _Stamped()
-        self._newest_info_ns: int | None = None  # of any camera info, changed or not: what a waiting frame needs
-        if not self.intrinsics_from_stream:
-            self._cameras.add(-1, rig.camera.intrinsics)
+        # intrinsics by stamp, per epoch (a looped bag repeats its calibration changes); the rig's own when not streamed
+        self._cameras: dict[int, _Stamped] = {}
+        self._newest_info_ns: dict[int, int] = {}  # per epoch, of any camera info, changed or not: what a waiting frame needs
+        self._rig_camera = None if self.intrinsics_from_stream else rig.camera.intrinsics
         self._urdf_from_stream = urdf_from_stream
         self._pipelines = _Stamped()
         self._urdf_texts: set[str] = set()
@@ -206,7 +206,7 @@ class StreamEngine:
     def waiting_for(self) -> str | None:
         """What the engine still needs before it can process any frame, or None."""
         missing = []
-        if self.intrinsics_from_stream and not self._cameras.stamps:
+        if self.intrinsics_from_stream and not self._cameras:
             missing.append("CameraInfo")
         if self.synchronizer is None:
             missing.append("URDF (robot_description)")
@@ -275,7 +275,7 @@ class StreamEngine:
             return self._use_joint_state(event, epoch)
         if isinstance(event, CommandEvent):
             return self._use_command(event)
-        return self._use_camera_info(event)
+        return self._use_camera_info(event, epoch)
 
     def _use_frame(self, event: FrameEvent, epoch: int) -> Refusal | None:
         if self.synchronizer is None:
@@ -353,7 +353,7 @@ class StreamEngine:
             return Refusal("command", str(exc))
         return None
 
-    def _use_camera_info(self, event: CameraInfoEvent) -> Refusal | None:
+    def _use_camera_info(self, event: CameraInfoEvent, epoch: int) -> Refusal | None:
         rig_camera = self.rig.camera.intrinsics
         camera = event.camera
         if rig_camera is not None and (camera.width_px, camera.height_px) != (rig_camera.width_px, rig_camera.height_px):
@@ -362,12 +362,12 @@ class StreamEngine:
                 f"{event.where}: CameraInfo is for {camera.width_px}x{camera.height_px} but the rig calibration is for "
                 f"{rig_camera.width_px}x{rig_camera.height_px}",
             )
-        if self._newest_info_ns is None or event.stamp_ns > self._newest_info_ns:
-            self._newest_info_ns = event.stamp_ns
-        current = self._cameras.at(event.stamp_ns)
+        self._newest_info_ns[epoch] = max(event.stamp_ns, self._newest_info_ns.get(epoch, event.stamp_ns))
+        schedule = self._cameras.setdefault(epoch, _Stamped())
+        current = schedule.at(event.stamp_ns)
         if isinstance(current, CameraModel) and (current is camera or current.content_version() == camera.content_version()):
             return None  # a steady camera_info stream is one entry
-        self._cameras.add(event.stamp_ns, camera)
+        schedule.add(event.stamp_ns, camera)
         return None
 
     def _feed_urdf(self, event: UrdfEvent) -> Refusal | None:
@@ -398,16 +398,25 @@ class StreamEngine:
         """A frame whose intrinsics come from a stream waits for a camera info stamped at or after it."""
         if not self.intrinsics_from_stream:
             return True
-        return self._newest_info_ns is not None and self._newest_info_ns >= frame.payload.stamp_ns
+        newest = self._newest_info_ns.get(frame.epoch)
+        return newest is not None and newest >= frame.payload.stamp_ns
 
-    def camera_at(self, stamp_ns: int) -> CameraModel | None:
-        """The intrinsics in effect at a frame stamp (None before the first camera info)."""
-        camera = self._cameras.at(stamp_ns)
+    def camera_at(self, stamp_ns: int, epoch: int = 0) -> CameraModel | None:
+        """The intrinsics in effect at a frame stamp of an epoch (None before its first camera info)."""
+        if self._rig_camera is not None:
+            return self._rig_camera
+        schedule = self._cameras.get(epoch)
+        camera = schedule.at(stamp_ns) if schedule is not None else None
         return camera if isinstance(camera, CameraModel) else None
 
     def first_camera(self) -> CameraModel | None:
-        camera = self._cameras.values[0] if self._cameras.values else None
-        return camera if isinstance(camera, CameraModel) else None
+        """The rig's intrinsics, or the first streamed ones: what a stream's image size is checked against."""
+        if self._rig_camera is not None:
+            return self._rig_camera
+        for schedule in self._cameras.values():
+            if schedule.values and isinstance(schedule.values[0], CameraModel):
+                return schedule.values[0]
+        return None
 
     @property
     def pending(self) -> int:
@@ -440,8 +449,8 @@ class StreamEngine:
         stamp = payload.stamp_ns
         pipeline = self._pipelines.at(stamp) or self._pipelines.values[0]
         assert isinstance(pipeline, RoiPipeline)
-        camera = self._cameras.at(stamp)
-        if not isinstance(camera, CameraModel):
+        camera = self.camera_at(stamp, ready.epoch)
+        if camera is None:
             self._refuse_frame(Refusal("no_intrinsics", f"{payload.where}: frame stamp {stamp}: no CameraInfo stamped at or before it"))
             return None
         pipeline.set_intrinsics(camera)

@@ -215,8 +215,11 @@ class RoiNode(Node):
         now = time.monotonic()
         if now - self._throttle.get(kind, 0.0) >= 1.0:
             self._throttle[kind] = now
-            log = self.get_logger()
-            (log.error if error_level else log.warning)(f"{kind}: {error}")
+            # rclpy fixes a call site's severity on first use: one call site per level
+            if error_level:
+                self.get_logger().error(f"{kind}: {error}")
+            else:
+                self.get_logger().warning(f"{kind}: {error}")
 
     # -- worker thread --------------------------------------------------------------------------
 

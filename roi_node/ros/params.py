@@ -122,7 +122,8 @@ def _typed(name: str, default: object, value: object) -> object:
     if isinstance(default, list) and isinstance(value, list | tuple) and all(isinstance(v, str) for v in value):
         return list(value)
     if _type_name(value) != expected:
-        raise ParameterError(name, f"expected a {expected}, got {value!r} ({_type_name(value)})")
+        article = "an" if expected[0] in "aeiou" else "a"
+        raise ParameterError(name, f"expected {article} {expected}, got {value!r} ({_type_name(value)})")
     return value
 
 

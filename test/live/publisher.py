@@ -12,6 +12,7 @@ marker pixels, what was injected) as JSON for the test to check against.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import sys
@@ -68,6 +69,12 @@ def main(spec_path: str, truth_path: str) -> int:
     rig = load_rig_config(spec.get("render_rig", spec["rig"]))  # the node may get a rig without intrinsics
     pipeline = RoiPipeline(rig)
     joints = list(pipeline.required_joints)
+    # "fingers": also publish every arm's gripper joints, at fixed openings inside their limits
+    fingers = {g: 0.5 * sum(pipeline.joint_limits.get(g, (0.0, 0.0))) for arm in rig.arms for g in pipeline.gripper_joints()[arm.id]}
+    fingers = fingers if spec.get("fingers") else {}
+    recalibrate_at = int(spec.get("recalibrate_at_frame", -1))  # from this frame on, CameraInfo with fx 1% larger
+    absurd_info_at = {int(k) for k in spec.get("absurd_camera_info_at_frames", [])}  # D = [1e308, ...]
+    wild_from, wild_to = spec.get("wild_joints_between_frames", [-1, -1])  # every joint at 1e300 rad there
     n = int(spec.get("frames", 30))
     period_ns = int(NS / spec.get("rate_hz", 30.0))
     joint_period_ns = int(NS / spec.get("joint_rate_hz", 200.0))
@@ -154,12 +161,22 @@ def main(spec_path: str, truth_path: str) -> int:
                 image_pub.publish(msg)
             if spec.get("camera_info"):
                 cam = pipeline.camera
-                info_pub.publish(camera_info_msg(f["stamp_ns"], "front_optical", cam, cam.width_px, cam.height_px))
+                assert cam is not None
+                if 0 <= recalibrate_at <= f["index"]:
+                    k = cam.k.copy()
+                    k[0, 0] *= 1.01
+                    cam = dataclasses.replace(cam, k=k, p=np.hstack([k, np.zeros((3, 1))]))
+                info = camera_info_msg(f["stamp_ns"], "front_optical", cam, cam.width_px, cam.height_px)
+                if f["index"] in absurd_info_at:
+                    info.d = [1e308] * 5
+                info_pub.publish(info)
         else:
             stamp, t_s, fault = payload
             stamp += t0
             q = positions_at(joints, t_s, amplitude)
-            names, values = list(q), list(q.values())
+            names, values = [*q, *fingers], [*q.values(), *fingers.values()]
+            if wild_from <= int(t_s * NS) // period_ns < wild_to:
+                values = [1e300] * len(values)
             if fault == "joint_nan":
                 values[0] = float("nan")
             elif fault == "joint_unknown":
@@ -172,6 +189,7 @@ def main(spec_path: str, truth_path: str) -> int:
     time.sleep(float(spec.get("linger_s", 1.0)))
     truth = {
         "joints": joints,
+        "fingers": fingers,
         "frames": [{k: v for k, v in f.items() if k != "pixels"} for f in frames],
         "joint_faults_sent": sent_joint_faults,
     }

@@ -1,0 +1,185 @@
+"""The live node never dies silently and never runs on pretending (real processes on loopback DDS).
+
+Faults are injected, not only fed: an exception type the node has no handler
+for raised inside processing (test/live/faulty_node.py), an absurd CameraInfo,
+joint states of 1e300 rad, a URDF that would crash placo, parameters of the
+wrong type or name, and silent input streams.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticStatus
+
+from roi_node.core.robot_models import resolve_robot_reference
+
+from .conftest import CONFIG, REPO
+from .live.harness import Collector, diagnostics_values, next_domain, process, ros_env
+
+BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
+ARMS = ["left", "right"]
+
+
+def run_args(*params: str, faulty_every: int | None = None, config: Path = BIMANUAL) -> list[str]:
+    ros = ["--ros-args", *(x for p in params for x in ("-p", p))] if params else []
+    cli = ["run", "--config", str(config), *ros]
+    return ["-m", "test.live.faulty_node", str(faulty_every), "--", *cli] if faulty_every else ["-m", "roi_node.cli", *cli]
+
+
+def publish(tmp_path: Path, env: dict[str, str], spec: dict[str, Any]) -> dict[str, Any]:
+    (tmp_path / "spec.json").write_text(json.dumps({"rig": str(BIMANUAL), **spec}))
+    pub = subprocess.run(
+        [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=120,
+    )
+    assert pub.returncode == 0, pub.stderr
+    truth: dict[str, Any] = json.loads((tmp_path / "truth.json").read_text())
+    return truth
+
+
+def levels(collector: Collector, name: str) -> list[int]:
+    return [int.from_bytes(s.level, "little") if isinstance(s.level, bytes) else int(s.level)
+            for array in collector.diagnostics for s in array.status if s.name == name]
+
+
+def messages(collector: Collector, name: str) -> list[str]:
+    return [s.message for array in collector.diagnostics for s in array.status if s.name == name]
+
+
+ERROR = int.from_bytes(DiagnosticStatus.ERROR, "little")
+
+
+def test_node_keeps_publishing_through_injected_exceptions_absurd_camera_info_and_wild_joints(tmp_path: Path) -> None:
+    domain = next_domain()
+    env = ros_env(domain)
+    collector = Collector(domain, ARMS)
+    spec = {
+        "frames": 60,
+        "camera_info": True,
+        "absurd_camera_info_at_frames": [10, 11],
+        "wild_joints_between_frames": [30, 36],
+    }
+    try:
+        params = ("use_camera_info:=true", "qos.subscription_reliability:=reliable", "qos.subscription_depth:=30", "sync.max_pending_frames:=64")
+        with process(run_args(*params, faulty_every=7), env, tmp_path / "node.log") as node:
+            collector.wait_for_node()
+            truth = publish(tmp_path, env, spec)
+            collector.wait_until(lambda: len(collector.metadata) >= 50, 10.0)
+            collector.wait_until(lambda: len(collector.diagnostics) >= 3, 5.0)
+            assert node.poll() is None, (tmp_path / "node.log").read_text()
+    finally:
+        collector.close()
+    log = (tmp_path / "node.log").read_text()
+    records = {r["frame_index"]: r for r in collector.metadata}
+    inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
+    totals, drops = inputs["totals"], inputs["dropped_by_reason"]
+    assert totals["frames_in"] == totals["frames_out"] + sum(drops.values()), "every frame is published or counted"
+    offered = totals["frames_in"] - sum(n for reason, n in drops.items() if reason != "processing_error")
+    injected = {i for i in range(offered) if i % 7 == 0}
+    assert offered >= 40, drops  # a loaded machine may lose a few frames in transport; the rest are accounted for
+    assert set(records) == set(range(offered)) - injected, ("every frame but the injected failures is published", inputs)
+    assert drops["processing_error"] == len(injected)
+    processing = diagnostics_values(collector.diagnostics, "roi_node: processing")
+    assert processing["errors_by_type"] == {"ZeroDivisionError": len(injected)}
+    assert "injected fault" in json.dumps(processing["last_errors"])
+    assert ERROR in levels(collector, "roi_node: processing") and "ERROR" in log
+    assert inputs["bad_messages_by_kind"]["camera_info"] == 2
+    assert "distortion_coefficients" in inputs["last_errors"]["camera_info"]
+    assert inputs["bad_messages_by_kind"]["joint_out_of_limits"] >= 20  # 6 frames x ~6.7 joint samples
+    index_of = {f["stamp_ns"]: f["index"] for f in truth["frames"]}
+    for record in records.values():
+        index = index_of[record["stamp_ns"]]  # the publisher's frame number
+        if 31 <= index < 35:  # well inside the wild window: never paired as ok, and flagged
+            assert record["sync"]["status"] != "ok"
+            assert all("joint_out_of_limits" in arm["flags"] for arm in record["arms"])
+        elif index < 29 or index > 37:
+            assert not any("joint_out_of_limits" in arm["flags"] for arm in record["arms"])
+    # the absurd CameraInfo never took effect: every record has the good intrinsics
+    assert len({r["lineage"]["intrinsics_ver"] for r in records.values()}) == 1
+
+
+def test_a_node_whose_every_frame_fails_stops_with_a_non_zero_exit(tmp_path: Path) -> None:
+    domain = next_domain()
+    env = ros_env(domain)
+    (tmp_path / "spec.json").write_text(json.dumps({"rig": str(BIMANUAL), "frames": 240}))
+    log_path = tmp_path / "node.log"
+    with process(run_args("max_failure_s:=1.5", faulty_every=1), env, log_path) as node:
+        pub = subprocess.Popen(
+            [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
+            cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )
+        try:
+            node.wait(timeout=60)
+            stopped = time.monotonic()
+        finally:
+            pub.kill()
+            pub.wait()
+    log = log_path.read_text()
+    assert node.returncode == 2, log
+    last = log.strip().splitlines()[-1]
+    assert last.startswith("roi-node run: error: every frame failed for") and "ZeroDivisionError" in last, last
+    first_failure = log.index("injected fault")
+    assert first_failure > 0 and stopped > 0
+
+
+def test_a_urdf_that_would_crash_placo_on_robot_description_is_refused_and_reported(tmp_path: Path) -> None:
+    text = resolve_robot_reference("example-robot-data:panda", "test").read_text()
+    bogus = '<joint name="bogus" type="fixed"><parent link="panda_link0"/><child link="panda_hand"/></joint>'
+    urdf = tmp_path / "two_parents.urdf"
+    urdf.write_text(text.replace("</robot>", bogus + "</robot>"))
+    domain = next_domain()
+    env = ros_env(domain)
+    collector = Collector(domain, ARMS)
+    try:
+        with process(run_args("robot_description_source:=topic", "silence_timeout_s:=30.0"), env, tmp_path / "node.log") as node:
+            collector.wait_for_node()
+            publish(tmp_path, env, {"frames": 20, "robot_description": str(urdf)})
+            collector.wait_until(lambda: len(collector.diagnostics) >= 3, 5.0)
+            assert node.poll() is None, (tmp_path / "node.log").read_text()
+    finally:
+        collector.close()
+    assert collector.metadata == []
+    inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
+    assert inputs["bad_messages_by_kind"]["urdf"] == 1
+    assert "child of two joints" in inputs["last_errors"]["urdf"] and "/robot_description" in inputs["last_errors"]["urdf"]
+    assert inputs["dropped_by_reason"]["waiting_for_urdf"] == 20
+    assert messages(collector, "roi_node: input")[-1].startswith("waiting for URDF")
+    assert levels(collector, "roi_node: input")[-1] == ERROR
+
+
+def test_parameters_of_the_wrong_type_or_name_stop_the_start_with_one_line(tmp_path: Path) -> None:
+    env = ros_env(next_domain())
+    for params, names in (
+        (["opencv_threads:=1.5"], ["parameter opencv_threads", "expected an integer", "double"]),
+        (["global_veiw:=false"], ["parameter global_veiw", "not a parameter of roi_node"]),
+        (["sync.max_wait_ms:=abc"], ["parameter sync.max_wait_ms", "expected a double", "string"]),
+    ):
+        result = subprocess.run([sys.executable, *run_args(*params)], cwd=REPO, env=env, capture_output=True, text=True, timeout=60)
+        assert result.returncode == 2, (params, result.stderr)
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr
+        for name in names:
+            assert name in lines[0], (name, lines[0])
+
+
+def test_an_integer_for_a_double_is_accepted_and_silent_streams_turn_diagnostics_to_error(tmp_path: Path) -> None:
+    domain = next_domain()
+    env = ros_env(domain)
+    collector = Collector(domain, ARMS)
+    try:
+        with process(run_args("sync.max_wait_ms:=80", "silence_timeout_s:=1.0"), env, tmp_path / "node.log") as node:
+            collector.wait_for_node()
+            collector.wait_until(lambda: any("no frames" in m for m in messages(collector, "roi_node: input")), 10.0)
+            assert node.poll() is None
+    finally:
+        collector.close()
+    assert "max_wait 80 ms" in (tmp_path / "node.log").read_text()
+    silent = [m for m in messages(collector, "roi_node: input") if "no frames" in m]
+    assert silent and "/image_raw" in silent[-1] and "joint states on joint_states" in silent[-1]
+    assert levels(collector, "roi_node: input")[-1] == ERROR
