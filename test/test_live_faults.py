@@ -66,7 +66,9 @@ def test_node_keeps_publishing_through_injected_exceptions_absurd_camera_info_an
         "wild_joints_between_frames": [30, 36],
     }
     try:
-        params = ("use_camera_info:=true", "qos.subscription_reliability:=reliable", "qos.subscription_depth:=30", "sync.max_pending_frames:=64")
+        # reliable, deep queues: on a loaded machine transport loss and overflow would hide what is tested here
+        params = ("use_camera_info:=true", "qos.subscription_reliability:=reliable", "qos.subscription_depth:=30",
+                  "sync.max_pending_frames:=64")
         with process(run_args(*params, faulty_every=7), env, tmp_path / "node.log") as node:
             collector.wait_for_node()
             truth = publish(tmp_path, env, spec)
