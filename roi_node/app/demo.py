@@ -111,6 +111,9 @@ def _run_step(args: list[str], env: dict[str, str], log: Path, name: str) -> str
     return result.stdout
 
 
+RECORDING_PENDING_FRAMES = 30
+
+
 def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed: int) -> int:
     rig = load_rig_config(config)  # a bad config fails here, before anything starts
     arms = [a.id for a in rig.arms]
@@ -139,7 +142,9 @@ def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed
     spinner.start()
     procs: dict[str, tuple[subprocess.Popen[bytes], Path]] = {}
     try:
-        procs["node"] = (_start(_cli("run", "--config", str(config)), env, logs / "node.log"), logs / "node.log")
+        # a recording run wants every frame: a 1 s pending queue rides out a busy moment (the live default, 8, favours latency)
+        node_args = _cli("run", "--config", str(config), "--ros-args", "-p", f"sync.max_pending_frames:={RECORDING_PENDING_FRAMES}")
+        procs["node"] = (_start(node_args, env, logs / "node.log"), logs / "node.log")
         procs["recorder"] = (_start(_cli("record", "-o", str(session), "--topics", *record_topics), env, logs / "record.log"),
                              logs / "record.log")
         _wait_for_recorder(node, record_topics, procs)

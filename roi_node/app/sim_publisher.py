@@ -1,11 +1,15 @@
 """`roi-node sim ... live`: a simulated rig publishing like a camera driver and a robot.
 
-A render thread pulls SimRig events ahead of time into a bounded queue (so
-frame rendering never delays the joint stream); the publishing loop sends
-each event when the wall clock reaches its stamp. Stamps are wall-clock times
-(SimRig starts at "now"), so latency downstream is measured against them.
-Publishers are reliable (best-effort subscribers receive them too); the
-loop starts once `min_subscribers` subscribers matched the image topic.
+A real camera delivers a frame every period whatever the machine is doing;
+a renderer does not: on a busy machine it falls behind and then sends the
+late frames in a burst, which a real-time consumer rightly sheds (the ROI
+node drops the oldest pending frames). So the whole run is rendered before
+the clock starts when it fits in `PRERENDER_BYTES`; only longer runs render
+ahead in a thread into a bounded queue while publishing. The publishing loop
+sends each event when the wall clock reaches its stamp. Stamps are wall-clock
+times (the timeline starts at "now"), so latency downstream is measured
+against them. Publishers are reliable (best-effort subscribers receive them
+too); the loop starts once `min_subscribers` subscribers matched.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from ..sim.rig_sim import CameraInfoEvent, ImageEvent, JointStateEvent, SimEvent
 
 LEAD_NS = 1_000_000_000  # the first stamp lies this far ahead of start: rendering gets a head start
 AHEAD_EVENTS = 256
+PRERENDER_BYTES = 2 << 30  # frames of a run rendered before it starts (20 s of 720p30 is 1.7 GB)
 DISCOVERY_TIMEOUT_S = 30.0
 
 
@@ -43,6 +48,15 @@ class SimPublisher:
         self.frames = 0
         self.joint_states = 0
         self.late_ms_max = 0.0
+        self.start_ns = 0  # the wall-clock time of the timeline's zero (stamps are offsets from it)
+        self._prerendered: list[SimEvent] | None = None
+
+    def prepare(self, duration_s: float) -> None:
+        """Render the whole run now if it fits in memory, so that publishing keeps real time on a busy machine."""
+        camera = self.sim.camera
+        frame_bytes = camera.width_px * camera.height_px * 3
+        if self.sim.frame_count(duration_s) * frame_bytes <= PRERENDER_BYTES:
+            self._prerendered = list(self.sim.events(duration_s))
 
     def wait_for_subscribers(self) -> None:
         deadline = time.monotonic() + DISCOVERY_TIMEOUT_S
@@ -56,10 +70,13 @@ class SimPublisher:
         time.sleep(1.0)  # readers match this writer a moment after it matched them: data before that is lost
 
     def run(self, duration_s: float) -> None:
-        start_wall_ns = time.time_ns() + LEAD_NS
+        self.start_ns = time.time_ns() + LEAD_NS
         start_mono_ns = time.monotonic_ns() + LEAD_NS
+        if self._prerendered is not None:
+            for rendered in self._prerendered:
+                self._publish_at(rendered, start_mono_ns)
+            return
         sim = self.sim
-        sim.start_ns = start_wall_ns  # every SimRig stamp is start_ns + an offset
         ahead: queue.Queue[SimEvent | None] = queue.Queue(maxsize=AHEAD_EVENTS)
         stop = threading.Event()
 
@@ -79,23 +96,25 @@ class SimPublisher:
         renderer.start()
         try:
             while (event := ahead.get()) is not None:
-                due = start_mono_ns + (event.stamp_ns - start_wall_ns)
-                while (wait := due - time.monotonic_ns()) > 0:
-                    time.sleep(min(wait / 1e9, 0.002))
-                self.late_ms_max = max(self.late_ms_max, -wait / 1e6)
-                self._publish(event)
+                self._publish_at(event, start_mono_ns)
         finally:
             stop.set()
 
-    def _publish(self, event: SimEvent) -> None:
+    def _publish_at(self, event: SimEvent, start_mono_ns: int) -> None:
+        """Publish when the wall clock reaches the event's stamp (the SimRig timeline starts at 0)."""
+        due = start_mono_ns + event.stamp_ns
+        while (wait := due - time.monotonic_ns()) > 0:
+            time.sleep(min(wait / 1e9, 0.002))
+        self.late_ms_max = max(self.late_ms_max, -wait / 1e6)
+        stamp = self.start_ns + event.stamp_ns
         if isinstance(event, JointStateEvent):
-            self.joint_pub.publish(JointState(header=header(event.stamp_ns, ""), name=list(event.names), position=list(event.positions)))
+            self.joint_pub.publish(JointState(header=header(stamp, ""), name=list(event.names), position=list(event.positions)))
             self.joint_states += 1
         elif isinstance(event, CameraInfoEvent):
             cam = event.camera
-            self.info_pub.publish(camera_info_msg(event.stamp_ns, event.frame_id, cam, cam.width_px, cam.height_px))
+            self.info_pub.publish(camera_info_msg(stamp, event.frame_id, cam, cam.width_px, cam.height_px))
         elif isinstance(event, ImageEvent):
-            self.image_pub.publish(image_msg(event.stamp_ns, event.frame_id, event.image))
+            self.image_pub.publish(image_msg(stamp, event.frame_id, event.image))
             self.frames += 1
 
 
@@ -108,6 +127,7 @@ def run_live(
         node = Node("roi_node_sim")
         sim = SimPublisher(node, config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, min_subscribers=min_subscribers)
         try:
+            sim.prepare(duration_s)
             sim.wait_for_subscribers()
             sim.run(duration_s)
             time.sleep(0.5)  # reliable subscribers fetch the tail
@@ -117,6 +137,6 @@ def run_live(
             node.destroy_node()
     print(
         f"roi-node sim: published {sim.frames} frames and {sim.joint_states} joint states; "
-        f"latest send {sim.late_ms_max:.1f} ms behind its stamp"
+        f"latest send {sim.late_ms_max:.1f} ms behind its stamp; timeline start {sim.start_ns} ns"
     )
     return 0

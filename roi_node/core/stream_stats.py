@@ -111,6 +111,18 @@ class StreamStats:
             for flag in arm.flags:
                 self.flags[f"{arm_id}:{flag}"] += 1
 
+    def summary_line(self) -> str:
+        """Totals since start in one line (what a node logs when it stops)."""
+
+        def counts(counter: Counter[str]) -> str:
+            return ", ".join(f"{k} {v}" for k, v in sorted(counter.items()) if v) or "none"
+
+        return (
+            f"frames in {self.frames_in}, out {self.frames_out}; dropped: {counts(self.drops)}; "
+            f"bad messages: {counts(self.bad)}; processing errors: {counts(self.errors)}; "
+            f"sync: {counts(self.status)}"
+        )
+
     def arm_flags(self, arm_id: str) -> dict[str, int]:
         prefix = arm_id + ":"
         return {k[len(prefix):]: v for k, v in self.flags.items() if k.startswith(prefix)}

@@ -310,4 +310,6 @@ class RoiNode(Node):
             self.engine.finish()
             if self.engine.pending:
                 self.stats.drop("shutdown", self.engine.pending)
+            summary = self.stats.summary_line()
+        self.get_logger().info(f"stopped: {summary}")
 
