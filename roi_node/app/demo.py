@@ -18,19 +18,11 @@ import shutil
 import signal
 import subprocess
 import sys
-import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from std_msgs.msg import String
 
 from ..bag.compare import compare_live_offline
 from ..core import topics
@@ -38,6 +30,7 @@ from ..core.config import load_rig_config
 from ..core.errors import RoiNodeError
 from ..core.resources import config_dir
 from ..report.strip import write_strip
+from ..ros.metadata_watch import MetadataWatch
 
 MARKER = ".roi_node_demo"
 DISCOVERY_TIMEOUT_S = 60.0
@@ -48,21 +41,6 @@ CHILD_ENV = {
     "MALLOC_TRIM_THRESHOLD_": "4000000000",
     "PYTHONUNBUFFERED": "1",
 }
-
-
-@dataclass
-class _Watch:
-    """Receive time - source stamp of every metadata record (camera stamp -> ROI record here)."""
-
-    latency_ms: list[float] = field(default_factory=list)
-    frames: int = 0
-    lock: threading.Lock = field(default_factory=threading.Lock)
-
-    def on_metadata(self, msg: String) -> None:
-        stamp = json.loads(msg.data)["stamp_ns"]
-        with self.lock:
-            self.latency_ms.append((time.time_ns() - stamp) / 1e6)
-            self.frames += 1
 
 
 def _prepare_out(out: Path) -> None:
@@ -125,21 +103,7 @@ def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed
     print(f"roi-node demo: rig {rig.rig_id} ({config}), arms {', '.join(arms)}; {duration_s:g} s at {rate_hz:g} Hz; "
           f"ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} (loopback only) -> {out}/", flush=True)
     started = time.monotonic()
-    watch = _Watch()
-    context = Context()
-    rclpy.init(context=context, domain_id=int(env["ROS_DOMAIN_ID"]))
-    node = Node("roi_node_demo_watch", context=context)
-    node.create_subscription(String, topics.METADATA, watch.on_metadata, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    stop_spin = threading.Event()
-
-    def spin() -> None:
-        while not stop_spin.is_set():
-            executor.spin_once(timeout_sec=0.05)
-
-    spinner = threading.Thread(target=spin)
-    spinner.start()
+    watch = MetadataWatch(int(env["ROS_DOMAIN_ID"]))
     procs: dict[str, tuple[subprocess.Popen[bytes], Path]] = {}
     try:
         # a recording run wants every frame: a 1 s pending queue rides out a busy moment (the live default, 8, favours latency)
@@ -147,7 +111,7 @@ def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed
         procs["node"] = (_start(node_args, env, logs / "node.log"), logs / "node.log")
         procs["recorder"] = (_start(_cli("record", "-o", str(session), "--topics", *record_topics), env, logs / "record.log"),
                              logs / "record.log")
-        _wait_for_recorder(node, record_topics, procs)
+        _wait_for_recorder(watch, record_topics, procs)
         sim_args = _cli("sim", "live", "--config", str(config), "--duration", str(duration_s), "--rate-hz", str(rate_hz),
                         "--seed", str(seed), "--min-subscribers", "2")
         sim = _start(sim_args, env, logs / "sim.log")
@@ -169,11 +133,7 @@ def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
                 proc.wait(timeout=20)
-        stop_spin.set()
-        spinner.join()
-        executor.shutdown()
-        node.destroy_node()
-        context.try_shutdown()
+        watch.close()
     live_s = time.monotonic() - started
 
     print("validating the recorded bag against the quality gates ...", flush=True)
@@ -198,7 +158,7 @@ def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed
     return 0 if ok else 1
 
 
-def _wait_for_recorder(node: Node, record_topics: list[str], procs: dict[str, tuple[subprocess.Popen[bytes], Path]]) -> None:
+def _wait_for_recorder(watch: MetadataWatch, record_topics: list[str], procs: dict[str, tuple[subprocess.Popen[bytes], Path]]) -> None:
     """Start the rig only once the recorder subscribes to the node's outputs (discovery takes ~1-3 s here).
 
     The recorder subscribes to the inputs once the rig publishes them; `sim --min-subscribers 2` waits for that.
@@ -208,10 +168,8 @@ def _wait_for_recorder(node: Node, record_topics: list[str], procs: dict[str, tu
         for name, (proc, log) in procs.items():
             if proc.poll() is not None:
                 raise RoiNodeError(f"demo: {name} exited with {proc.returncode} at start; see {log}")
-        ready = node.count_publishers(topics.METADATA) >= 1 and node.count_subscribers(topics.METADATA) >= 2
         outputs = [t for t in record_topics if t.startswith(topics.OUTPUT_NAMESPACE)]  # inputs: see sim
-        ready = ready and all(node.count_subscribers(t) >= 1 for t in outputs)
-        if ready:
+        if watch.outputs_connected(outputs, metadata_subscribers=2):
             break
         if time.monotonic() > deadline:
             logs = procs["node"][1].parent
@@ -220,7 +178,7 @@ def _wait_for_recorder(node: Node, record_topics: list[str], procs: dict[str, tu
     time.sleep(1.0)  # the node's writers match the recorder's readers a moment later
 
 
-def _progress(watch: _Watch, expected: int, started: float, final: bool = False) -> None:
+def _progress(watch: MetadataWatch, expected: int, started: float, final: bool = False) -> None:
     """One live status line: rewritten in place on a terminal, a new line every 2 s in a log."""
     with watch.lock:
         lat = np.asarray(watch.latency_ms[-300:]) if watch.latency_ms else None
@@ -245,7 +203,7 @@ def _recorded_counts(log: Path) -> dict[str, tuple[int, int]]:
     return counts
 
 
-def _summary(watch: _Watch, expected: int, logs: Path, validation: dict[str, Any], comparison: Any, live_s: float, out: Path,
+def _summary(watch: MetadataWatch, expected: int, logs: Path, validation: dict[str, Any], comparison: Any, live_s: float, out: Path,
              strip: Path | None) -> dict[str, Any]:
     lat = np.asarray(watch.latency_ms) if watch.latency_ms else np.zeros(1)
     recorded = _recorded_counts(logs / "record.log")

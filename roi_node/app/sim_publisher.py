@@ -18,31 +18,25 @@ import queue
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import CameraInfo, Image, JointState
-
-from ..core import topics
-from ..core.errors import RoiNodeError
-from ..ros.conversions import camera_info_msg, header, image_msg
 from ..sim.rig_sim import CameraInfoEvent, ImageEvent, JointStateEvent, SimEvent, SimRig
 
 LEAD_NS = 1_000_000_000  # the first stamp lies this far ahead of start: rendering gets a head start
 AHEAD_EVENTS = 256
 PRERENDER_BYTES = 2 << 30  # frames of a run rendered before it starts (20 s of 720p30 is 1.7 GB)
-DISCOVERY_TIMEOUT_S = 30.0
+
+
+if TYPE_CHECKING:
+    from ..ros.rig_publisher import RigPublisher
 
 
 class SimPublisher:
-    def __init__(self, node: Node, config: Path, *, seed: int, rate_hz: float, joint_rate_hz: float, min_subscribers: int) -> None:
-        self.node = node
+    """Paces a SimRig's events on the wall clock and hands them to a RigPublisher."""
+
+    def __init__(self, rig: RigPublisher, config: Path, *, seed: int, rate_hz: float, joint_rate_hz: float, min_subscribers: int) -> None:
+        self.rig = rig
         self.min_subscribers = min_subscribers
-        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.image_pub = node.create_publisher(Image, topics.IMAGE, qos)
-        self.info_pub = node.create_publisher(CameraInfo, topics.CAMERA_INFO, qos)
-        joint_qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-        self.joint_pub = node.create_publisher(JointState, topics.JOINT_STATES, joint_qos)
         # built before the clock starts (scene rendering takes ~1 s); `run` moves its timeline to "now"
         self.sim = SimRig(config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz)
         self.frames = 0
@@ -57,17 +51,6 @@ class SimPublisher:
         frame_bytes = camera.width_px * camera.height_px * 3
         if self.sim.frame_count(duration_s) * frame_bytes <= PRERENDER_BYTES:
             self._prerendered = list(self.sim.events(duration_s))
-
-    def wait_for_subscribers(self) -> None:
-        deadline = time.monotonic() + DISCOVERY_TIMEOUT_S
-        while min(self.image_pub.get_subscription_count(), self.joint_pub.get_subscription_count()) < self.min_subscribers:
-            if time.monotonic() > deadline:
-                raise RoiNodeError(
-                    f"sim: {self.image_pub.get_subscription_count()} subscriber(s) on {self.image_pub.topic_name} after "
-                    f"{DISCOVERY_TIMEOUT_S:g} s, expected {self.min_subscribers}"
-                )
-            time.sleep(0.05)
-        time.sleep(1.0)  # readers match this writer a moment after it matched them: data before that is lost
 
     def run(self, duration_s: float) -> None:
         self.start_ns = time.time_ns() + LEAD_NS
@@ -108,33 +91,33 @@ class SimPublisher:
         self.late_ms_max = max(self.late_ms_max, -wait / 1e6)
         stamp = self.start_ns + event.stamp_ns
         if isinstance(event, JointStateEvent):
-            self.joint_pub.publish(JointState(header=header(stamp, ""), name=list(event.names), position=list(event.positions)))
+            self.rig.joint_state(stamp, event.names, event.positions)
             self.joint_states += 1
         elif isinstance(event, CameraInfoEvent):
-            cam = event.camera
-            self.info_pub.publish(camera_info_msg(stamp, event.frame_id, cam, cam.width_px, cam.height_px))
+            self.rig.camera_info(stamp, event.frame_id, event.camera)
         elif isinstance(event, ImageEvent):
-            self.image_pub.publish(image_msg(stamp, event.frame_id, event.image))
+            self.rig.image(stamp, event.frame_id, event.image)
             self.frames += 1
 
 
 def run_live(
     config: Path, *, duration_s: float, rate_hz: float, joint_rate_hz: float, seed: int, min_subscribers: int, ros_args: list[str]
 ) -> int:
+    from ..ros.rig_publisher import RigPublisher
     from ..ros.spin import ros_context
 
     with ros_context(ros_args):
-        node = Node("roi_node_sim")
-        sim = SimPublisher(node, config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, min_subscribers=min_subscribers)
+        rig = RigPublisher()
+        sim = SimPublisher(rig, config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, min_subscribers=min_subscribers)
         try:
             sim.prepare(duration_s)
-            sim.wait_for_subscribers()
+            rig.wait_for_subscribers(min_subscribers)
             sim.run(duration_s)
             time.sleep(0.5)  # reliable subscribers fetch the tail
         except KeyboardInterrupt:
             print("roi-node sim: interrupted")
         finally:
-            node.destroy_node()
+            rig.close()
     print(
         f"roi-node sim: published {sim.frames} frames and {sim.joint_states} joint states; "
         f"latest send {sim.late_ms_max:.1f} ms behind its stamp; timeline start {sim.start_ns} ns"
