@@ -9,12 +9,14 @@ wrong type or name, and silent input streams.
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
+import yaml
 from diagnostic_msgs.msg import DiagnosticStatus
 
 from roi_node.core.robot_models import resolve_robot_reference
@@ -161,6 +163,7 @@ def test_parameters_of_the_wrong_type_or_name_stop_the_start_with_one_line(tmp_p
         (["opencv_threads:=1.5"], ["parameter opencv_threads", "expected an integer", "double"]),
         (["global_veiw:=false"], ["parameter global_veiw", "not a parameter of roi_node"]),
         (["sync.max_wait_ms:=abc"], ["parameter sync.max_wait_ms", "expected a double", "string"]),
+        (["sync.max_skew_ms:=1e308"], ["parameter sync.max_skew_ms", "<= 10000 ms"]),
     ):
         result = subprocess.run([sys.executable, *run_args(*params)], cwd=REPO, env=env, capture_output=True, text=True, timeout=60)
         assert result.returncode == 2, (params, result.stderr)
@@ -185,3 +188,45 @@ def test_an_integer_for_a_double_is_accepted_and_silent_streams_turn_diagnostics
     silent = [m for m in messages(collector, "roi_node: input") if "no frames" in m]
     assert silent and "/image_raw" in silent[-1] and "joint states on joint_states" in silent[-1]
     assert levels(collector, "roi_node: input")[-1] == ERROR
+
+
+def test_run_with_a_urdf_that_is_not_a_tree_exits_with_one_line_and_no_signal(tmp_path: Path) -> None:
+    text = resolve_robot_reference("example-robot-data:panda", "test").read_text()
+    urdf = tmp_path / "two_parents.urdf"
+    bogus = '<joint name="j" type="fixed"><parent link="panda_link0"/><child link="panda_hand"/></joint>'
+    urdf.write_text(text.replace("</robot>", bogus + "</robot>"))
+    doc = yaml.safe_load(BIMANUAL.read_text())
+    for robot in doc["robots"]:
+        robot["urdf"] = str(urdf)
+    doc["camera"]["intrinsics"] = str(CONFIG / "front_intrinsics.yaml")
+    rig = tmp_path / "rig.yaml"
+    rig.write_text(yaml.safe_dump(doc))
+    result = subprocess.run([sys.executable, *run_args(config=rig)], cwd=REPO, env=ros_env(next_domain()), capture_output=True,
+                            text=True, timeout=60)
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "link 'panda_hand'" in lines[0] and str(urdf) in lines[0], result.stderr
+
+
+def test_play_of_a_truncated_bag_and_play_interrupted_say_one_line(tmp_path: Path) -> None:
+    from roi_node.core.config import load_rig_config
+    from roi_node.core.pipeline import RoiPipeline
+
+    from .bagtools import small_rig, write_bag
+
+    bag = tmp_path / "bag"
+    write_bag(bag, RoiPipeline(load_rig_config(small_rig(tmp_path))), frames=300)
+    data = next(bag.glob("*.mcap")).read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    env = ros_env(next_domain())
+    truncated = subprocess.run([sys.executable, "-m", "roi_node.cli", "play", str(cut)], cwd=REPO, env=env, capture_output=True,
+                               text=True, timeout=60)
+    assert truncated.returncode == 2 and "Traceback" not in truncated.stderr, truncated.stderr
+    assert len(truncated.stderr.strip().splitlines()) == 1 and str(cut) in truncated.stderr
+    with process(["-m", "roi_node.cli", "play", str(bag)], env, tmp_path / "play.log") as player:
+        time.sleep(6.0)  # discovery wait, then playing a 10 s bag
+        player.send_signal(signal.SIGINT)
+        player.wait(timeout=20)
+    log = (tmp_path / "play.log").read_text()
+    assert player.returncode == 130 and "interrupted" in log and "Traceback" not in log and "RCLError" not in log, log

@@ -11,20 +11,40 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
 from .camera import CameraModel, load_calibration_yaml
 from .errors import CalibrationError, ConfigError
 from .robot_models import EXAMPLE_ROBOT_DATA_PREFIX, resolve_robot_reference
+from .sync import SyncPolicy
 from .transforms import Transform
 from .yaml_file import read_yaml
 
 RIG_SCHEMA = "roi_node/rig/v1"
-SYNC_POLICIES = ("interpolate", "nearest", "exact", "latest")
-RESIZE_POLICIES = ("stretch", "letterbox")
-INTERPOLATIONS = ("area", "area_pyramid")
-PADDING_MODES = ("zero",)
+
+
+class ResizePolicy(StrEnum):
+    STRETCH = "stretch"  # the window fills the output, aspect changed
+    LETTERBOX = "letterbox"  # aspect kept, bars of padding
+
+
+class Interpolation(StrEnum):
+    """How a window larger than the output is shrunk (enlarging is always linear)."""
+
+    AREA = "area"  # exact area resampling (cv2.INTER_AREA)
+    AREA_PYRAMID = "area_pyramid"  # exact 2x halvings, then area
+
+
+class PaddingMode(StrEnum):
+    ZERO = "zero"
+
+
+SYNC_POLICIES = tuple(p.value for p in SyncPolicy)
+RESIZE_POLICIES = tuple(p.value for p in ResizePolicy)
+INTERPOLATIONS = tuple(i.value for i in Interpolation)
+PADDING_MODES = tuple(p.value for p in PaddingMode)
 MAX_TEXT_CHARS = 256  # ids, frame names, prefixes: copied into every record and topic name
 MAX_OUTPUT_SIDE_PX = 4096  # an ROI or global view larger than this is a mistake, not a rig
 MAX_WINDOW_SIDE_PX = 8192  # the crop window after `aspect`: the canvas is materialised

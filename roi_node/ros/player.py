@@ -15,12 +15,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import rclpy
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
-from ..bag.reader import open_bag
+from ..bag.reader import open_bag, read_messages
 from ..core.errors import BagError
 from .conversions import time_msg
 from .msg_types import from_bag_qos, message_class
@@ -41,7 +42,7 @@ def play(bag: Path, *, rate: float, loop: bool, clock: bool, topics: Sequence[st
             return _play(node, bag, rate, loop, clock, wanted)
         except KeyboardInterrupt:
             print("roi-node play: interrupted")
-            return 0
+            return 130
         finally:
             node.destroy_node()
 
@@ -63,7 +64,9 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
             start_wall = time.monotonic_ns()
             first: int | None = None
             last_clock = -CLOCK_PERIOD_NS
-            for connection, log_ns, raw in reader.messages(connections=connections):
+            for connection, log_ns, raw in read_messages(reader, connections, bag):
+                if not rclpy.ok(context=node.context):  # SIGINT/SIGTERM: rclpy shut the context down
+                    raise KeyboardInterrupt
                 first = log_ns if first is None else first
                 due = start_wall + int((log_ns - first) / rate)
                 while (wait := due - time.monotonic_ns()) > 0:
@@ -71,7 +74,12 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
                 if clock_pub is not None and log_ns - last_clock >= CLOCK_PERIOD_NS:
                     clock_pub.publish(Clock(clock=time_msg(log_ns)))
                     last_clock = log_ns
-                publishers[connection.id].publish(bytes(raw))
+                try:
+                    publishers[connection.id].publish(bytes(raw))
+                except RCLError:
+                    if rclpy.ok(context=node.context):
+                        raise
+                    raise KeyboardInterrupt from None  # the signal arrived while publishing
                 sent += 1
             if not loop or not rclpy.ok(context=node.context):
                 break
