@@ -1,0 +1,181 @@
+"""Verifying a bag's storage: chunk CRCs, the index, counts against metadata.yaml.
+
+`check_bag` reads every chunk of every MCAP file through its summary index,
+decompresses it and checks its CRC (when the writer stored one), counts the
+messages per topic and compares them with the file's statistics and with
+metadata.yaml. A damaged chunk is reported with its file, byte offset and the
+topics whose messages it holds (from the chunk's message indexes), so a user
+knows what is gone. Readers call `first_damage` to turn "cannot read" into
+that line.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.reader import make_reader
+from mcap.records import Chunk, ChunkIndex, Message
+from mcap.stream_reader import breakup_chunk
+
+from ..core.errors import BagError
+
+_CHUNK_ERRORS: tuple[type[BaseException], ...] = (McapError, ValueError, struct.error, EOFError, OSError, RuntimeError, IndexError)
+
+
+@dataclass(frozen=True)
+class ChunkDamage:
+    file: Path
+    offset: int
+    reason: str
+    topics: tuple[str, ...]
+
+    def line(self) -> str:
+        affected = ", ".join(self.topics) or "unknown topics"
+        return f"{self.file}: chunk at byte {self.offset} is damaged ({self.reason}); topics affected: {affected}"
+
+
+@dataclass
+class FileCheck:
+    path: Path
+    chunks: int = 0
+    counts: Counter[str] = field(default_factory=Counter)
+    damage: list[ChunkDamage] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class BagCheck:
+    path: Path
+    files: tuple[FileCheck, ...]
+    problems: tuple[str, ...]
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems and all(not f.damage and not f.problems for f in self.files)
+
+    def lines(self) -> list[str]:
+        out = [f"check: {self.path} ({len(self.files)} storage files)"]
+        for f in self.files:
+            state = "ok" if not f.damage and not f.problems else "DAMAGED"
+            out.append(f"  {f.path.name}: {f.chunks} chunks, {sum(f.counts.values())} messages readable: {state}")
+            out.extend(f"    {d.line()}" for d in f.damage)
+            out.extend(f"    {p}" for p in f.problems)
+        out.extend(f"  {p}" for p in self.problems)
+        out.append("result: ok" if self.ok else "result: DAMAGED")
+        return out
+
+
+def storage_files(path: Path) -> list[Path]:
+    """The storage files of a bag folder (as metadata.yaml lists them) or the one file given."""
+    if not path.is_dir():
+        return [path]
+    info = _metadata(path)
+    listed = [path / str(name) for name in info.get("relative_file_paths") or []]
+    return listed or sorted(path.glob("*.mcap"))
+
+
+def _metadata(path: Path) -> dict[str, Any]:
+    meta = path / "metadata.yaml"
+    if not meta.is_file():
+        return {}
+    try:
+        doc = yaml.safe_load(meta.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise BagError(f"{meta}: not readable YAML ({exc})") from exc
+    info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
+    return info if isinstance(info, dict) else {}
+
+
+def _read_chunk(stream: Any, index: ChunkIndex) -> Chunk:
+    stream.seek(index.chunk_start_offset)
+    data = ReadDataStream(stream)
+    if data.read1() != Opcode.CHUNK:
+        raise McapError("no chunk record at the indexed offset")
+    data.read8()
+    return Chunk.read(data)
+
+
+def check_file(path: Path) -> FileCheck:
+    result = FileCheck(path)
+    if path.suffix != ".mcap":
+        result.problems.append(f"{path}: only MCAP storage can be checked")
+        return result
+    try:
+        stream = path.open("rb")
+    except OSError as exc:
+        result.problems.append(f"{path}: cannot open ({exc.strerror or exc})")
+        return result
+    with stream:
+        try:
+            summary = make_reader(stream).get_summary()
+        except _CHUNK_ERRORS as exc:
+            result.problems.append(f"{path}: no readable summary or footer ({exc or type(exc).__name__}): "
+                                   f"an unfinished recording? `roi-node recover {path}` finishes it")
+            return result
+        if summary is None:
+            result.problems.append(f"{path}: the file has no summary (no index to check)")
+            return result
+        topics = {cid: channel.topic for cid, channel in summary.channels.items()}
+        for index in summary.chunk_indexes:
+            affected = tuple(sorted({topics.get(cid, f"channel {cid}") for cid in index.message_index_offsets}))
+            try:
+                records = breakup_chunk(_read_chunk(stream, index), validate_crc=True)
+            except _CHUNK_ERRORS as exc:
+                result.damage.append(ChunkDamage(path, index.chunk_start_offset, str(exc) or type(exc).__name__, affected))
+                continue
+            result.chunks += 1
+            for record in records:
+                if isinstance(record, Message):
+                    result.counts[topics.get(record.channel_id, f"channel {record.channel_id}")] += 1
+        if summary.statistics is not None and not result.damage:
+            expected = Counter({topics.get(c, str(c)): n for c, n in summary.statistics.channel_message_counts.items() if n})
+            if expected != +result.counts:
+                result.problems.append(f"{path}: message counts {dict(result.counts)} differ from the file's statistics {dict(expected)}")
+    return result
+
+
+def check_bag(path: Path) -> BagCheck:
+    """Check every storage file of a bag; counts are compared with metadata.yaml when there is one."""
+    files = tuple(check_file(p) for p in storage_files(path))
+    problems: list[str] = []
+    info = _metadata(path) if path.is_dir() else {}
+    if info:
+        listed = {
+            str(t["topic_metadata"]["name"]): int(t.get("message_count", 0))
+            for t in info.get("topics_with_message_count") or []
+            if isinstance(t, dict) and isinstance(t.get("topic_metadata"), dict)
+        }
+        found: Counter[str] = Counter()
+        for f in files:
+            found.update(f.counts)
+        for topic, count in listed.items():
+            if found[topic] != count and not any(f.damage or f.problems for f in files):
+                problems.append(f"{path / 'metadata.yaml'}: {topic}: {count} messages listed, {found[topic]} in the storage files")
+        status = (info.get("custom_data") or {}).get("roi_node.status")
+        if status == "recording":
+            problems.append(f"{path / 'metadata.yaml'}: status is `recording`: the recorder never finished; `roi-node recover {path}`")
+    return BagCheck(path, files, tuple(problems))
+
+
+def first_damage(path: Path) -> str | None:
+    """The first damaged chunk (or unreadable file) of a bag, as one line; None when the storage checks out."""
+    try:
+        result = check_bag(path)
+    except BagError as exc:
+        return str(exc)
+    for f in result.files:
+        if f.damage:
+            d = f.damage[0]
+            others = len(f.damage) - 1
+            return d.line() + (f" (and {others} more damaged chunks; `roi-node inspect --check {path}` lists them)" if others else "")
+        if f.problems:
+            return f.problems[0]
+    return None
