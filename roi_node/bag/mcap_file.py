@@ -68,7 +68,7 @@ class Compression(StrEnum):
 
 def _compressor(compression: Compression) -> Callable[[bytes], bytes]:
     if compression is Compression.LZ4:
-        return lz4.frame.compress  # type: ignore[no-any-return]
+        return lz4.frame.compress
     if compression is Compression.ZSTD:
         return zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress
     return bytes
@@ -253,7 +253,7 @@ class McapFileWriter:
         summary = RecordBuilder()
         groups: list[SummaryOffset] = []
 
-        def group(opcode: Opcode, write: Callable[[], None]) -> None:
+        def group(opcode: Opcode, write: Callable[[], object]) -> None:
             start = summary.count
             write()
             if summary.count > start:

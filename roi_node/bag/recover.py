@@ -16,6 +16,7 @@ from __future__ import annotations
 import re
 import struct
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -23,6 +24,7 @@ from typing import BinaryIO
 from mcap.exceptions import McapError
 from mcap.records import Channel, Chunk, DataEnd, Footer, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
+from rosbags.interfaces import Qos
 from rosbags.rosbag2.metadata import parse_qos
 
 from ..core.errors import BagError
@@ -79,7 +81,8 @@ class RecoverySummary:
         ends = [f.end_ns for f in self.files if f.end_ns is not None]
         span = (max(ends) - min(starts)) / 1e9 if starts and ends else 0.0
         counts = self.counts()
-        out = [f"recovered {sum(counts.values())} messages, {span:.3f} s, from {self.input_path} into {self.output_path} (status {RECOVERED})"]
+        total = sum(counts.values())
+        out = [f"recovered {total} messages, {span:.3f} s, from {self.input_path} into {self.output_path} (status {RECOVERED})"]
         out += [f"  {topic}: {n} messages" for topic, n in sorted(counts.items())]
         out += [f"  {f.line()}" for f in self.files]
         return out
@@ -121,7 +124,7 @@ class _Copier:
         self.start_ns: int | None = None
         self.end_ns: int | None = None
 
-    def records(self, records: list[object]) -> None:
+    def records(self, records: Sequence[object]) -> None:
         for record in records:
             if isinstance(record, Schema):
                 self.schemas[record.id] = record
@@ -156,7 +159,7 @@ class _Copier:
                          channel.metadata.get("offered_qos_profiles", ""))
 
     @staticmethod
-    def _qos(channel: Channel) -> list:  # type: ignore[type-arg]
+    def _qos(channel: Channel) -> list[Qos]:
         text = channel.metadata.get("offered_qos_profiles", "")
         try:
             return parse_qos(text) if text else [qos_profile(reliable=True)]
