@@ -18,14 +18,14 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from .errors import RoiNodeError
+from .errors import BagError
 
 PARTIAL_TAG = ".partial-"
 ASIDE_TAG = ".replaced-"
 INTERRUPTED_SUFFIX = ".interrupted"
 
 
-class OutputExistsError(RoiNodeError):
+class OutputExistsError(BagError):
     """The output path is taken and --overwrite was not given."""
 
 

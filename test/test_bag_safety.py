@@ -1,0 +1,157 @@
+"""Bag integrity and safe outputs, on real bags: chunk CRCs, inspect --check, recover, compression, atomic --overwrite.
+
+Input bags come from the simulated rig (roi_node/sim) on a scaled-down
+camera so they are cheap; damage is done to the bytes on disk, faults come
+from the storage writer's environment hook (a real failing write, nothing
+mounted), and every result is read back with rosbags and the mcap package.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.reader import read_ros2_messages
+from rosbags.highlevel import AnyReader
+
+from roi_node.bag.replay import replay_bag
+from roi_node.bag.storage_io import FAULT_ENV
+from roi_node.bag.writer import typestore
+from roi_node.sim.bag_sink import write_sim_bag
+
+from .bagtools import small_rig
+from .conftest import REPO
+from .roibags import read_records
+
+IMAGE = "/image_raw"
+
+
+def _cli(*args: str | Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "roi_node.cli", *map(str, args)], cwd=REPO, capture_output=True, text=True,
+                          env={**os.environ, **(env or {})}, timeout=120)
+
+
+def _digest(path: Path) -> dict[str, str]:
+    """Every file under a bag folder with its sha256: byte-identity of a whole output."""
+    return {str(p.relative_to(path)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(path.rglob("*")) if p.is_file()}
+
+
+def _counts(path: Path) -> dict[str, int]:
+    with AnyReader([path], default_typestore=typestore()) as reader:
+        return {t: int(i.msgcount) for t, i in reader.topics.items()}
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return small_rig(tmp_path_factory.mktemp("rig"))
+
+
+@pytest.fixture(scope="module")
+def sim_bag(tmp_path_factory: pytest.TempPathFactory, rig: Path) -> Path:
+    return write_sim_bag(rig, tmp_path_factory.mktemp("sim") / "sim", duration_s=2.0, seed=3).path
+
+
+def test_chunks_carry_crcs_that_the_mcap_reader_verifies(sim_bag: Path) -> None:
+    storage = sim_bag / "sim.mcap"
+    with storage.open("rb") as stream:
+        reader = make_reader(stream, validate_crcs=True)
+        summary = reader.get_summary()
+        assert summary is not None and summary.chunk_indexes
+        assert sum(1 for _ in reader.iter_messages()) == summary.statistics.message_count  # type: ignore[union-attr]
+    with storage.open("rb") as stream:
+        stream.seek(summary.chunk_indexes[0].chunk_start_offset + 9 + 24)
+        crc = int.from_bytes(stream.read(4), "little")
+    assert crc != 0
+    check = _cli("inspect", "--check", sim_bag)
+    assert check.returncode == 0, check.stdout + check.stderr
+    assert check.stdout.strip().endswith("result: ok")
+
+
+def test_a_corrupted_chunk_is_named_by_inspect_check_and_replay(tmp_path: Path, sim_bag: Path, rig: Path) -> None:
+    bag = tmp_path / "damaged"
+    shutil.copytree(sim_bag, bag)
+    storage = bag / "sim.mcap"
+    with storage.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    index = summary.chunk_indexes[len(summary.chunk_indexes) // 2]
+    topics = sorted(summary.channels[c].topic for c in index.message_index_offsets)
+    assert IMAGE in topics
+    with storage.open("r+b") as stream:  # 4 KB of flipped bytes inside the chunk's data (pixels)
+        start = index.chunk_start_offset + index.chunk_length // 2
+        stream.seek(start)
+        data = stream.read(4096)
+        stream.seek(start)
+        stream.write(bytes(b ^ 0xFF for b in data))
+    where = f"{storage}: chunk at byte {index.chunk_start_offset} is damaged"
+    check = _cli("inspect", "--check", bag)
+    assert check.returncode == 1
+    assert where in check.stdout and f"topics affected: {', '.join(topics)}" in check.stdout
+    out = tmp_path / "out"
+    replay = _cli("replay", bag, "-o", out, "--config", rig)
+    assert replay.returncode == 2
+    lines = replay.stderr.strip().splitlines()
+    assert len(lines) == 1 and where in lines[0] and f"topics affected: {', '.join(topics)}" in lines[0], replay.stderr
+    assert not out.exists() and not list(tmp_path.glob(".out*"))
+
+
+@pytest.mark.parametrize("compression", ["lz4", "zstd"])
+def test_compressed_bags_replay_like_raw_ones(tmp_path: Path, sim_bag: Path, rig: Path, compression: str) -> None:
+    packed = write_sim_bag(rig, tmp_path / "packed", duration_s=2.0, seed=3, chunk_compression=compression).path
+    with (packed / "packed.mcap").open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None and {c.compression for c in summary.chunk_indexes} == {compression}
+    assert sum(1 for _ in read_ros2_messages(str(packed / "packed.mcap"))) == sum(_counts(sim_bag).values())
+    plain, squeezed = tmp_path / "plain_roi", tmp_path / "packed_roi"
+    replay_bag(sim_bag, plain, rig)
+    out = _cli("replay", packed, "-o", squeezed, "--config", rig, "--compression", compression)
+    assert out.returncode == 0, out.stderr
+    assert read_records(squeezed) == read_records(plain) and len(read_records(plain)) == 60
+
+
+def test_overwrite_with_a_failing_run_keeps_the_old_output_byte_identical(tmp_path: Path, sim_bag: Path, rig: Path) -> None:
+    out = tmp_path / "out"
+    first = _cli("replay", sim_bag, "-o", out, "--config", rig)
+    assert first.returncode == 0, first.stderr
+    before = _digest(out)
+    failed = _cli("replay", sim_bag, "-o", out, "--config", rig, "--overwrite", env={FAULT_ENV: "200000"})
+    assert failed.returncode == 2
+    assert failed.stderr.strip().splitlines()[-1].startswith("roi-node replay: error: ")
+    assert "write failed (No space left on device)" in failed.stderr
+    assert _digest(out) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no partial sibling left
+
+
+def test_recover_finishes_a_bag_cut_mid_record_and_leaves_the_input_alone(tmp_path: Path, sim_bag: Path, rig: Path) -> None:
+    cut = tmp_path / "cut.mcap"
+    data = (sim_bag / "sim.mcap").read_bytes()
+    with (sim_bag / "sim.mcap").open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    last = summary.chunk_indexes[-3]
+    cut.write_bytes(data[: last.chunk_start_offset + last.chunk_length // 2])  # no summary, no footer, a torn chunk
+    before = hashlib.sha256(cut.read_bytes()).hexdigest()
+    refused = _cli("replay", cut, "-o", tmp_path / "x", "--config", rig)
+    assert refused.returncode == 2 and f"`roi-node recover {cut}`" in refused.stderr
+    done = _cli("recover", cut)
+    assert done.returncode == 0, done.stderr
+    recovered = tmp_path / "cut_recovered"
+    assert f"into {recovered} (status recovered)" in done.stdout and "cut inside a record" in done.stdout
+    assert hashlib.sha256(cut.read_bytes()).hexdigest() == before
+    # every message of the whole chunks before the cut, and nothing else
+    with (sim_bag / "sim.mcap").open("rb") as stream:
+        expected = sum(1 for _, _, m in make_reader(stream).iter_messages() if m.log_time < last.message_start_time)
+    got = _counts(recovered)
+    assert sum(got.values()) == expected
+    assert all(f"  {topic}: {n} messages" in done.stdout for topic, n in got.items())
+    assert sum(1 for _ in read_ros2_messages(str(recovered / "cut_recovered.mcap"))) == expected
+    assert _cli("inspect", "--check", recovered).returncode == 0
+    out = tmp_path / "roi"
+    assert _cli("replay", recovered, "-o", out, "--config", rig).returncode == 0
+    assert len(read_records(out)) == got[IMAGE]
