@@ -116,9 +116,9 @@ def check_file(path: Path) -> FileCheck:
     with stream:
         try:
             summary = make_reader(stream).get_summary()
-        except _CHUNK_ERRORS as exc:
-            result.problems.append(f"{path}: no readable summary or footer ({exc or type(exc).__name__}): "
-                                   f"an unfinished recording? `roi-node recover {path}` finishes it")
+        except _CHUNK_ERRORS:
+            result.problems.append(f"{path}: no readable footer (the file is truncated or was never finished); "
+                                   f"`roi-node recover {path}` finishes it")
             return result
         if summary is None:
             result.problems.append(f"{path}: the file has no summary (no index to check)")

@@ -151,7 +151,7 @@ class BagWriter:
         if exc_type is None:
             self.close()
         elif issubclass(exc_type, KeyboardInterrupt):
-            self.close("interrupted")
+            self.close("interrupted", aside=True)
         elif self._on_error == "finalize":
             self.close("failed")
         else:
@@ -321,11 +321,11 @@ class BagWriter:
         tmp.write_text(yaml.safe_dump(doc, default_flow_style=False, sort_keys=False))
         os.replace(tmp, self._dir / METADATA_NAME)
 
-    def close(self, status: str = "complete") -> None:
+    def close(self, status: str = "complete", *, aside: bool = False) -> None:
         """Finalize (summary + metadata.yaml); `status` lands in the bag's custom data.
 
-        An atomic bag is then renamed into place (or, interrupted, to
-        `<out>.interrupted`); `final_path` says where it is.
+        An atomic bag is then renamed into place, or with `aside` (a Ctrl-C
+        left the `with` block) to `<out>.interrupted`; `final_path` says where it is.
         """
         if not self._open:
             return
@@ -342,7 +342,7 @@ class BagWriter:
             (self._dir / RESERVE_NAME).unlink(missing_ok=True)
         if self._in_place:
             return
-        if self.status == "interrupted":
+        if aside:
             self.final_path = keep_interrupted(self._dir, self.path)
             return
         try:
