@@ -4,8 +4,10 @@ For 1280x720 and 1920x1080 rgb8 frames (the simulated rig's render, resized,
 plus sensor-like noise so compressors see what a real camera gives them),
 writes the same frames through the recorder's path (serialized Image CDR ->
 [ImageTranscoder] -> BagWriter in place, CRCs on) for each case:
-  raw + none (baseline), raw + lz4, raw + zstd, jpeg q90 / q75 + none, png + none.
-Prints bytes per frame and CPU ms per frame (process time, all threads), and
+  raw + none (baseline), raw + lz4, raw + zstd, jpeg q90 / q75 + none, png + none,
+  and raw through rosbags' Writer (no CRCs), the writer roi_node used before.
+Prints bytes per frame and CPU ms per frame (process time, all threads; the
+median of interleaved rounds, after a warm-up), and
 both as ratios to the raw baseline measured in this run, plus the share of
 one core that 30 frames/s would take. The machine may be shared: read the ratios.
 Run: `.venv/bin/python bench/bagwrite.py [--frames 40]`.
@@ -15,14 +17,17 @@ from __future__ import annotations
 
 import argparse
 import shutil
+import statistics
 import tempfile
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
+from rosbags.rosbag2 import StoragePlugin, Writer
 
 from roi_node.bag.mcap_file import Compression
+from roi_node.bag.memory import tune_malloc_for_large_frames
 from roi_node.bag.messages import MessageFactory
 from roi_node.bag.transcode import IMAGE_TYPE, ImageTranscoder, ImageTransport
 from roi_node.bag.writer import BagWriter, typestore
@@ -71,11 +76,26 @@ def run_case(folder: Path, cdrs: list[bytes], transport: ImageTransport, quality
     return size / len(cdrs), cpu_ms
 
 
+def run_rosbags(folder: Path, cdrs: list[bytes]) -> tuple[float, float]:
+    """The same raw frames through rosbags' Writer (no chunk CRCs): the writer roi_node used before."""
+    out = folder / "rosbags"
+    shutil.rmtree(out, ignore_errors=True)
+    cpu0 = time.process_time()
+    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connection = writer.add_connection("/image_raw", IMAGE_TYPE, typestore=typestore())
+        for i, cdr in enumerate(cdrs):
+            writer.write(connection, 1_000_000_000 + i * 33_333_333, cdr)
+    cpu_ms = (time.process_time() - cpu0) * 1e3 / len(cdrs)
+    return sum(p.stat().st_size for p in out.glob("*.mcap")) / len(cdrs), cpu_ms
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=40)
+    parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds over all cases; the median is printed")
     args = parser.parse_args()
     cv2.setNumThreads(1)
+    tune_malloc_for_large_frames()  # as `roi-node replay` does; the live processes get the same via the environment
     store = typestore()
     factory = MessageFactory(store)
     folder = Path(tempfile.mkdtemp(prefix="bagwrite_"))
@@ -86,10 +106,16 @@ def main() -> None:
                     for i in range(args.frames)]
             print(f"{width}x{height}, {args.frames} frames ({len(cdrs[0]) / 1e6:.2f} MB raw each), noise sigma {NOISE_SIGMA}:")
             print(f"  {'case':<10} {'MB/frame':>9} {'size/raw':>9} {'CPU ms/frame':>13} {'CPU/raw':>8} {'core share @30 Hz':>18}")
-            base: tuple[float, float] | None = None
-            for name, transport, quality, compression in CASES:
-                size, cpu = run_case(folder, cdrs, transport, quality, compression)
-                base = base or (size, cpu)
+            cases = [*CASES, ("rosbags", ImageTransport.RAW, 0, Compression.NONE)]
+            run_case(folder, cdrs, ImageTransport.RAW, 0, Compression.NONE)  # warm-up: first-touch page faults of the buffers
+            samples: dict[str, list[tuple[float, float]]] = {name: [] for name, *_ in cases}
+            for _ in range(args.rounds):
+                for name, transport, quality, compression in cases:
+                    run = run_rosbags(folder, cdrs) if name == "rosbags" else run_case(folder, cdrs, transport, quality, compression)
+                    samples[name].append(run)
+            base = samples["raw"][0][0], statistics.median(cpu for _, cpu in samples["raw"])
+            for name, *_ in cases:
+                size, cpu = samples[name][0][0], statistics.median(c for _, c in samples[name])
                 print(f"  {name:<10} {size / 1e6:>9.3f} {size / base[0]:>9.3f} {cpu:>13.2f} {cpu / base[1]:>8.2f} {cpu * 30 / 1000:>17.0%}")
     finally:
         shutil.rmtree(folder, ignore_errors=True)

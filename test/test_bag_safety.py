@@ -143,6 +143,8 @@ def test_recover_finishes_a_bag_cut_mid_record_and_leaves_the_input_alone(tmp_pa
     assert done.returncode == 0, done.stderr
     recovered = tmp_path / "cut_recovered"
     assert f"into {recovered} (status recovered)" in done.stdout and "cut inside a record" in done.stdout
+    torn = (last.message_end_time - last.message_start_time) / 1e9
+    assert f"a chunk of messages logged over {torn:.3f} s" in done.stdout  # what the torn chunk's header says was lost
     assert hashlib.sha256(cut.read_bytes()).hexdigest() == before
     # every message of the whole chunks before the cut, and nothing else
     with (sim_bag / "sim.mcap").open("rb") as stream:
@@ -155,3 +157,52 @@ def test_recover_finishes_a_bag_cut_mid_record_and_leaves_the_input_alone(tmp_pa
     out = tmp_path / "roi"
     assert _cli("replay", recovered, "-o", out, "--config", rig).returncode == 0
     assert len(read_records(out)) == got[IMAGE]
+
+
+def test_split_recording_lists_each_finished_file_in_metadata_yaml_as_it_goes(tmp_path: Path) -> None:
+    """The recorder's writer (in place): numbered files, metadata.yaml rewritten at each split, readable mid-recording."""
+    import yaml
+
+    from roi_node.bag.messages import MessageFactory
+    from roi_node.bag.writer import BagWriter, SplitPolicy
+
+    bag = tmp_path / "rec"
+    writer = BagWriter(bag, in_place=True, on_error="finalize", split=SplitPolicy(max_size_bytes=300_000), compression="zstd")
+    factory = MessageFactory(writer.typestore)
+    with writer:
+        writer.add_topic("/note", "std_msgs/msg/String")
+        for i in range(400):
+            writer.write("/note", 10**9 + i * 10**7, factory.string(f"{i:04d} " + "x" * (i % 7) * 2000))
+            if i == 250:
+                meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+                finished = meta["relative_file_paths"]
+                assert meta["custom_data"]["roi_node.status"] == "recording" and finished == [f"rec_{k}.mcap" for k in range(len(finished))]
+                assert len(finished) >= 2 and sum(f["message_count"] for f in meta["files"]) == meta["message_count"] < 251
+                for name in finished:  # a finished file is a complete MCAP file already
+                    assert sum(1 for _ in read_ros2_messages(str(bag / name))) == next(
+                        f["message_count"] for f in meta["files"] if f["path"] == name)
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["custom_data"]["roi_node.status"] == "complete" and len(meta["relative_file_paths"]) > len(finished)
+    assert sorted(p.name for p in bag.iterdir()) == sorted([*meta["relative_file_paths"], "metadata.yaml"])
+    assert all((bag / n).stat().st_size < 300_000 + 200_000 for n in meta["relative_file_paths"])
+    assert _counts(bag) == {"/note": 400}
+    with AnyReader([bag], default_typestore=typestore()) as reader:
+        texts = [reader.deserialize(raw, c.msgtype).data[:4] for c, _, raw in reader.messages()]
+    assert texts == [f"{i:04d}" for i in range(400)]
+    assert _cli("inspect", "--check", bag).returncode == 0
+
+
+def test_a_failing_validate_report_keeps_the_previous_report(tmp_path: Path, sim_bag: Path, rig: Path) -> None:
+    roi = tmp_path / "roi"
+    replay_bag(sim_bag, roi, rig)
+    report = tmp_path / "report"
+    first = _cli("validate", roi, "--report", report)
+    assert first.returncode in (0, 1), first.stderr
+    before = _digest(report)
+    broken = tmp_path / "broken"
+    shutil.copytree(roi, broken)
+    with (broken / "roi.mcap").open("r+b") as stream:
+        stream.truncate(5000)
+    failed = _cli("validate", roi, broken, "--report", report)
+    assert failed.returncode == 2 and "roi-node recover" in failed.stderr
+    assert _digest(report) == before and sorted(p.name for p in tmp_path.iterdir()) == ["broken", "report", "roi"]

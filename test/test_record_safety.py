@@ -79,11 +79,14 @@ def test_sigkilled_recorder_loses_at_most_a_second_and_recover_finishes_the_bag(
             rec.send_signal(signal.SIGKILL)
             rec.wait()
             assert pub.wait(timeout=60) == 0, (tmp_path / "pub.log").read_text()
+            rec_jpeg.send_signal(signal.SIGTERM)  # a process manager's stop: drained, finalized, exit 0
+            rec_jpeg.wait(timeout=30)
         finally:
             if pub.poll() is None:
                 pub.kill()
                 pub.wait()
     assert rec_jpeg.returncode == 0, (tmp_path / "jpeg.log").read_text()
+    assert f"bag {jpeg} finalized (complete)" in (tmp_path / "jpeg.log").read_text()
     published = [f["stamp_ns"] for f in json.loads((tmp_path / "truth.json").read_text())["frames"]]
 
     refused = _cli("inspect", killed)

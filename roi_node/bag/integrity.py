@@ -61,6 +61,23 @@ class BagCheck:
     def ok(self) -> bool:
         return not self.problems and all(not f.damage and not f.problems for f in self.files)
 
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "path": str(self.path),
+            "ok": self.ok,
+            "files": [
+                {
+                    "path": str(f.path),
+                    "chunks": f.chunks,
+                    "messages": dict(f.counts),
+                    "damaged_chunks": [{"offset": d.offset, "reason": d.reason, "topics": list(d.topics)} for d in f.damage],
+                    "problems": f.problems,
+                }
+                for f in self.files
+            ],
+            "problems": list(self.problems),
+        }
+
     def lines(self) -> list[str]:
         out = [f"check: {self.path} ({len(self.files)} storage files)"]
         for f in self.files:

@@ -22,9 +22,11 @@ from pathlib import Path
 from typing import BinaryIO
 
 from mcap.exceptions import McapError
+from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, DataEnd, Footer, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from rosbags.interfaces import Qos
+from rosbags.rosbag2 import ReaderError
 from rosbags.rosbag2.metadata import parse_qos
 
 from ..core.errors import BagError
@@ -48,6 +50,7 @@ class FileRecovery:
     finished: bool  # the file had its footer: nothing was lost
     stopped_at_byte: int | None  # where reading stopped at damage or a cut
     reason: str | None
+    lost_span_ns: tuple[int, int] | None = None  # log times of the chunk that was cut or damaged, when its header is readable
 
     @property
     def seconds(self) -> float:
@@ -61,7 +64,10 @@ class FileRecovery:
         if self.stopped_at_byte is None:
             return head + " (no footer, but every record is whole)"
         lost = self.size_bytes - self.stopped_at_byte
-        return head + f"; lost: the last {lost} bytes from byte {self.stopped_at_byte} ({self.reason})"
+        span = ""
+        if self.lost_span_ns is not None:
+            span = f", a chunk of messages logged over {(self.lost_span_ns[1] - self.lost_span_ns[0]) / 1e9:.3f} s"
+        return head + f"; lost: the last {lost} bytes from byte {self.stopped_at_byte} ({self.reason}{span})"
 
 
 @dataclass(frozen=True)
@@ -163,7 +169,7 @@ class _Copier:
         text = channel.metadata.get("offered_qos_profiles", "")
         try:
             return parse_qos(text) if text else [qos_profile(reliable=True)]
-        except Exception:  # rosbags raises its own error types for odd YAML; the profile is only informative
+        except (ReaderError, TypeError, AttributeError):  # odd YAML: the profile is only informative
             return [qos_profile(reliable=True)]
 
 
@@ -172,7 +178,18 @@ def _copy_file(writer: BagWriter, path: Path) -> FileRecovery:
     size = path.stat().st_size
     with path.open("rb") as stream:
         finished, stopped, reason = _copy_records(stream, copier)
-    return FileRecovery(path, size, dict(copier.counts), copier.start_ns, copier.end_ns, finished, stopped, reason)
+        span = None if stopped is None else _chunk_span(stream, stopped)
+    return FileRecovery(path, size, dict(copier.counts), copier.start_ns, copier.end_ns, finished, stopped, reason, span)
+
+
+def _chunk_span(stream: BinaryIO, offset: int) -> tuple[int, int] | None:
+    """The (start, end) log times in the header of a chunk record at `offset`, if one starts there."""
+    stream.seek(offset)
+    head = stream.read(1 + 8 + 16)
+    if len(head) < 25 or head[0] != Opcode.CHUNK:
+        return None
+    start, end = struct.unpack_from("<QQ", head, 9)
+    return (start, end) if start <= end else None
 
 
 def _copy_records(stream: BinaryIO, copier: _Copier) -> tuple[bool, int | None, str | None]:

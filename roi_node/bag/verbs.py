@@ -120,7 +120,7 @@ def _check(path: Path, as_json: bool) -> int:
         check_bag_path(path)
     result = check_bag(path)
     if as_json:
-        print(json.dumps({"path": str(path), "ok": result.ok, "lines": result.lines()}, indent=2))
+        print(json.dumps(result.as_dict(), indent=2))
     else:
         print("\n".join(result.lines()))
     return 0 if result.ok else EXIT_DAMAGED

@@ -20,7 +20,7 @@ from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
-from ..bag.reader import open_bag
+from ..bag.reader import open_bag, read_messages
 from ..core.errors import BagError
 from .conversions import time_msg
 from .msg_types import from_bag_qos, message_class
@@ -63,7 +63,7 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
             start_wall = time.monotonic_ns()
             first: int | None = None
             last_clock = -CLOCK_PERIOD_NS
-            for connection, log_ns, raw in reader.messages(connections=connections):
+            for connection, log_ns, raw in read_messages(reader, connections, bag):
                 first = log_ns if first is None else first
                 due = start_wall + int((log_ns - first) / rate)
                 while (wait := due - time.monotonic_ns()) > 0:
