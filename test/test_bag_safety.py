@@ -206,3 +206,36 @@ def test_a_failing_validate_report_keeps_the_previous_report(tmp_path: Path, sim
     failed = _cli("validate", roi, broken, "--report", report)
     assert failed.returncode == 2 and "roi-node recover" in failed.stderr
     assert _digest(report) == before and sorted(p.name for p in tmp_path.iterdir()) == ["broken", "report", "roi"]
+
+
+@pytest.mark.parametrize("budget", range(3_000, 160_000, 6_100))
+def test_a_write_failure_anywhere_leaves_a_finalized_bag_of_what_was_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, budget: int
+) -> None:
+    """The disk fills at every kind of moment (inside a chunk, a split's footer, a new file's header): the bag still checks out."""
+    from roi_node.bag import storage_io
+    from roi_node.bag.integrity import check_bag
+    from roi_node.bag.messages import MessageFactory
+    from roi_node.bag.writer import BagWriteError, BagWriter, SplitPolicy
+
+    monkeypatch.setattr(storage_io, "_BUDGET", storage_io._Budget())
+    monkeypatch.setenv(FAULT_ENV, str(budget))
+    bag = tmp_path / "rec"
+    writer = BagWriter(bag, in_place=True, on_error="finalize", split=SplitPolicy(max_duration_ns=10**8))
+    factory = MessageFactory(writer.typestore)
+    accepted = 0
+    with pytest.raises(BagWriteError, match=r"write failed \(No space left on device\)"), writer:
+        writer.add_topic("/note", "std_msgs/msg/String")
+        for i in range(300):
+            writer.write("/note", 10**9 + i * 10**7, factory.string(f"{i:04d} " + "y" * 900))
+            accepted += 1
+            if i % 7 == 0:
+                writer.flush()
+    assert writer.status == "failed"
+    result = check_bag(bag)
+    assert result.ok, result.lines()
+    stored = _counts(bag).get("/note", 0)
+    assert stored + writer.lost_messages == accepted
+    with AnyReader([bag], default_typestore=typestore()) as reader:
+        texts = [reader.deserialize(raw, c.msgtype).data[:4] for c, _, raw in reader.messages()]
+    assert texts == [f"{i:04d}" for i in range(stored)]  # a prefix of what was sent, nothing torn or reordered

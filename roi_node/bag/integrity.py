@@ -122,9 +122,6 @@ def _read_chunk(stream: Any, index: ChunkIndex) -> Chunk:
 
 def check_file(path: Path) -> FileCheck:
     result = FileCheck(path)
-    if path.suffix != ".mcap":
-        result.problems.append(f"{path}: only MCAP storage can be checked")
-        return result
     try:
         stream = path.open("rb")
     except OSError as exc:
@@ -161,7 +158,12 @@ def check_file(path: Path) -> FileCheck:
 
 def check_bag(path: Path) -> BagCheck:
     """Check every storage file of a bag; counts are compared with metadata.yaml when there is one."""
-    files = tuple(check_file(p) for p in storage_files(path))
+    paths = storage_files(path)
+    if not paths:
+        raise BagError(f"{path}: no storage files to check")
+    if other := [p.name for p in paths if p.suffix != ".mcap"]:
+        raise BagError(f"{path}: only MCAP storage can be checked; {', '.join(other)} is not MCAP")
+    files = tuple(check_file(p) for p in paths)
     problems: list[str] = []
     info = _metadata(path) if path.is_dir() else {}
     if info:
@@ -185,6 +187,8 @@ def check_bag(path: Path) -> BagCheck:
 def first_damage(path: Path) -> str | None:
     """The first damaged chunk (or unreadable file) of a bag, as one line; None when the storage checks out."""
     try:
+        if any(p.suffix != ".mcap" for p in storage_files(path)):
+            return None  # sqlite3 storage: the reader's own reason is all there is
         result = check_bag(path)
     except BagError as exc:
         return str(exc)

@@ -177,8 +177,14 @@ class BagWriter:
         return f"{self.path.name}_{len(self._files)}.mcap" if self._numbered else f"{self.path.name}.mcap"
 
     def _open_file(self) -> None:
-        self._stream = open_storage(self._dir / self._file_name())
-        self._file = McapFileWriter(self._stream, compression=self.compression)
+        path = self._dir / self._file_name()
+        self._stream = open_storage(path)
+        try:
+            self._file = McapFileWriter(self._stream, compression=self.compression)
+        except OSError:  # not even the header fits: leave no empty file behind
+            self._stream.close()
+            path.unlink(missing_ok=True)
+            raise
         for topic in self._topics.values():
             self._file.add_topic(topic.spec)
 
@@ -229,6 +235,8 @@ class BagWriter:
     def split(self) -> None:
         """Finish the open file, list it in metadata.yaml, open the next one."""
         self._finish_file()
+        if self.failure is not None:  # the footer needed the space reserve: the disk is full, stop here
+            raise BagWriteError(self.failure)
         if self._in_place:
             self._write_metadata(RECORDING)
         self._open_file()
@@ -241,10 +249,14 @@ class BagWriter:
             except OSError as exc:
                 self._fail(exc)
 
-    def _fail(self, exc: OSError) -> None:
-        where = self._dir / self._file_name() if self._file is not None else self._dir
-        self.failure = f"{where}: write failed ({exc.strerror or exc})"
+    def _note_failure(self, exc: OSError) -> None:
+        if self.failure is None:
+            self.failure = f"{self._dir / self._file_name()}: write failed ({exc.strerror or exc})"
         (self._dir / RESERVE_NAME).unlink(missing_ok=True)  # room for the footer and metadata.yaml
+
+    def _fail(self, exc: OSError) -> None:
+        self._note_failure(exc)
+        assert self.failure is not None
         raise BagWriteError(self.failure) from exc
 
     @property
@@ -259,8 +271,12 @@ class BagWriter:
         assert file is not None
         self._file = None
         try:
-            file.flush_chunk()
-            file.finish(self._information_yaml(file))
+            try:
+                file.flush_chunk()
+                file.finish(self._information_yaml(file))
+            except OSError as exc:  # the file was cut back to its last whole record: free the reserve, finish once more
+                self._note_failure(exc)
+                file.finish(self._information_yaml(file))
         finally:
             self._stream.close()
         self._totals.update(file.counts)
@@ -332,7 +348,8 @@ class BagWriter:
         self._open = False
         self.status = "failed" if self.failure is not None and status == "complete" else status
         try:
-            self._finish_file()
+            if self._file is not None:  # None: a split failed between files; the files before it are finished
+                self._finish_file()
             self._write_metadata(self.status)
         except OSError as exc:
             if not self._in_place:
