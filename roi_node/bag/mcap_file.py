@@ -6,7 +6,8 @@ failed halfway through a chunk. Here the file grows only by whole records
 (`_emit`): a failed write is cut back to the last record boundary with
 `truncate`, the failed chunk is dropped from the index state, and `finish`
 can still write a valid summary and footer for everything before it. The
-records themselves are serialized by the mcap package.
+records are serialized by the mcap package, except the chunk record's header, packed
+here so the chunk data is written without another copy.
 
 The layout is what rosbag2's MCAP storage plugin writes: profile "ros2",
 schemas "ros2msg", channels "cdr" with `offered_qos_profiles` (YAML) and
@@ -18,6 +19,7 @@ or zstd chunk compression, message indexes after each chunk, and a
 from __future__ import annotations
 
 import errno
+import struct
 import zlib
 from collections import Counter
 from collections.abc import Callable
@@ -31,7 +33,6 @@ from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (
     Channel,
-    Chunk,
     ChunkIndex,
     DataEnd,
     Footer,
@@ -66,12 +67,12 @@ class Compression(StrEnum):
         return "" if self is Compression.NONE else self.value
 
 
-def _compressor(compression: Compression) -> Callable[[bytes], bytes]:
+def _compressor(compression: Compression) -> Callable[[bytes], bytes] | None:
     if compression is Compression.LZ4:
         return lz4.frame.compress
     if compression is Compression.ZSTD:
         return zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress
-    return bytes
+    return None
 
 
 @dataclass(frozen=True)
@@ -134,19 +135,23 @@ class McapFileWriter:
     def pending_start_ns(self) -> int | None:
         return self._pending.start_ns if self._pending.messages else None
 
-    def _emit(self, data: bytes | memoryview) -> None:
-        """Append whole records; on failure cut the file back to the last boundary and re-raise."""
-        view = memoryview(data)
+    def _emit(self, *parts: bytes | memoryview) -> None:
+        """Append whole records (given in parts, so a chunk's data is never copied to be joined to its header);
+        on failure cut the file back to the last boundary and re-raise."""
+        total = 0
         try:
-            while view:
-                written = self._stream.write(view)
-                if written is None:
-                    raise OSError(errno.EAGAIN, "non-blocking storage stream")
-                view = view[written:]
+            for part in parts:
+                view = memoryview(part)
+                total += len(view)
+                while view:
+                    written = self._stream.write(view)
+                    if written is None:
+                        raise OSError(errno.EAGAIN, "non-blocking storage stream")
+                    view = view[written:]
         except OSError:
             self._rollback()
             raise
-        self.size_bytes += len(data)
+        self.size_bytes += total
 
     def _rollback(self) -> None:
         try:
@@ -201,21 +206,17 @@ class McapFileWriter:
             return
         self._pending = _Pending()
         raw = pending.builder.end()
-        compressed = self._compress(raw)
-        chunk = Chunk(
-            compression=self._compression.mcap_name,
-            data=compressed,
-            message_start_time=pending.start_ns,
-            message_end_time=pending.end_ns,
-            uncompressed_crc=zlib.crc32(raw),
-            uncompressed_size=len(raw),
-        )
+        compressed = raw if self._compress is None else self._compress(raw)
+        name = self._compression.mcap_name.encode()
+        # the Chunk record's fields (as mcap.records.Chunk writes them), then its data as is
+        fields = struct.pack("<QQQI", pending.start_ns, pending.end_ns, len(raw), zlib.crc32(raw))
+        fields += struct.pack("<I", len(name)) + name + struct.pack("<Q", len(compressed))
+        header = struct.pack("<BQ", Opcode.CHUNK, len(fields) + len(compressed)) + fields
+        chunk_length = len(header) + len(compressed)
         out = RecordBuilder()
-        chunk.write(out)
-        chunk_length = out.count
         offsets = {}
         for channel_id, index in pending.indexes.items():
-            offsets[channel_id] = self.size_bytes + out.count
+            offsets[channel_id] = self.size_bytes + chunk_length + out.count
             index.write(out)
         record = ChunkIndex(
             message_start_time=pending.start_ns,
@@ -223,13 +224,13 @@ class McapFileWriter:
             chunk_start_offset=self.size_bytes,
             chunk_length=chunk_length,
             message_index_offsets=offsets,
-            message_index_length=out.count - chunk_length,
-            compression=chunk.compression,
+            message_index_length=out.count,
+            compression=self._compression.mcap_name,
             compressed_size=len(compressed),
             uncompressed_size=len(raw),
         )
         try:
-            self._emit(out.end())
+            self._emit(header, compressed, out.end())
         except OSError:  # the chunk is lost; the file and the index state stay consistent
             self.lost_messages += pending.messages
             raise
