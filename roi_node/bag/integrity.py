@@ -26,6 +26,7 @@ from mcap.records import Chunk, ChunkIndex, Message
 from mcap.stream_reader import breakup_chunk
 
 from ..core.errors import BagError
+from .writer import RECORDING, STATUS_KEY
 
 _CHUNK_ERRORS: tuple[type[BaseException], ...] = (McapError, ValueError, struct.error, EOFError, OSError, RuntimeError, IndexError)
 
@@ -178,9 +179,8 @@ def check_bag(path: Path) -> BagCheck:
         for topic, count in listed.items():
             if found[topic] != count and not any(f.damage or f.problems for f in files):
                 problems.append(f"{path / 'metadata.yaml'}: {topic}: {count} messages listed, {found[topic]} in the storage files")
-        status = (info.get("custom_data") or {}).get("roi_node.status")
-        if status == "recording":
-            problems.append(f"{path / 'metadata.yaml'}: status is `recording`: the recorder never finished; `roi-node recover {path}`")
+        if (info.get("custom_data") or {}).get(STATUS_KEY) == RECORDING:
+            problems.append(f"{path / 'metadata.yaml'}: status is `{RECORDING}`: the recorder never finished; `roi-node recover {path}`")
     return BagCheck(path, files, tuple(problems))
 
 

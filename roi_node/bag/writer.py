@@ -130,7 +130,6 @@ class BagWriter:
         self._dir = self.path if in_place else temporary_sibling(self.path)
         self._topics: dict[str, _Topic] = {}
         self.counts: dict[str, int] = {}
-        self.custom_data: dict[str, str] = {}
         self.status = "complete"
         self.final_path = self.path
         self.failure: str | None = None
@@ -195,9 +194,10 @@ class BagWriter:
             return
         profiles = qos if isinstance(qos, list) else [qos or qos_profile(reliable=True)]
         spec = spec or topic_spec(self.typestore, topic, msgtype, profiles)
+        if self._file is None:  # a failed split left no open file
+            raise BagWriteError(self.failure or f"{self.path}: the bag is not open")
         self._topics[topic] = _Topic(spec, tuple(profiles))
         self.counts[topic] = 0
-        assert self._file is not None
         self._file.add_topic(spec)
 
     def has_topic(self, topic: str) -> bool:
@@ -289,7 +289,6 @@ class BagWriter:
         stored = [f for f in files if f.messages]
         start = min((f.start_ns for f in stored), default=0)
         end = max((f.end_ns for f in stored), default=0)
-        custom = {**self.custom_data, STATUS_KEY: status}
         return {
             "version": ROSBAG2_VERSION,
             "storage_identifier": "mcap",
@@ -321,7 +320,7 @@ class BagWriter:
                 }
                 for f in files
             ],
-            "custom_data": custom,
+            "custom_data": {STATUS_KEY: status},
             "ros_distro": "jazzy",
         }
 
