@@ -6,9 +6,10 @@ The data before the cut is intact: the mcap package's StreamReader reads
 records front to back without the index. Every whole chunk is checked (CRC)
 and its messages are copied, with their topics, message definitions and
 QoS, into a new bag written like every other (BagWriter: atomic, summary,
-metadata.yaml, status `recovered`). Reading stops at the first damage of a
-file (a torn record, a chunk whose CRC or compression fails): what follows
-it cannot be trusted to be aligned. The input is only read.
+metadata.yaml, status `recovered`). A whole chunk whose CRC or compression
+fails is skipped and reported; reading a file stops at a torn or unparseable
+record, since nothing after it can be trusted to be aligned. The input is
+only read.
 """
 
 from __future__ import annotations
@@ -32,7 +33,6 @@ from rosbags.rosbag2.metadata import parse_qos
 from ..core.errors import BagError
 from .integrity import storage_files
 from .mcap_file import Compression, TopicSpec
-from .reader import BAG_FILE_SUFFIXES
 from .writer import BagWriter, qos_profile
 
 RECOVERED = "recovered"
@@ -50,7 +50,8 @@ class FileRecovery:
     finished: bool  # the file had its footer: nothing was lost
     stopped_at_byte: int | None  # where reading stopped at damage or a cut
     reason: str | None
-    lost_span_ns: tuple[int, int] | None = None  # log times of the chunk that was cut or damaged, when its header is readable
+    lost_span_ns: tuple[int, int] | None = None  # log times of the chunk that was cut, when its header is readable
+    skipped_chunks: tuple[int, ...] = ()  # byte offsets of whole chunks that failed their CRC or decompression
 
     @property
     def seconds(self) -> float:
@@ -59,8 +60,11 @@ class FileRecovery:
     def line(self) -> str:
         total = sum(self.counts.values())
         head = f"{self.source.name}: {total} messages, {self.seconds:.3f} s"
+        if self.skipped_chunks:
+            offsets = ", ".join(str(o) for o in self.skipped_chunks)
+            head += f"; lost: {len(self.skipped_chunks)} damaged chunks skipped (at bytes {offsets})"
         if self.finished:
-            return head + " (finished file, nothing lost)"
+            return head + (" (finished file)" if self.skipped_chunks else " (finished file, nothing lost)")
         if self.stopped_at_byte is None:
             return head + " (no footer, but every record is whole)"
         lost = self.size_bytes - self.stopped_at_byte
@@ -113,7 +117,7 @@ def recovery_inputs(source: Path) -> list[Path]:
         if not files:
             raise BagError(f"{source}: no .mcap storage file to recover")
         return sorted(files, key=_order)
-    if source.suffix not in BAG_FILE_SUFFIXES or source.suffix != ".mcap":
+    if source.suffix != ".mcap":
         raise BagError(f"{source}: only MCAP storage can be recovered; expected a .mcap file or a bag folder")
     return [source]
 
@@ -176,10 +180,12 @@ class _Copier:
 def _copy_file(writer: BagWriter, path: Path) -> FileRecovery:
     copier = _Copier(writer, path)
     size = path.stat().st_size
+    skipped: list[int] = []
     with path.open("rb") as stream:
-        finished, stopped, reason = _copy_records(stream, copier)
+        finished, stopped, reason = _copy_records(stream, copier, skipped)
         span = None if stopped is None else _chunk_span(stream, stopped)
-    return FileRecovery(path, size, dict(copier.counts), copier.start_ns, copier.end_ns, finished, stopped, reason, span)
+    return FileRecovery(path, size, dict(copier.counts), copier.start_ns, copier.end_ns, finished, stopped, reason, span,
+                        tuple(skipped))
 
 
 def _chunk_span(stream: BinaryIO, offset: int) -> tuple[int, int] | None:
@@ -192,8 +198,13 @@ def _chunk_span(stream: BinaryIO, offset: int) -> tuple[int, int] | None:
     return (start, end) if start <= end else None
 
 
-def _copy_records(stream: BinaryIO, copier: _Copier) -> tuple[bool, int | None, str | None]:
-    """(finished, byte where reading stopped, why) for one file."""
+def _copy_records(stream: BinaryIO, copier: _Copier, skipped: list[int]) -> tuple[bool, int | None, str | None]:
+    """(finished, byte where reading stopped, why) for one file.
+
+    A whole chunk that fails its CRC or decompression is skipped (its offset
+    goes to `skipped`): its record length was intact, so the next record is
+    where it should be. A torn or unparseable record stops the file.
+    """
     reader = StreamReader(stream, emit_chunks=True)
     records = reader.records
     boundary = 0
@@ -213,9 +224,10 @@ def _copy_records(stream: BinaryIO, copier: _Copier) -> tuple[bool, int | None, 
         if isinstance(record, Chunk):
             try:
                 inner = breakup_chunk(record, validate_crc=True)
-            except _READ_ERRORS as exc:
-                return False, boundary, f"damaged chunk: {exc or type(exc).__name__}"
-            copier.records(inner)
+            except _READ_ERRORS:
+                skipped.append(boundary)
+            else:
+                copier.records(inner)
         elif isinstance(record, DataEnd | Footer):
             return True, None, None
         else:
