@@ -101,6 +101,8 @@ class Recorder(Node):
         self.get_logger().info(f"recording {'all topics' if record_all else ', '.join(sorted(self.wanted))} to {out}")
 
     def _discover(self) -> None:
+        if self._stop.is_set():
+            return
         if self._deadline is not None and time.monotonic() > self._deadline:
             self.context.try_shutdown()  # ends spin like SIGINT does; close() then finalizes
             return
@@ -123,8 +125,11 @@ class Recorder(Node):
                 continue
             transcode = self.transcoder is not None and type_name == IMAGE_TYPE
             stored_as, stored_type = (compressed_topic(name), COMPRESSED_TYPE) if transcode else (name, type_name)
+            try:  # never block the executor: a full queue means the next discovery round tries again
+                self._queue.put_nowait(_NewTopic(name, stored_as, stored_type, to_bag_qos(offered[0])))
+            except queue.Full:
+                continue
             self.stored_as[name] = stored_as
-            self._queue.put(_NewTopic(name, stored_as, stored_type, to_bag_qos(offered[0])))
             self._recorded[name] = self.create_subscription(
                 cls, name, self._callback(name), subscription_qos(offered), raw=True
             )
