@@ -79,7 +79,6 @@ class Recorder(Node):
             raise BagError("record: name the topics to record (--topics ...) or pass --all")
         self.wanted = {t if t.startswith("/") else "/" + t for t in topics}
         self.record_all = record_all
-        self.options = options
         self.writer = BagWriter(out, overwrite=overwrite, on_error="finalize", compression=options.compression,
                                 split=options.split, in_place=True).__enter__()
         self.transcoder = (None if options.image_transport is ImageTransport.RAW
