@@ -221,17 +221,20 @@ def _copy_records(stream: BinaryIO, copier: _Copier, skipped: list[int]) -> tupl
             if boundary == 0:
                 raise BagError(f"{copier.path}: not an MCAP file ({exc or type(exc).__name__})") from exc
             return False, boundary, "cut inside a record" if at_end else f"unreadable record: {exc or type(exc).__name__}"
+        if isinstance(record, DataEnd | Footer):
+            return True, None, None
         if isinstance(record, Chunk):
             try:
-                inner = breakup_chunk(record, validate_crc=True)
+                inner: Sequence[object] = breakup_chunk(record, validate_crc=True)
             except _READ_ERRORS:
                 skipped.append(boundary)
-            else:
-                copier.records(inner)
-        elif isinstance(record, DataEnd | Footer):
-            return True, None, None
+                inner = ()
         else:
-            copier.records([record])
+            inner = [record]
+        try:
+            copier.records(inner)
+        except McapError as exc:  # a message whose channel or schema never appeared before it
+            return False, boundary, str(exc)
         boundary = stream.tell()
 
 
