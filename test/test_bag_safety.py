@@ -250,3 +250,22 @@ def test_a_write_failure_anywhere_leaves_a_finalized_bag_of_what_was_written(
     with AnyReader([bag], default_typestore=typestore()) as reader:
         texts = [reader.deserialize(raw, c.msgtype).data[:4] for c, _, raw in reader.messages()]
     assert texts == [f"{i:04d}" for i in range(stored)]  # a prefix of what was sent, nothing torn or reordered
+
+
+def test_inspect_check_compares_the_message_index_with_the_chunk(tmp_path: Path, sim_bag: Path) -> None:
+    bag = tmp_path / "reindexed"
+    shutil.copytree(sim_bag, bag)
+    storage = bag / "sim.mcap"
+    with storage.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    index = summary.chunk_indexes[1]
+    offset = next(iter(index.message_index_offsets.values()))
+    with storage.open("r+b") as stream:  # the index now lists one message fewer than the chunk holds
+        stream.seek(offset + 9 + 2)
+        length = int.from_bytes(stream.read(4), "little")
+        stream.seek(offset + 9 + 2)
+        stream.write((length - 16).to_bytes(4, "little"))
+    check = _cli("inspect", "--check", bag)
+    assert check.returncode == 1
+    assert f"{storage}: chunk at byte {index.chunk_start_offset}: its message index lists" in check.stdout, check.stdout

@@ -2,8 +2,8 @@
 
 `check_bag` reads every chunk of every MCAP file through its summary index,
 decompresses it and checks its CRC (when the writer stored one), counts the
-messages per topic and compares them with the file's statistics and with
-metadata.yaml. A damaged chunk is reported with its file, byte offset and the
+messages per topic and compares them with the chunk's message indexes, the
+file's statistics and metadata.yaml. A damaged chunk is reported with its file, byte offset and the
 topics whose messages it holds (from the chunk's message indexes), so a user
 knows what is gone. Readers call `first_damage` to turn "cannot read" into
 that line.
@@ -22,7 +22,7 @@ from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import Chunk, ChunkIndex, Message
+from mcap.records import Chunk, ChunkIndex, Message, MessageIndex
 from mcap.stream_reader import breakup_chunk
 
 from ..core.errors import BagError
@@ -121,6 +121,22 @@ def _read_chunk(stream: Any, index: ChunkIndex) -> Chunk:
     return Chunk.read(data)
 
 
+def _indexed_counts(stream: Any, index: ChunkIndex) -> Counter[int]:
+    """Messages per channel as the chunk's message index records list them."""
+    out: Counter[int] = Counter()
+    for cid, offset in index.message_index_offsets.items():
+        stream.seek(offset)
+        data = ReadDataStream(stream)
+        if data.read1() != Opcode.MESSAGE_INDEX:
+            raise McapError(f"no message index record for channel {cid} at byte {offset}")
+        data.read8()
+        record = MessageIndex.read(data)
+        if record.channel_id != cid:
+            raise McapError(f"the message index at byte {offset} is for channel {record.channel_id}, not {cid}")
+        out[cid] += len(record.records)
+    return out
+
+
 def check_file(path: Path) -> FileCheck:
     result = FileCheck(path)
     try:
@@ -147,9 +163,17 @@ def check_file(path: Path) -> FileCheck:
                 result.damage.append(ChunkDamage(path, index.chunk_start_offset, str(exc) or type(exc).__name__, affected))
                 continue
             result.chunks += 1
-            for record in records:
-                if isinstance(record, Message):
-                    result.counts[topics.get(record.channel_id, f"channel {record.channel_id}")] += 1
+            in_chunk: Counter[int] = Counter(r.channel_id for r in records if isinstance(r, Message))
+            for cid, n in in_chunk.items():
+                result.counts[topics.get(cid, f"channel {cid}")] += n
+            try:
+                indexed = _indexed_counts(stream, index)
+            except _CHUNK_ERRORS as exc:
+                result.problems.append(f"{path}: chunk at byte {index.chunk_start_offset}: message index unreadable ({exc})")
+                continue
+            if indexed != in_chunk:
+                result.problems.append(f"{path}: chunk at byte {index.chunk_start_offset}: its message index lists "
+                                       f"{sum(indexed.values())} messages, the chunk holds {sum(in_chunk.values())}")
         if summary.statistics is not None and not result.damage:
             expected = Counter({topics.get(c, str(c)): n for c, n in summary.statistics.channel_message_counts.items() if n})
             if expected != +result.counts:
