@@ -34,7 +34,8 @@ setup(
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]>=7.1", "ros-jazzy-common-interfaces>=5.3"],
-        "bag": ["rosbags>=0.10,<0.12", "mcap>=1.2", "mcap-ros2-support>=0.5"],
+        # lz4 and zstandard: the chunk compressions roi_node's MCAP writer offers
+        "bag": ["rosbags>=0.10,<0.12", "mcap>=1.2", "mcap-ros2-support>=0.5", "lz4>=4", "zstandard>=0.22"],
         "robots": ["example-robot-data>=4.1"],
         "dev": [
             "pytest>=8",

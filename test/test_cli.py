@@ -24,9 +24,21 @@ def test_bad_config_is_one_clear_line_and_exit_2(tmp_path: Path) -> None:
 def test_unknown_verb_and_help() -> None:
     help_out = subprocess.run([sys.executable, "-m", "roi_node.cli", "--help"], capture_output=True, text=True)
     assert help_out.returncode == 0
-    for verb in ("run", "replay", "record", "play", "validate", "manifest", "sim", "demo", "inspect"):
+    for verb in ("run", "replay", "record", "play", "validate", "manifest", "sim", "demo", "inspect", "recover"):
         assert verb in help_out.stdout
         verb_help = subprocess.run([sys.executable, "-m", "roi_node.cli", verb, "--help"], capture_output=True, text=True)
         assert verb_help.returncode == 0 and "usage: roi-node " + verb in verb_help.stdout
     bad = subprocess.run([sys.executable, "-m", "roi_node.cli", "frobnicate"], capture_output=True, text=True)
     assert bad.returncode != 0 and "invalid choice" in bad.stderr
+
+
+def test_record_sizes_and_bad_split_options() -> None:
+    from roi_node.ros.verbs import size_bytes
+
+    assert [size_bytes(t) for t in ("12345", "500MB", "1GiB", "1.5kb", "2 MiB")] == [12345, 500 * 10**6, 2**30, 1500, 2 * 2**20]
+    for option, value, why in (("--max-size", "12XB", "expected bytes or a size like 500MB or 1GiB, got '12XB'"),
+                               ("--max-duration", "0", "must be positive, got '0'"),
+                               ("--jpeg-quality", "101", "must be 1..100, got 101")):
+        bad = subprocess.run([sys.executable, "-m", "roi_node.cli", "record", "-o", "x", "--all", option, value],
+                             capture_output=True, text=True, timeout=60)
+        assert bad.returncode == 2 and bad.stderr.strip().endswith(f"argument {option}: {why}"), bad.stderr

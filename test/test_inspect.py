@@ -105,5 +105,6 @@ def test_bad_paths_are_one_line_errors(bags: tuple[Path, Path], tmp_path: Path, 
         stream.truncate(storage.stat().st_size // 2)
     assert main(["inspect", str(broken)]) == 2
     assert capsys.readouterr().err.strip() == (
-        f"roi-node inspect: error: {broken}: cannot read the bag (File end magic is invalid.); the file may be truncated or corrupt"
+        f"roi-node inspect: error: {broken}: cannot read the bag: {storage}: no readable footer (the file is truncated or was never "
+        f"finished); `roi-node recover {storage}` finishes it"
     )

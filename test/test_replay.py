@@ -264,7 +264,7 @@ def test_ctrl_c_leaves_a_finalized_readable_bag_holding_what_was_done(tmp_path: 
         # a test run started in the background inherits SIGINT ignored; a user's shell does not
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
-    mcap = out / "out.mcap"
+    mcap = tmp_path / f".out.partial-{proc.pid}" / "out.mcap"  # outputs are written beside the target, renamed when done
     deadline = time.monotonic() + 120
     while not (mcap.exists() and mcap.stat().st_size > 1_000_000):  # the first chunk is out: a few frames written
         assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
@@ -272,11 +272,14 @@ def test_ctrl_c_leaves_a_finalized_readable_bag_holding_what_was_done(tmp_path: 
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stderr
-    note = rf"interrupted; {re.escape(str(out))} is finalized and readable with the (\d+) frames done \(status: interrupted\)"
+    kept = tmp_path / "out.interrupted"  # a partial output is kept only under a name that says so
+    note = rf"interrupted; {re.escape(str(kept))} is finalized and readable with the (\d+) frames done \(status: interrupted\)"
     match = re.search(note, stderr)
     assert match, stderr
     done = int(match.group(1))
     assert 0 < done < 2000 and "(interrupted)" in stdout
+    assert not out.exists()
+    out = kept
     inspection = inspect_bag(out)
     assert inspection.status == "interrupted"
     counts = {name: count for name, _, count in inspection.topics}
@@ -367,7 +370,8 @@ def test_truncated_mcap_is_reported_as_such(
     with storage.open("r+b") as stream:
         stream.truncate(storage.stat().st_size * 6 // 10)
     out = tmp_path / "out"
-    why = r"cannot read the bag \(File end magic is invalid.\); the file may be truncated or corrupt"
+    why = (rf"cannot read the bag: {_re(storage)}: no readable footer \(the file is truncated or was never finished\); "
+           rf"`roi-node recover {_re(storage)}` finishes it")
     _fails(capsys, [broken, "-o", out, "--config", bimanual_rig_path], rf"{_re(broken)}: {why}")
     _fails(capsys, [storage, "-o", out, "--config", bimanual_rig_path], rf"{_re(storage)}: {why}")
     assert not out.exists()
@@ -424,7 +428,8 @@ def test_workers_2_one_bad_bag_fails_alone(
     captured = capsys.readouterr()
     assert code == 2
     assert captured.err.strip() == (
-        f"roi-node replay: error: {bad}: cannot read the bag (File end magic is invalid.); the file may be truncated or corrupt"
+        f"roi-node replay: error: {bad}: cannot read the bag: {bad}: no readable footer (the file is truncated or was never finished); "
+        f"`roi-node recover {bad}` finishes it"
     )
     assert f"replayed 2 of 3 bags into {out}; 1 failed" in captured.out
     assert sorted(p.name for p in out.iterdir()) == ["mcap_rgb8_roi", "sqlite3_bgr8_split_roi"]

@@ -27,7 +27,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
 
         summary = write_sim_bag(
             config, Path(args.bag), duration_s=args.duration, rate_hz=args.rate_hz, joint_rate_hz=args.joint_rate_hz,
-            seed=args.seed, overwrite=args.overwrite, compressed=args.compressed or False,
+            seed=args.seed, overwrite=args.overwrite, compressed=args.compressed or False, chunk_compression=args.compression,
         )
         print(f"roi-node sim: wrote {summary.path}: {summary.frames} frames on {summary.image_topic}, {summary.joint_states} joint states")
         return 0
@@ -43,6 +43,8 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     sim.add_argument("--config", help="rig config (default: the bundled demo_bimanual rig)")
     sim.add_argument("--bag", help="write a rosbag2 MCAP bag here instead of publishing")
     sim.add_argument("--overwrite", action="store_true", help="replace an existing --bag output")
+    sim.add_argument("--compression", choices=("none", "lz4", "zstd"), default="none",
+                     help="--bag: per-chunk compression of the MCAP storage (default: none)")
     sim.add_argument("--compressed", nargs="?", const="png", choices=["png", "jpeg"], help="--bag: CompressedImage (png or jpeg)")
     sim.add_argument("--duration", type=float, default=20.0, help="seconds (default: 20)")
     sim.add_argument("--rate-hz", type=float, default=30.0, help="camera rate (default: 30)")

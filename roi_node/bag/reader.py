@@ -28,7 +28,7 @@ from rosbags.serde import SerdeError
 
 from ..core.errors import BagError
 from ..core.stamps import stamp_to_ns
-from .writer import typestore
+from .writer import RECORDING, STATUS_KEY, typestore
 
 try:
     import apsw
@@ -67,21 +67,40 @@ def check_bag_path(path: Path) -> None:
     if path.is_dir():
         if not (path / "metadata.yaml").is_file():
             storage = sorted(p.name for p in path.iterdir() if p.suffix in BAG_FILE_SUFFIXES)
-            hint = f"; it holds {', '.join(storage)}: pass that file instead, or run `ros2 bag reindex {path}`" if storage else ""
+            hint = (f"; it holds {', '.join(storage)}: an unfinished recording? `roi-node recover {path}` finishes it"
+                    if storage else "")
             raise BagError(f"{path}: not a rosbag2 folder (no metadata.yaml){hint}")
     elif path.suffix not in BAG_FILE_SUFFIXES:
         raise BagError(f"{path}: unrecognised bag file suffix {path.suffix!r}; {EXPECTED}")
 
 
 def _unreadable(path: Path, exc: BaseException) -> BagError:
+    """One line: the damaged chunk (file, offset, topics) when the storage check finds one, else the reader's reason."""
+    from .integrity import first_damage
+
+    if path.exists() and (damage := first_damage(path)) is not None:
+        return BagError(f"{path}: cannot read the bag: {damage}")
     detail = str(exc).strip() or type(exc).__name__
-    return BagError(f"{path}: cannot read the bag ({detail}); the file may be truncated or corrupt")
+    return BagError(
+        f"{path}: cannot read the bag ({detail}); the file may be truncated or corrupt: "
+        f"if it is an unfinished recording, `roi-node recover {path}` finishes it"
+    )
+
+
+def check_finished(path: Path) -> None:
+    """A bag folder whose metadata.yaml still says `recording` was never finished: reading it would silently lose its open file."""
+    if path.is_dir() and (bag_information(path).get("custom_data") or {}).get(STATUS_KEY) == RECORDING:
+        raise BagError(
+            f"{path}: an unfinished recording (metadata.yaml status `{RECORDING}`: the recorder did not finish it); "
+            f"`roi-node recover {path}` finishes it"
+        )
 
 
 @contextmanager
 def open_bag(path: Path) -> Iterator[AnyReader]:
     """An open AnyReader (message definitions from the bag, else the Jazzy typestore)."""
     check_bag_path(path)
+    check_finished(path)
     try:
         reader = AnyReader([path], default_typestore=typestore())
         reader.open()

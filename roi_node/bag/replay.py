@@ -32,6 +32,7 @@ from ..core.errors import BagError, BagWriteError, CalibrationError, ConfigError
 from ..core.pipeline import FrameResult
 from .inputs import InputSelection, check_frame_stream, decode_frame, select_inputs
 from .interrupt import DeferredInterrupt
+from .mcap_file import Compression
 from .messages import MessageFactory
 from .progress import Progress
 from .reader import DESERIALIZE_ERRORS, check_bag_path, open_bag, read_messages, stamp_ns, topic_stats
@@ -77,6 +78,7 @@ def replay_bag(
     camera_info_topic: str | None = None,
     command_topic: str | None = None,
     intrinsics_from_bag: bool = False,
+    compression: Compression | str = Compression.NONE,
 ) -> ReplaySummary:
     """Replay one rosbag2 bag (folder, .mcap or .db3) through the rig's pipeline into an MCAP bag.
 
@@ -105,7 +107,8 @@ def replay_bag(
         )
         streams = read_streams(reader, selection, source, rig.camera.rectified)
         replay = _Replay(rig, source, selection, streams, from_bag, progress)
-        return replay.run(reader, target, overwrite=overwrite, include_inputs=include_inputs, started=started)
+        return replay.run(reader, target, overwrite=overwrite, include_inputs=include_inputs, started=started,
+                          compression=Compression(compression))
 
 
 class _Replay:
@@ -169,12 +172,15 @@ class _Replay:
                     "(and a commanded one with --command-topic)"
                 )
 
-    def run(self, reader: AnyReader, target: Path, *, overwrite: bool, include_inputs: bool, started: float) -> ReplaySummary:
+    def run(self, reader: AnyReader, target: Path, *, overwrite: bool, include_inputs: bool, started: float,
+            compression: Compression = Compression.NONE) -> ReplaySummary:
         wanted = {self.selection.image_topic, *(self.selection.stream_topics if include_inputs else ())}
         connections = [c for c in reader.connections if c.topic in wanted]
         with DeferredInterrupt() as interrupt:
             try:
-                with BagWriter(target, overwrite=overwrite) as writer:
+                # atomic: the output appears only finalized; interrupted, it is kept as <out>.interrupted
+                writer = BagWriter(target, overwrite=overwrite, compression=compression)
+                with writer:
                     outputs = _OutputTopics(writer, self.rig, self.engine.pipeline.arm_ids() if self.engine.pipeline else ())
                     if include_inputs:
                         _add_input_topics(writer, connections, outputs.names, self.source)
@@ -192,7 +198,7 @@ class _Replay:
                         )
             except KeyboardInterrupt:
                 self.progress.finish()
-                raise ReplayInterrupted(self._summary(target, "interrupted", started)) from None
+                raise ReplayInterrupted(self._summary(writer.final_path, "interrupted", started)) from None
         self.progress.finish()
         summary = self._summary(target, "complete", started)
         if interrupt.requested:  # Ctrl-C while the finished bag was being closed: it is complete; still stop

@@ -31,6 +31,7 @@ def _replay_options(args: argparse.Namespace) -> dict[str, Any]:
         "camera_info_topic": args.camera_info_topic,
         "command_topic": args.command_topic,
         "intrinsics_from_bag": args.intrinsics_from_bag,
+        "compression": args.compression,
     }
 
 
@@ -98,12 +99,46 @@ def _replay_many(inputs: list[Path], args: argparse.Namespace) -> int:
 def _cmd_inspect(args: argparse.Namespace) -> int:
     from .inspection import inspect_bag
 
+    if args.check:
+        return _check(Path(args.bag), args.json)
     inspection = inspect_bag(Path(args.bag))
     if args.json:
         print(json.dumps(inspection.as_dict(), indent=2))
     else:
         print("\n".join(inspection.lines()))
     return 0
+
+
+EXIT_DAMAGED = 1  # a check failed (as the other verification verbs)
+
+
+def _check(path: Path, as_json: bool) -> int:
+    from .integrity import check_bag
+    from .reader import check_bag_path
+
+    if not path.exists():
+        check_bag_path(path)
+    result = check_bag(path)
+    if as_json:
+        print(json.dumps(result.as_dict(), indent=2))
+    else:
+        print("\n".join(result.lines()))
+    return 0 if result.ok else EXIT_DAMAGED
+
+
+def _cmd_recover(args: argparse.Namespace) -> int:
+    from .recover import recover_bag
+
+    summary = recover_bag(Path(args.bag), Path(args.output) if args.output else None, overwrite=args.overwrite,
+                          compression=args.compression)
+    print("\n".join(summary.lines()))
+    return 0
+
+
+def compression_option(parser: argparse.ArgumentParser, default: str = "none") -> None:
+    """--compression for every verb that writes a bag."""
+    parser.add_argument("--compression", choices=("none", "lz4", "zstd"), default=default,
+                        help=f"per-chunk compression of the MCAP storage (default: {default})")
 
 
 def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -117,7 +152,8 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     replay.add_argument("inputs", nargs="+", metavar="IN", help="input bag(s)")
     replay.add_argument("-o", "--output", required=True, metavar="OUT", help="output bag (one input) or folder (several inputs)")
     replay.add_argument("--config", required=True, metavar="RIG_YAML", help="rig config (see config/rig_demo_bimanual.yaml)")
-    replay.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    replay.add_argument("--overwrite", action="store_true", help="replace existing outputs (only once the new one is complete)")
+    compression_option(replay)
     replay.add_argument("--include-inputs", action="store_true", help="also copy the input topics used into the output bag")
     replay.add_argument("--workers", type=_positive_int, default=1, metavar="N", help="bags replayed in parallel processes (default: 1)")
     replay.add_argument("--image-topic", metavar="T", help="camera topic (default: the one Image/CompressedImage topic)")
@@ -132,4 +168,18 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     inspect = verbs.add_parser("inspect", help="topics, counts and duration of a bag; rig, arms and lineage of an ROI bag")
     inspect.add_argument("bag", metavar="BAG", help="bag folder or .mcap/.db3 file")
     inspect.add_argument("--json", action="store_true", help="machine-readable output")
+    inspect.add_argument("--check", action="store_true",
+                         help="verify the whole bag (chunk CRCs, index, counts against metadata.yaml); exit 1 on damage")
     inspect.set_defaults(func=_cmd_inspect)
+
+    recover = verbs.add_parser(
+        "recover",
+        help="finish an unfinished or truncated MCAP recording into a readable bag (the input is not modified)",
+        description="Read every whole record of an unfinished MCAP bag (no footer, no metadata.yaml, cut mid-record) up to the "
+        "damage and write a finalized rosbag2 bag with what was there; prints what was recovered and what was lost.",
+    )
+    recover.add_argument("bag", metavar="BAG", help="bag folder or .mcap file")
+    recover.add_argument("-o", "--output", metavar="OUT", help="output bag folder (default: <BAG>_recovered)")
+    recover.add_argument("--overwrite", action="store_true", help="replace an existing output (only once the new one is complete)")
+    compression_option(recover)
+    recover.set_defaults(func=_cmd_recover)

@@ -25,6 +25,7 @@ from jsonschema.exceptions import best_match
 from .. import __version__
 from ..bag.reader import check_bag_path
 from ..bag.writer import ROSBAG2_VERSION
+from ..core.atomic_output import atomic_output
 from ..core.config import load_rig_config
 from ..core.errors import BagError, ConfigError
 from ..core.metadata import METADATA_SCHEMA
@@ -242,7 +243,8 @@ def write_manifest(manifest: dict[str, Any], output: Path) -> None:
     if problem is not None:  # a bug, not bad input: the manifest we built breaks our own schema
         raise AssertionError(f"manifest does not match {MANIFEST_SCHEMA}: {problem}")
     try:
-        output.write_text(json.dumps(manifest, indent=2, allow_nan=False) + "\n")
+        with atomic_output(output, overwrite=True) as partial:  # the old manifest stays until the new one is whole
+            partial.write_text(json.dumps(manifest, indent=2, allow_nan=False) + "\n")
     except OSError as exc:
         raise BagError(f"{output}: cannot write the manifest ({exc.strerror or exc})") from exc
 

@@ -11,10 +11,12 @@ from pathlib import Path
 from typing import Any
 
 from ..bag.writer import STATUS_KEY
+from ..core.atomic_output import atomic_output
+from ..core.errors import BagError
 from .bagfiles import fingerprint
 from .drift import ArmDrift, baseline_drift, window_drift
 from .gates import GateParams, GateSet, evaluate
-from .report import prepare_report_dir, write_bag_figures, write_report
+from .report import JSON_NAME, prepare_report_dir, write_bag_figures, write_report
 from .results import BagScan, BagValidation, ValidationRun
 from .roibag import RoiBag
 from .samples import SampleChooser
@@ -95,7 +97,26 @@ def unique_names(paths: list[Path]) -> list[str]:
 
 
 def validate_bags(paths: list[Path], gates: GateSet, *, baseline: Path | None = None, report_dir: Path | None = None) -> ValidationRun:
-    """Validate every bag (in order); with `report_dir`, also draw figures and write REPORT.md + validation.json."""
+    """Validate every bag (in order); with `report_dir`, also draw figures and write REPORT.md + validation.json.
+
+    The report folder is built in a temporary sibling and replaces `report_dir` only when complete.
+    """
+    if report_dir is None:
+        return _validate(paths, gates, baseline, None)
+    check_report_target(report_dir)
+    with atomic_output(report_dir, overwrite=True) as partial:
+        return _validate(paths, gates, baseline, partial)
+
+
+def check_report_target(report_dir: Path) -> None:
+    """Only an earlier report (or an empty folder) is replaced: never a folder holding something else."""
+    if report_dir.is_dir() and any(report_dir.iterdir()) and not (report_dir / JSON_NAME).is_file():
+        raise BagError(f"{report_dir}: exists and is not a validation report (no {JSON_NAME}); choose another --report folder")
+    if report_dir.exists() and not report_dir.is_dir():
+        raise BagError(f"{report_dir}: exists and is not a folder; choose another --report folder")
+
+
+def _validate(paths: list[Path], gates: GateSet, baseline: Path | None, report_dir: Path | None) -> ValidationRun:
     if report_dir is not None:
         prepare_report_dir(report_dir)
     base = scan_bag(baseline, gates.params) if baseline is not None else None

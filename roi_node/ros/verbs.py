@@ -21,10 +21,51 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
-    from .recorder import record
+    from ..bag.mcap_file import Compression
+    from ..bag.transcode import ImageTransport
+    from ..bag.writer import SplitPolicy
+    from .recorder import RecordOptions, record
 
-    return record(Path(args.out), args.topics or [], record_all=args.all, overwrite=args.overwrite, duration_s=args.duration_s,
+    split = None
+    if args.max_duration is not None or args.max_size is not None:
+        split = SplitPolicy(None if args.max_duration is None else int(args.max_duration * 1e9), args.max_size)
+    options = RecordOptions(duration_s=args.duration_s, split=split, compression=Compression(args.compression),
+                            image_transport=ImageTransport(args.image_transport), jpeg_quality=args.jpeg_quality)
+    return record(Path(args.out), args.topics or [], record_all=args.all, overwrite=args.overwrite, options=options,
                   ros_args=args.ros_args)
+
+
+_SIZE_UNITS = {"": 1, "b": 1, "kb": 10**3, "mb": 10**6, "gb": 10**9, "kib": 1 << 10, "mib": 1 << 20, "gib": 1 << 30}
+
+
+def size_bytes(text: str) -> int:
+    """`--max-size`: bytes, or a number with KB/MB/GB (decimal) or KiB/MiB/GiB."""
+    number = text.strip().lower().rstrip("bikmg")
+    unit = text.strip().lower()[len(number):]
+    try:
+        value = float(number) * _SIZE_UNITS[unit]
+    except (ValueError, KeyError):
+        raise argparse.ArgumentTypeError(f"expected bytes or a size like 500MB or 1GiB, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text!r}")
+    return int(value)
+
+
+def _positive_s(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text!r}")
+    return value
+
+
+def _quality(text: str) -> int:
+    value = int(text)
+    if not 1 <= value <= 100:
+        raise argparse.ArgumentTypeError(f"must be 1..100, got {value}")
+    return value
 
 
 def _cmd_play(args: argparse.Namespace) -> int:
@@ -48,8 +89,18 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     group = rec.add_mutually_exclusive_group(required=True)
     group.add_argument("--topics", nargs="+", help="topics to record (e.g. image_raw joint_states roi/metadata)")
     group.add_argument("--all", action="store_true", help="every topic seen on the graph")
-    rec.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    rec.add_argument("--overwrite", action="store_true",
+                     help="replace an existing output (removed when recording starts: a recording is written in place)")
     rec.add_argument("--duration-s", type=float, help="stop after this long (default: until SIGINT/SIGTERM)")
+    rec.add_argument("--max-duration", type=_positive_s, metavar="S",
+                     help="split: start a new numbered file <name>_N.mcap every S seconds (rosbag2 --max-bag-duration)")
+    rec.add_argument("--max-size", type=size_bytes, metavar="BYTES|MB",
+                     help="split: start a new numbered file once the open one reaches this size, e.g. 500MB")
+    rec.add_argument("--compression", choices=("none", "lz4", "zstd"), default="none",
+                     help="per-chunk compression of the MCAP storage (default: none; see the README for the measured costs)")
+    rec.add_argument("--image-transport", choices=("raw", "jpeg", "png"), default="raw",
+                     help="store sensor_msgs/Image topics as they come (raw) or re-encoded as <topic>/compressed (default: raw)")
+    rec.add_argument("--jpeg-quality", type=_quality, default=90, metavar="N", help="JPEG quality 1..100 (default: 90)")
     rec.set_defaults(func=_cmd_record)
 
     play = verbs.add_parser("play", help="publish a bag's messages live at their recorded timing")

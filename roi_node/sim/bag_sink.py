@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..bag.mcap_file import Compression
 from ..bag.messages import MessageFactory
 from ..bag.writer import BagWriter
 from ..core import topics
@@ -47,14 +48,16 @@ def write_sim_bag(
     compressed: bool | str = False,
     camera_delay_ms: float | None = None,
     start_ns: int = 0,
+    chunk_compression: Compression | str = Compression.NONE,
 ) -> SimBagSummary:
     """Simulate `duration_s` seconds of the rig into an MCAP bag at `out_path` (a bag directory).
 
     `compressed`: False for raw rgb8 images; True or "png" for lossless PNG,
-    "jpeg" for JPEG (quality 90) on `/image_raw/compressed`.
+    "jpeg" for JPEG (quality 90) on `/image_raw/compressed`. `chunk_compression`:
+    none, lz4 or zstd chunks. The bag appears only once finalized (atomic).
     """
     fmt = _compression(compressed)
-    bag = BagWriter(Path(out_path), overwrite=overwrite)  # refuses an existing output before the slow setup
+    bag = BagWriter(Path(out_path), overwrite=overwrite, compression=chunk_compression)  # refuses an existing output before the slow setup
     sim = SimRig(rig_config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms, start_ns=start_ns)
     return _drain(sim, bag, duration_s, fmt)
 

@@ -1,0 +1,103 @@
+"""Atomic outputs: write into a temporary sibling, rename it into place only on success.
+
+Every writer of a file or folder output (replay, sim --bag, manifest,
+validate --report, recover) goes through `atomic_output`, so a failed or
+interrupted run never leaves a partial output under the real name, and with
+`overwrite` the old output stays untouched until the new one is complete:
+a file is replaced by one `os.replace`; a folder is renamed aside, the new
+one renamed in, then the old one deleted. The temporary sibling lives in the
+same folder as the target, so the final rename never crosses filesystems.
+Pure Python (no ROS, no bag libraries): bag/ and report/ both use it.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from .errors import BagWriteError
+
+PARTIAL_TAG = ".partial-"
+ASIDE_TAG = ".replaced-"
+INTERRUPTED_SUFFIX = ".interrupted"
+
+
+class OutputExistsError(BagWriteError):
+    """The output path is taken and --overwrite was not given."""
+
+
+def check_target(target: Path, overwrite: bool) -> None:
+    """Refuse an existing output unless `overwrite`; its parent folder must exist."""
+    if (target.exists() or target.is_symlink()) and not overwrite:
+        raise OutputExistsError(f"{target}: output exists; choose another path or pass --overwrite")
+    if not target.parent.is_dir():
+        raise OutputExistsError(f"{target}: parent folder {target.parent} does not exist")
+
+
+def temporary_sibling(target: Path) -> Path:
+    """A hidden name next to `target`, unique to this process."""
+    return target.with_name(f".{target.name}{PARTIAL_TAG}{os.getpid()}")
+
+
+def remove_path(path: Path) -> None:
+    """Delete a file or folder if it is there."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    elif path.exists() or path.is_symlink():
+        path.unlink(missing_ok=True)
+
+
+def commit(partial: Path, target: Path) -> None:
+    """Move a finished `partial` to `target`, replacing what is there only now."""
+    if partial.is_dir() and (target.exists() or target.is_symlink()):
+        aside = target.with_name(f".{target.name}{ASIDE_TAG}{os.getpid()}")
+        remove_path(aside)
+        os.replace(target, aside)
+        try:
+            os.replace(partial, target)
+        except OSError:
+            os.replace(aside, target)  # put the old output back: the run failed at the last step
+            raise
+        remove_path(aside)
+    else:
+        os.replace(partial, target)
+
+
+@contextmanager
+def atomic_output(target: Path, *, overwrite: bool) -> Iterator[Path]:
+    """Yield a temporary path to write `target` into; rename it into place when the block succeeds.
+
+    On any exception (KeyboardInterrupt included) the temporary output is
+    deleted and `target` is left as it was. A caller that wants to keep a
+    finalized partial result moves it away itself before re-raising (see
+    `keep_interrupted`).
+    """
+    check_target(target, overwrite)
+    partial = temporary_sibling(target)
+    remove_path(partial)
+    try:
+        yield partial
+    except BaseException:
+        remove_path(partial)
+        raise
+    try:
+        commit(partial, target)
+    except OSError as exc:
+        remove_path(partial)
+        raise OutputExistsError(f"{target}: cannot move the finished output into place ({exc.strerror or exc})") from exc
+
+
+def interrupted_name(target: Path) -> Path:
+    """Where a finalized partial output is kept: a name that says it is not complete."""
+    return target.with_name(target.name + INTERRUPTED_SUFFIX)
+
+
+def keep_interrupted(partial: Path, target: Path) -> Path:
+    """Move a finalized partial output to `<target>.interrupted` (replacing an older one) and return that path."""
+    kept = interrupted_name(target)
+    remove_path(kept)
+    os.replace(partial, kept)
+    return kept

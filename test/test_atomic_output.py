@@ -1,0 +1,61 @@
+"""core/atomic_output.py on real files and folders: nothing partial under the real name, the old output kept until the end."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from roi_node.core.atomic_output import OutputExistsError, atomic_output, interrupted_name, keep_interrupted
+
+
+class BoomError(Exception):
+    pass
+
+
+def _tree(path: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(path)): p.read_bytes() for p in sorted(path.rglob("*")) if p.is_file()}
+
+
+def test_a_file_appears_only_when_complete_and_a_failure_keeps_the_old_one(tmp_path: Path) -> None:
+    target = tmp_path / "manifest.json"
+    with atomic_output(target, overwrite=False) as partial:
+        partial.write_text("first")
+        assert not target.exists() and partial.parent == tmp_path
+    assert target.read_text() == "first"
+    with pytest.raises(OutputExistsError, match="output exists; choose another path or pass --overwrite"), \
+            atomic_output(target, overwrite=False):
+        pass
+    with pytest.raises(BoomError), atomic_output(target, overwrite=True) as partial:
+        partial.write_text("half")
+        raise BoomError
+    assert target.read_text() == "first" and sorted(os.listdir(tmp_path)) == ["manifest.json"]
+
+
+def test_a_folder_is_swapped_in_whole_and_interrupted_work_is_kept_aside(tmp_path: Path) -> None:
+    target = tmp_path / "report"
+    target.mkdir()
+    (target / "old.txt").write_text("old")
+    with pytest.raises(KeyboardInterrupt), atomic_output(target, overwrite=True) as partial:
+        partial.mkdir()
+        (partial / "new.txt").write_text("half")
+        raise KeyboardInterrupt
+    assert _tree(target) == {"old.txt": b"old"} and sorted(os.listdir(tmp_path)) == ["report"]
+    with atomic_output(target, overwrite=True) as partial:
+        partial.mkdir()
+        (partial / "new.txt").write_text("new")
+        assert _tree(target) == {"old.txt": b"old"}
+    assert _tree(target) == {"new.txt": b"new"} and sorted(os.listdir(tmp_path)) == ["report"]
+    partial = tmp_path / "partial"
+    partial.mkdir()
+    (partial / "done.txt").write_text("some")
+    kept = keep_interrupted(partial, target)
+    assert kept == interrupted_name(target) == tmp_path / "report.interrupted" and _tree(kept) == {"done.txt": b"some"}
+    assert _tree(target) == {"new.txt": b"new"}
+
+
+def test_a_missing_parent_is_named(tmp_path: Path) -> None:
+    with pytest.raises(OutputExistsError, match=f"parent folder {tmp_path / 'nope'} does not exist"), \
+            atomic_output(tmp_path / "nope" / "out", overwrite=False):
+        pass
