@@ -216,6 +216,7 @@ def _summary(watch: MetadataWatch, expected: int, logs: Path, validation: dict[s
         "frames_recorded_in": images_in,
         "roi_frames_out": metadata,
         "dropped_frames": expected - metadata + sum(d for _, d in recorded.values()),
+        "node_stopped": _node_summary(logs / "node.log"),  # the node's own StreamStats totals: where frames went
         "latency_ms": {"p50": float(np.median(lat)), "p99": float(np.percentile(lat, 99))},
         "gates_passed": bool(validation.get("passed", False)),
         "gates_failed": failed,
@@ -235,11 +236,19 @@ def _summary(watch: MetadataWatch, expected: int, logs: Path, validation: dict[s
     }
 
 
+def _node_summary(log: Path) -> str | None:
+    """The node's "stopped: frames in ..., out ...; dropped: ..." line, if it logged one."""
+    lines = [line.split("stopped: ", 1)[1] for line in log.read_text(errors="replace").splitlines() if "]: stopped: " in line]
+    return lines[-1] if lines else None
+
+
 def _print_summary(s: dict[str, Any]) -> None:
     print("summary:")
     print(f"  ran: simulated rig -> roi-node run -> roi-node record ({s['live_seconds']:.1f} s), then validate, replay, compare")
     print(f"  frames: {s['frames_published_by_sim']} published, {s['frames_recorded_in']} recorded, "
           f"{s['roi_frames_out']} ROI frames out, dropped {s['dropped_frames']}")
+    if s["node_stopped"]:
+        print(f"  node: {s['node_stopped']}")
     print(f"  camera -> ROI latency: p50 {s['latency_ms']['p50']:.1f} ms, p99 {s['latency_ms']['p99']:.1f} ms")
     failed = ", ".join(f"{g['gate']} ({g['arm']}: {g['value']:.3g} vs {g['op']} {g['threshold']:g})" for g in s["gates_failed"])
     gates = "all passed" if s["gates_passed"] else f"FAILED: {failed}"

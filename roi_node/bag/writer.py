@@ -247,7 +247,9 @@ class BagWriter:
 
     def _note_failure(self, exc: OSError) -> None:
         if self.failure is None:
-            self.failure = f"{self._dir / self._file_name()}: write failed ({exc.strerror or exc})"
+            # name the output the user asked for (an atomic write's temporary sibling means nothing to them)
+            where = self._dir / self._file_name() if self._in_place else self.path
+            self.failure = f"{where}: write failed ({exc.strerror or exc})"
         (self._dir / RESERVE_NAME).unlink(missing_ok=True)  # room for the footer and metadata.yaml
 
     def _fail(self, exc: OSError) -> None:
