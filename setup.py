@@ -36,6 +36,8 @@ setup(
         "ros": ["ros-jazzy-rclpy[fastrtps]>=7.1", "ros-jazzy-common-interfaces>=5.3"],
         "bag": ["rosbags>=0.10,<0.12", "mcap>=1.2", "mcap-ros2-support>=0.5"],
         "robots": ["example-robot-data>=4.1"],
+        # `roi-node export lerobot`: parquet + video without torch (PyAV's wheels bundle SVT-AV1 and x264)
+        "export": ["av>=14", "pyarrow>=15"],
         "dev": [
             "pytest>=8",
             "pytest-timeout>=2.3",

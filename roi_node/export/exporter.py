@@ -107,7 +107,7 @@ def export_lerobot(bags: list[Path], output: Path, options: ExportOptions, on_ep
         reports: list[EpisodeReport] = []
         try:
             for bag in bags:
-                with _roi_bag(bag, options.config, work.parent) as roi:
+                with _roi_bag(bag, options, work.parent) as roi:
                     source = read_source(roi, gates.params)
                     writer = writer or _writer(work, source, state, options, provenance.codec)
                     report = _episode(writer, bag, source, options, provenance, gates)
@@ -214,16 +214,20 @@ def _roi_origin(config: Path | None) -> dict[str, Any]:
 
 
 @contextmanager
-def _roi_bag(bag: Path, config: Path | None, scratch: Path) -> Iterator[Path]:
-    """The bag's ROI outputs: the bag itself, or a replay of it through the rig into a temporary folder."""
-    if config is None:
+def _roi_bag(bag: Path, options: ExportOptions, scratch: Path) -> Iterator[Path]:
+    """The bag's ROI outputs: the bag itself, or a replay of it through the rig into a temporary folder.
+
+    A command topic is the replay's command stream too (its records then carry the teleop residual),
+    never one of the measured joint state topics.
+    """
+    if options.config is None:
         if not has_roi_outputs(bag):
             raise BagError(f"{bag}: no ROI outputs ({METADATA_TOPIC}); pass --config RIG to regenerate them from the recording")
         yield bag
         return
     folder = Path(tempfile.mkdtemp(prefix=f".{bag.name}.roi.", dir=scratch))
     try:
-        replay_bag(bag, folder / "roi", config)
+        replay_bag(bag, folder / "roi", options.config, command_topic=options.command_topic)
         yield folder / "roi"
     finally:
         shutil.rmtree(folder, ignore_errors=True)

@@ -87,8 +87,12 @@ class VideoFileWriter:
         self._container = None
 
     def abort(self) -> None:
-        """Close without flushing (the file is discarded with the temporary dataset)."""
-        if self._container is not None:
+        """Close a file that is discarded with the temporary dataset (the encoder is still drained: SVT-AV1 complains otherwise)."""
+        if self._container is None:
+            return
+        try:
+            self._mux(self._stream.encode())
+        finally:
             self._container.close()
             self._container = None
 
