@@ -65,12 +65,13 @@ def resample(stamps_ns: Sequence[int], fps: int, max_age_ns: int, where: str) ->
     grid_scaled = np.arange(count, dtype=np.int64) * NS_PER_S
     chosen = np.searchsorted(scaled, grid_scaled, side="right") - 1  # latest at or before, never after
     age_scaled = grid_scaled - scaled[chosen]
-    worst = int(np.argmax(age_scaled))
-    worst_age_ns = int(age_scaled[worst] // fps)
-    if int(age_scaled[worst]) > max_age_ns * fps:
+    too_old = np.flatnonzero(age_scaled > max_age_ns * fps)
+    if too_old.size:
+        first = int(too_old[0])
         raise BagError(
-            f"{where}: no frame within {max_age_ns / NS_PER_MS:g} ms before grid time {worst / fps:.3f} s "
-            f"(frame {worst} at {fps} fps): the latest is {worst_age_ns / NS_PER_MS:.1f} ms old; "
+            f"{where}: no frame within {max_age_ns / NS_PER_MS:g} ms before grid time {first / fps:.3f} s "
+            f"(frame {first} at {fps} fps): the latest is {int(age_scaled[first]) / fps / NS_PER_MS:.1f} ms old; "
             "raise --max-age-ms or lower --fps"
         )
+    worst_age_ns = int(age_scaled.max()) // fps
     return GridPlan(fps, max_age_ns, start, tuple(int(c) for c in chosen), int(stamps.size), worst_age_ns)
