@@ -38,6 +38,8 @@ $(LEROBOT_STAMP): setup.py setup.cfg package.xml
 	$(PYTHON) -m venv $(LEROBOT_VENV)
 	$(LEROBOT_VENV)/bin/python -m pip install --quiet --upgrade pip
 	$(LEROBOT_VENV)/bin/python -m pip install --quiet "lerobot==$(LEROBOT_VERSION)" -e ".[bag,robots,export]" pytest pytest-timeout
+	# the placo that resolves next to lerobot's pins links urdfdom 4 and tinyxml2 10, which its metadata does not enforce
+	$(LEROBOT_VENV)/bin/python -m pip install --quiet "cmeel-urdfdom<5" "cmeel-tinyxml2<11"
 	touch $(LEROBOT_STAMP)
 
 test-lerobot: $(LEROBOT_STAMP)

@@ -171,8 +171,9 @@ class DatasetWriter:
         row.update(self._write_data(values))
         video_rows, samples = self._write_videos(source, values[SOURCE_STAMP_KEY])
         row.update(video_rows)
-        stats = {key: numeric_stats(values[key]) for key in self.schema.names}
-        stats.update({key: image_stats(np.stack(frames_)) for key, frames_ in samples.items()})
+        stats = {  # in info.json feature order, as lerobot keeps them
+            key: image_stats(np.stack(samples[key])) if key in samples else numeric_stats(values[key]) for key in self.features
+        }
         row.update({f"stats/{key}/{name}": value.tolist() for key, feature in stats.items() for name, value in feature.items()})
         self._rows.append(row)
         self._episode_stats.append(stats)
