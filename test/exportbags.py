@@ -100,7 +100,8 @@ def _commanded_bag(path: Path, rig: Path) -> Path:
             ahead = [p + COMMAND_LEAD_RAD for p in event.positions]
             messages.append((stamp, COMMAND_TOPIC, factory.joint_state(stamp, list(event.names), ahead)))
         elif isinstance(event, CameraInfoEvent):
-            messages.append((event.stamp_ns, info_topic, factory.camera_info(event.stamp_ns, event.frame_id, event.camera, sim.camera.width_px, sim.camera.height_px)))
+            info = factory.camera_info(event.stamp_ns, event.frame_id, event.camera, sim.camera.width_px, sim.camera.height_px)
+            messages.append((event.stamp_ns, info_topic, info))
         elif isinstance(event, ImageEvent):
             messages.append((event.stamp_ns, image_topic, factory.image(event.stamp_ns, event.frame_id, event.image)))
     with BagWriter(path) as writer:

@@ -171,7 +171,8 @@ def test_frames_follow_the_grid_and_carry_the_records_values(dataset: Path, bags
             # no command stream: the action is the next frame's state (the last frame keeps its own)
             following = table["observation.state"][min(i + 1, span[-1])]
             assert table["action"][i] == following
-        assert row["videos/observation.images.roi_left/to_timestamp"] - row["videos/observation.images.roi_left/from_timestamp"] == pytest.approx(len(span) / FPS)
+        video_span_s = row["videos/observation.images.roi_left/to_timestamp"] - row["videos/observation.images.roi_left/from_timestamp"]
+        assert video_span_s == pytest.approx(len(span) / FPS)
 
 
 def test_decoded_videos_show_the_bags_roi_images(dataset: Path, bags: ExportBags) -> None:
@@ -247,7 +248,8 @@ def test_a_mismatched_rig_is_refused_in_one_line_and_the_dataset_is_untouched(
 
 def test_refusals_are_one_line_exit_2(dataset: Path, bags: ExportBags, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     code, _, err = export(capsys, str(bags.roi(0)), "-o", str(dataset), "--fps", str(FPS), "--task", TASK)
-    assert code == 2 and err.strip() == f"roi-node export: error: {dataset}: output exists; choose another path, or pass --append to add episodes to it"
+    assert code == 2
+    assert err.strip() == f"roi-node export: error: {dataset}: output exists; choose another path, or pass --append to add episodes to it"
     code, _, err = export(capsys, str(bags.raw(0)), "-o", str(tmp_path / "raw"), "--fps", str(FPS), "--task", TASK)
     assert code == 2 and err.strip() == (
         f"roi-node export: error: {bags.raw(0)}: no ROI outputs (/roi/metadata); pass --config RIG to regenerate them from the recording"
@@ -292,5 +294,6 @@ def test_the_grid_takes_the_latest_frame_never_a_later_one_and_refuses_old_frame
     assert (plan.dropped, plan.duplicated, plan.worst_age_ns) == (2, 0, 100 * ms - 1)
     slow = resample([0, 150 * ms, 300 * ms], 10, 100 * ms, "bag")
     assert slow.sources == (0, 0, 1, 2) and (slow.dropped, slow.duplicated) == (0, 1)
-    with pytest.raises(BagError, match=r"bag: no frame within 50 ms before grid time 0\.100 s \(frame 1 at 10 fps\): the latest is 100\.0 ms"):
+    expected = r"bag: no frame within 50 ms before grid time 0\.100 s \(frame 1 at 10 fps\): the latest is 100\.0 ms"
+    with pytest.raises(BagError, match=expected):
         resample([0, 250 * ms], 10, 50 * ms, "bag")

@@ -45,10 +45,11 @@ class CommandStream:
         samples: list[tuple[int, tuple[str, ...], np.ndarray]] = []
         with open_bag(path) as reader:
             stats = topic_stats(reader)
+            where = f"{path}: --command-topic {self.topic}"
             if self.topic not in stats:
-                raise BagError(f"{path}: --command-topic {self.topic}: no such topic; the bag has {', '.join(sorted(stats)) or 'no topics'}")
+                raise BagError(f"{where}: no such topic; the bag has {', '.join(sorted(stats)) or 'no topics'}")
             if stats[self.topic].msgtype != topics.JOINT_STATE_TYPE:
-                raise BagError(f"{path}: --command-topic {self.topic}: type is {stats[self.topic].msgtype}, expected {topics.JOINT_STATE_TYPE}")
+                raise BagError(f"{where}: type is {stats[self.topic].msgtype}, expected {topics.JOINT_STATE_TYPE}")
             connections = [c for c in reader.connections if c.topic == self.topic]
             for connection, _, raw in read_messages(reader, connections, path):
                 try:

@@ -62,8 +62,8 @@ class DatasetState:
     frames: int = 0
     tasks: list[str] = field(default_factory=list)
     stats: dict[str, Stats] = field(default_factory=dict)
-    next_data: FileIndex = FileIndex()
-    next_episodes: FileIndex = FileIndex()
+    next_data: FileIndex = field(default_factory=FileIndex)
+    next_episodes: FileIndex = field(default_factory=FileIndex)
     next_video: dict[str, FileIndex] = field(default_factory=dict)
     provenance: Provenance | None = None
 
@@ -79,8 +79,9 @@ def load_state(root: Path) -> DatasetState:
         raise DatasetError(f"{info_file}: codebase_version {info.get('codebase_version')!r}; this exporter appends to {CODEBASE_VERSION!r}")
     provenance = read_provenance(root)
     features = info["features"]
+    spec = EpisodeSpec.from_features(features, str(info_file))
     state = DatasetState(
-        spec=EpisodeSpec.from_features(features, str(info_file)),
+        spec=spec,
         fps=int(info["fps"]),
         robot_type=info.get("robot_type"),
         features=features,
@@ -96,7 +97,7 @@ def load_state(root: Path) -> DatasetState:
     last = _last_episode(root)
     state.next_data = FileIndex(last["data/chunk_index"], last["data/file_index"]).following(CHUNKS_SIZE)
     state.next_episodes = FileIndex(last["meta/episodes/chunk_index"], last["meta/episodes/file_index"]).following(CHUNKS_SIZE)
-    for key in state.spec.video_sizes():
+    for key in spec.video_sizes():
         state.next_video[key] = FileIndex(last[f"videos/{key}/chunk_index"], last[f"videos/{key}/file_index"]).following(CHUNKS_SIZE)
     return state
 

@@ -94,7 +94,9 @@ class ExportResult:
         return sum(e.plan.frames for e in self.episodes)
 
 
-def export_lerobot(bags: list[Path], output: Path, options: ExportOptions, on_episode: Callable[[EpisodeReport], None] | None = None) -> ExportResult:
+def export_lerobot(
+    bags: list[Path], output: Path, options: ExportOptions, on_episode: Callable[[EpisodeReport], None] | None = None
+) -> ExportResult:
     """Write (or extend, with options.append) the dataset at `output`; RoiNodeError names what is unusable."""
     started = time.perf_counter()
     if not bags:
@@ -156,7 +158,9 @@ def _writer(work: Path, source: RoiSource, state: DatasetState, options: ExportO
     return DatasetWriter(work, fps=options.fps, codec=codec, spec=spec, robot_type=options.robot_type or source.robot_id, state=state)
 
 
-def _episode(writer: DatasetWriter, bag: Path, source: RoiSource, options: ExportOptions, provenance: Provenance, gates: GateSet) -> EpisodeReport:
+def _episode(
+    writer: DatasetWriter, bag: Path, source: RoiSource, options: ExportOptions, provenance: Provenance, gates: GateSet
+) -> EpisodeReport:
     if not writer.spec.fits(source.spec):
         raise DatasetError(
             f"{bag}: {source.spec.describe()} differ from the dataset's {writer.spec.describe()}; one dataset holds episodes of one rig"

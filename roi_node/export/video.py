@@ -23,6 +23,7 @@ from typing import Any
 
 import av
 import numpy as np
+from av.video.stream import VideoStream
 
 from .features import ImageSize
 
@@ -61,10 +62,12 @@ class VideoFileWriter:
             os.environ.setdefault("SVT_LOG", "1")
         path.parent.mkdir(parents=True, exist_ok=True)
         self._container: Any = av.open(str(path), "w")
-        self._stream: Any = self._container.add_stream(settings.encoder, rate=fps, options=dict(settings.options))
-        self._stream.width = size.width_px
-        self._stream.height = size.height_px
-        self._stream.pix_fmt = settings.pix_fmt
+        stream = self._container.add_stream(settings.encoder, rate=fps, options=dict(settings.options))
+        assert isinstance(stream, VideoStream)
+        stream.width = size.width_px
+        stream.height = size.height_px
+        stream.pix_fmt = settings.pix_fmt
+        self._stream = stream
         self._time_base = Fraction(1, fps)
 
     def write(self, rgb: np.ndarray) -> None:
@@ -101,13 +104,15 @@ def video_info(path: Path) -> dict[str, Any]:
     """The `info` of a video feature in info.json, read back from the file as LeRobot reads it."""
     with av.open(str(path)) as container:
         stream = container.streams.video[0]
+        rate = stream.base_rate
+        assert rate is not None  # every stream we write has one
         return {
             "video.height": stream.height,
             "video.width": stream.width,
             "video.codec": stream.codec_context.codec.canonical_name,
             "video.pix_fmt": stream.pix_fmt,
             "video.is_depth_map": False,
-            "video.fps": int(stream.base_rate),
+            "video.fps": int(rate),
             "video.channels": 3,
             "has_audio": False,
         }
