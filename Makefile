@@ -55,6 +55,7 @@ bench: $(STAMP)
 	$(PY) bench/sim.py
 	$(PY) bench/replay.py
 	$(PY) bench/validate.py
+	$(PY) bench/export.py
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-73} $(PY) bench/live.py
 
 lint: $(STAMP)

@@ -21,6 +21,7 @@ import pytest
 
 from roi_node.cli import main
 from roi_node.core.errors import BagError
+from roi_node.export import stats
 from roi_node.export.grid import resample
 
 from .exportbags import (
@@ -297,3 +298,19 @@ def test_the_grid_takes_the_latest_frame_never_a_later_one_and_refuses_old_frame
     expected = r"bag: no frame within 50 ms before grid time 0\.100 s \(frame 1 at 10 fps\): the latest is 100\.0 ms"
     with pytest.raises(BagError, match=expected):
         resample([0, 250 * ms], 10, 50 * ms, "bag")
+
+
+def test_statistics_aggregate_like_the_concatenated_data_and_image_quantiles_are_numpys() -> None:
+    rng = np.random.default_rng(7)
+    first, second = rng.normal(size=(40, 3)).astype(np.float32), (rng.normal(size=(25, 3)) + 2).astype(np.float32)
+    merged = stats.aggregate([{"x": stats.numeric_stats(first)}, {"x": stats.numeric_stats(second)}])["x"]
+    whole = np.concatenate([first, second]).astype(np.float64)
+    assert np.allclose(merged["mean"], whole.mean(0)) and np.allclose(merged["std"], whole.std(0))
+    assert np.array_equal(merged["min"], whole.min(0)) and merged["count"].tolist() == [65]
+    frames = rng.integers(0, 256, size=(6, 16, 16, 3), dtype=np.uint8)
+    image = stats.image_stats(frames)
+    pixels = frames.reshape(-1, 3).astype(np.float64)
+    for key, q in stats.QUANTILES.items():
+        assert np.allclose(image[key].ravel() * 255, np.quantile(pixels, q, axis=0))
+    assert np.allclose(image["std"].ravel() * 255, pixels.std(0)) and image["mean"].shape == (3, 1, 1)
+    assert image["count"].tolist() == [6]

@@ -50,8 +50,10 @@ def numeric_stats(values: np.ndarray) -> Stats:
 
 def image_stats(samples: np.ndarray) -> Stats:
     """Per-channel statistics of (m, H, W, 3) uint8 frames, in [0, 1], each shaped (3, 1, 1)."""
-    pixels = samples.reshape(-1, samples.shape[-1])
-    counts = np.stack([np.bincount(pixels[:, c], minlength=256) for c in range(pixels.shape[1])])  # (3, 256)
+    channels = samples.shape[-1]
+    offsets = np.arange(channels, dtype=np.int32) * 256  # one bincount over all channels: channel c counts at c*256 + v
+    flat = (samples.reshape(-1, channels) + offsets).ravel()
+    counts = np.bincount(flat, minlength=256 * channels).reshape(channels, 256)
     levels = np.arange(256, dtype=np.float64)
     total = counts.sum(axis=1)
     mean = counts @ levels / total

@@ -128,3 +128,34 @@ def test_the_layout_matches_a_dataset_lerobot_writes_itself(bags: ExportBags, tm
     }
     assert info["features"] == ref_info["features"]
     assert set(json.loads((ours / "meta/stats.json").read_text())) == set(json.loads((theirs / "meta/stats.json").read_text()))
+
+
+def test_episode_statistics_agree_with_lerobots_compute_episode_stats(bags: ExportBags, tmp_path: Path) -> None:
+    """Same min/max/mean/count; std within float32 E[x^2] - E[x]^2 rounding (LeRobot's way; ours is float64 two-pass);
+    quantiles (ours exact, LeRobot's from a histogram) both between the order statistics around rank q*n."""
+    from lerobot.datasets.compute_stats import compute_episode_stats
+
+    out = tmp_path / "stats"
+    export([bags.roi(0)], out)
+    info = json.loads((out / "meta/info.json").read_text())
+    numeric = {k: ft for k, ft in info["features"].items() if ft["dtype"] != "video"}
+    columns = pq.read_table(out / "data/chunk-000/file-000.parquet").to_pydict()
+    data = {key: np.asarray(columns[key], dtype=ft["dtype"]) for key, ft in numeric.items()}
+    theirs = compute_episode_stats(data, numeric)
+    ours = pq.read_table(out / "meta/episodes/chunk-000/file-000.parquet").to_pylist()[0]
+    for key, stats in theirs.items():
+        span = np.asarray(stats["max"], dtype=np.float64) - np.asarray(stats["min"], dtype=np.float64)
+        mean = np.asarray(stats["mean"], dtype=np.float64)
+        for name, value in stats.items():
+            mine, reference = np.asarray(ours[f"stats/{key}/{name}"], dtype=np.float64), np.asarray(value, dtype=np.float64)
+            if name == "std":
+                rounding = 8 * np.finfo(np.float32).eps * (mean**2 + reference**2)
+                assert np.all(np.abs(mine**2 - reference**2) <= rounding + 1e-12), (key, name)
+                continue
+            if name.startswith("q"):  # definitions differ on few samples: both within the order statistics around rank q*n
+                ordered = np.sort(data[key].reshape(len(data[key]), -1).astype(np.float64), axis=0)
+                q, n, bin_width = int(name[1:]) / 100, len(ordered), span / 5000 + 1e-9
+                low, high = ordered[int(np.floor(q * (n - 1)))] - bin_width, ordered[min(int(np.ceil(q * n)), n - 1)] + bin_width
+                assert np.all((low <= mine) & (mine <= high) & (low <= reference) & (reference <= high)), (key, name)
+                continue
+            assert np.all(np.abs(mine - reference) <= 1e-6 * (1 + np.abs(reference))), (key, name)
