@@ -159,3 +159,26 @@ def grid_oracle(stamps: list[int], fps: int) -> list[int]:
         out.append(max(s for s in ordered if (s - first) * fps <= k * 1_000_000_000))
         k += 1
     return out
+
+
+def lossy_copy(source: Path, target: Path, *, drop: tuple[str, int], late: tuple[str, int]) -> Path:
+    """An ROI bag as a busy live recorder may leave it: the `drop` (topic, message position) image is missing and the
+    `late` one is logged after its successor (raw CDR copied, log times kept otherwise)."""
+    with AnyReader([source], default_typestore=typestore()) as reader, BagWriter(target) as writer:
+        for connection in reader.connections:
+            writer.add_topic(connection.topic, connection.msgtype)
+        positions: dict[str, int] = {}
+        held: tuple[str, int, bytes] | None = None
+        for connection, log_ns, raw in reader.messages():
+            position = positions.get(connection.topic, 0)
+            positions[connection.topic] = position + 1
+            if (connection.topic, position) == drop:
+                continue
+            if (connection.topic, position) == late:
+                held = (connection.topic, log_ns, bytes(raw))
+                continue
+            writer.write_cdr(connection.topic, log_ns, raw)
+            if held is not None and connection.topic == held[0]:
+                writer.write_cdr(held[0], log_ns + 1, held[2])
+                held = None
+    return target

@@ -31,6 +31,7 @@ from .exportbags import (
     commands,
     grid_oracle,
     images_by_stamp,
+    lossy_copy,
     psnr_db,
     records_by_stamp,
     tree_digest,
@@ -314,3 +315,22 @@ def test_statistics_aggregate_like_the_concatenated_data_and_image_quantiles_are
         assert np.allclose(image[key].ravel() * 255, np.quantile(pixels, q, axis=0))
     assert np.allclose(image["std"].ravel() * 255, pixels.std(0)) and image["mean"].shape == (3, 1, 1)
     assert image["count"].tolist() == [6]
+
+
+def test_a_live_recording_with_a_dropped_and_a_late_image_still_makes_a_complete_episode(
+    bags: ExportBags, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The frame missing an ROI image is not used (the grid shows its predecessor); a late image still lands in order."""
+    lossy = lossy_copy(bags.roi(0), tmp_path / "lossy", drop=("/roi/left/image_raw", 3), late=("/roi/right/image_raw", 5))
+    out = tmp_path / "ds"
+    code, report, err = export(capsys, str(lossy), "-o", str(out), "--fps", "15", "--task", TASK, "--codec", "lossless")
+    assert code == 0, err
+    assert "1 without every image" in report and "duplicated 1" in report
+    records = sorted(records_by_stamp(bags.roi(0)))
+    usable = [s for i, s in enumerate(records) if i != 3]
+    table = frames_table(out)
+    assert table["roi_node.source_stamp_ns"] == grid_oracle(usable, 15)
+    for key, topic in (("roi_right", "/roi/right/image_raw"), ("roi_left", "/roi/left/image_raw")):
+        truth = images_by_stamp(bags.roi(0), topic)
+        decoded = decode(out / f"videos/observation.images.{key}/chunk-000/file-000.mp4")
+        assert all(np.array_equal(image, truth[table["roi_node.source_stamp_ns"][i]]) for i, (_, image) in enumerate(decoded))

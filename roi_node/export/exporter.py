@@ -137,6 +137,8 @@ def _existing(output: Path, options: ExportOptions) -> DatasetState:
     state = load_state(output)
     if state.fps != options.fps:
         raise DatasetError(f"{output}: the dataset is at {state.fps} fps; --fps {options.fps} cannot be appended to it")
+    if options.robot_type is not None and options.robot_type != state.robot_type:
+        raise DatasetError(f"{output}: the dataset's robot_type is {state.robot_type!r}; --robot-type {options.robot_type!r} cannot join")
     return state
 
 
