@@ -141,7 +141,7 @@ class DatasetWriter:
         self.robot_type = state.robot_type if state.spec is not None else robot_type
         self.features = dict(state.features) or {
             **spec.numeric_features(),
-            **{key: _video_feature(size.height_px, size.width_px) for key, size in spec.video_sizes().items()},
+            **spec.video_features(),
             **DEFAULT_FEATURES,
         }
         self.schema = data_schema(self.features)
@@ -289,10 +289,6 @@ class DatasetWriter:
         )
         write_json(self.root / INFO_PATH, info)
         write_json(self.root / PROVENANCE_PATH, provenance.as_dict())
-
-
-def _video_feature(height: int, width: int) -> dict[str, Any]:
-    return {"dtype": "video", "shape": [height, width, 3], "names": ["height", "width", "channels"]}
 
 
 def _arrow_column(values: np.ndarray, kind: pa.DataType) -> pa.Array:

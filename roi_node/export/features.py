@@ -112,6 +112,13 @@ class EpisodeSpec:
         out[SOURCE_FRAME_KEY] = {"dtype": "int64", "shape": [1], "names": None}
         return out
 
+    def video_features(self) -> dict[str, dict[str, Any]]:
+        """The video features (their `info` is read back from the first encoded file)."""
+        return {
+            key: {"dtype": "video", "shape": [size.height_px, size.width_px, 3], "names": list(IMAGE_NAMES)}
+            for key, size in self.video_sizes().items()
+        }
+
     @classmethod
     def from_features(cls, features: Mapping[str, Any], where: str) -> EpisodeSpec:
         """The spec of an existing dataset, from its info.json features."""
