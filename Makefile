@@ -63,4 +63,4 @@ lint: $(STAMP)
 	$(VENV)/bin/mypy roi_node
 
 clean:
-	rm -rf $(VENV) $(DEMO_OUT) build install log
+	rm -rf $(VENV) $(LEROBOT_VENV) $(DEMO_OUT) build install log

@@ -35,7 +35,8 @@ from .actions import Actions, CommandStream, next_state_actions
 from .dataset import DatasetState, DatasetWriter, EpisodeInput, load_state
 from .errors import DatasetError
 from .features import SOURCE_STAMP_KEY, STATE_KEY, ActionSource
-from .grid import DEFAULT_MAX_AGE_MS, GridPlan, resample
+from .grid import GridPlan, resample
+from .limits import DEFAULT_MAX_AGE_MS
 from .provenance import ActionOrigin, Provenance
 from .source import RoiSource, has_roi_outputs, read_source
 from .video import Codec

@@ -23,8 +23,6 @@ import numpy as np
 from ..core.errors import BagError
 from ..core.sync import NS_PER_MS, NS_PER_S
 
-DEFAULT_MAX_AGE_MS = 100.0
-
 
 @dataclass(frozen=True)
 class GridPlan:

@@ -48,7 +48,7 @@ def _cmd_lerobot(args: argparse.Namespace) -> int:
 
 
 def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    from .grid import DEFAULT_MAX_AGE_MS
+    from .limits import DEFAULT_MAX_AGE_MS
 
     export = verbs.add_parser("export", help="export ROI bags to training datasets (LeRobot v3.0)")
     formats = export.add_subparsers(dest="format", required=True, metavar="<format>")
