@@ -198,7 +198,7 @@ def _episode(
                 "duplicated": plan.duplicated,
                 "oldest_ms": plan.worst_age_ns / NS_PER_MS,
             },
-            "action": {"held_frames": actions.held_frames},
+            "action": {"command_topic": options.command_topic, "held_frames": actions.held_frames},
         }
     )
     return EpisodeReport(
