@@ -5,7 +5,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-roi-node
-EXTRAS := ros,bag,robots,dev
+EXTRAS := ros,bag,robots,export,dev
 DEMO_OUT ?= demo_out
 
 # Everything that starts DDS keeps it on this machine, on its own domain.
@@ -14,7 +14,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export MALLOC_MMAP_THRESHOLD_ := 33554432
 export MALLOC_TRIM_THRESHOLD_ := 4000000000
 
-.PHONY: test demo bench lint venv clean
+.PHONY: test test-lerobot demo bench lint venv clean
 
 venv: $(STAMP)
 
@@ -28,6 +28,24 @@ test: $(STAMP)
 	$(PY) -m compileall -q roi_node test examples  # a cold first import must not slow the first live test
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-71} $(PY) -m pytest -q test
 
+# Opt-in, not part of `make test`: the real LeRobot reader (lerobot pulls torch, several GB) in its own
+# venv loads what `roi-node export lerobot` writes. Offline: nothing is fetched from the Hub.
+LEROBOT_VENV := .venv-lerobot
+LEROBOT_STAMP := $(LEROBOT_VENV)/.installed-lerobot
+LEROBOT_VERSION ?= 0.4.4
+
+$(LEROBOT_STAMP): setup.py setup.cfg package.xml
+	$(PYTHON) -m venv $(LEROBOT_VENV)
+	$(LEROBOT_VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(LEROBOT_VENV)/bin/python -m pip install --quiet "lerobot==$(LEROBOT_VERSION)" -e ".[bag,robots,export]" pytest pytest-timeout
+	# the placo that resolves next to lerobot's pins links urdfdom 4 and tinyxml2 10, which its metadata does not enforce
+	$(LEROBOT_VENV)/bin/python -m pip install --quiet "cmeel-urdfdom<5" "cmeel-tinyxml2<11"
+	touch $(LEROBOT_STAMP)
+
+test-lerobot: $(LEROBOT_STAMP)
+	HF_HUB_OFFLINE=1 HF_DATASETS_OFFLINE=1 HF_HOME=$$(mktemp -d) ROI_NODE_LEROBOT_TESTS=1 \
+		$(LEROBOT_VENV)/bin/python -m pytest -q -p no:cacheprovider test/lerobot
+
 demo: $(STAMP)
 	$(PY) -m compileall -q roi_node
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-72} $(VENV)/bin/roi-node demo --out $(DEMO_OUT)
@@ -37,7 +55,11 @@ bench: $(STAMP)
 	$(PY) bench/sim.py
 	$(PY) bench/replay.py
 	$(PY) bench/validate.py
+<<<<<<< HEAD
 	$(PY) bench/bagwrite.py
+=======
+	$(PY) bench/export.py
+>>>>>>> issue-14
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-73} $(PY) bench/live.py
 
 lint: $(STAMP)
@@ -45,4 +67,4 @@ lint: $(STAMP)
 	$(VENV)/bin/mypy roi_node
 
 clean:
-	rm -rf $(VENV) $(DEMO_OUT) build install log
+	rm -rf $(VENV) $(LEROBOT_VENV) $(DEMO_OUT) build install log

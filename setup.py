@@ -37,6 +37,8 @@ setup(
         # lz4 and zstandard: the chunk compressions roi_node's MCAP writer offers
         "bag": ["rosbags>=0.10,<0.12", "mcap>=1.2", "mcap-ros2-support>=0.5", "lz4>=4", "zstandard>=0.22"],
         "robots": ["example-robot-data>=4.1"],
+        # `roi-node export lerobot`: parquet + video without torch (PyAV's wheels bundle SVT-AV1 and x264)
+        "export": ["av>=14", "pyarrow>=15"],
         "dev": [
             "pytest>=8",
             "pytest-timeout>=2.3",

@@ -1,0 +1,80 @@
+"""`roi-node export lerobot` (registered by roi_node.cli)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return value
+
+
+def _cmd_lerobot(args: argparse.Namespace) -> int:
+    from .exporter import EpisodeReport, ExportOptions, export_lerobot
+    from .video import Codec
+
+    def done(report: EpisodeReport) -> None:
+        print(report.line(), flush=True)
+
+    options = ExportOptions(
+        fps=args.fps,
+        task=args.task,
+        config=Path(args.config) if args.config else None,
+        robot_type=args.robot_type,
+        append=args.append,
+        codec=Codec(args.codec) if args.codec else None,
+        max_age_ms=args.max_age_ms,
+        command_topic=args.command_topic,
+        gates=Path(args.gates) if args.gates else None,
+    )
+    result = export_lerobot([Path(p) for p in args.bags], Path(args.output), options, on_episode=done)
+    print(
+        f"wrote {result.output}: {len(result.episodes)} episode(s), {result.frames_written} frames "
+        f"(dataset: {result.total_episodes} episodes, {result.total_frames} frames), codec {result.codec}, "
+        f"action = {result.action.text()}"
+    )
+    return 0
+
+
+def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from .limits import DEFAULT_MAX_AGE_MS
+
+    export = verbs.add_parser("export", help="export ROI bags to training datasets (LeRobot v3.0)")
+    formats = export.add_subparsers(dest="format", required=True, metavar="<format>")
+    lerobot = formats.add_parser(
+        "lerobot",
+        help="ROI bags -> a LeRobot v3.0 dataset (one bag = one episode)",
+        description="Write ROI bags (replay outputs, or live recordings of the node's outputs) as episodes of a LeRobot v3.0 "
+        "dataset: global and per-arm ROI videos, observation.state from the records' joint_positions, action, and per arm "
+        "the ROI's crop box, confidence, in-frame, padding and validity. Frames are put on a fixed fps grid (the latest "
+        "frame at or before each grid time, no older than --max-age-ms). With --config, raw recordings are first run "
+        "through the rig's pipeline. Provenance (bag hashes, lineage, gate results) goes to meta/roi_node_provenance.json.",
+    )
+    lerobot.add_argument("bags", nargs="+", metavar="BAG", help="ROI bags (or raw recordings with --config), one episode each")
+    lerobot.add_argument("-o", "--output", required=True, metavar="DATASET", help="dataset folder to write")
+    lerobot.add_argument("--fps", required=True, type=_positive_int, metavar="N", help="dataset frame rate (the grid)")
+    lerobot.add_argument("--task", required=True, metavar="TEXT", help="task description of these episodes")
+    lerobot.add_argument("--config", metavar="RIG", help="regenerate the ROIs of raw recordings with this rig config")
+    lerobot.add_argument("--robot-type", metavar="NAME", help="info.json robot_type (default: the records' robot_id)")
+    lerobot.add_argument("--append", action="store_true", help="add the episodes to an existing export (created when missing)")
+    lerobot.add_argument(
+        "--codec", choices=["av1", "h264", "lossless"], help="video codec (default: av1 as LeRobot, or the dataset's own with --append)"
+    )
+    lerobot.add_argument(
+        "--max-age-ms", type=_positive_float, default=DEFAULT_MAX_AGE_MS, metavar="MS",
+        help=f"oldest a source frame may be at a grid time (default: {DEFAULT_MAX_AGE_MS:g})",
+    )
+    lerobot.add_argument("--command-topic", metavar="T", help="JointState topic of commanded positions: action (default: next state)")
+    lerobot.add_argument("--gates", metavar="FILE", help="gates YAML whose verdicts go into the provenance (default: bundled)")
+    lerobot.set_defaults(func=_cmd_lerobot)
