@@ -21,14 +21,13 @@ from typing import Any
 import numpy as np
 
 from ..bag.reader import DESERIALIZE_ERRORS, open_bag, read_messages, stamp_ns, topic_stats
-from ..bag.writer import STATUS_KEY
 from ..core import topics
 from ..core.errors import BagError, ImageError
 from ..core.image_codec import image_from_msg
 from ..report.gates import GateParams
+from ..report.results import BagScan
 from ..report.roibag import GLOBAL_TOPIC, METADATA_TOPIC, RoiBag, roi_image_topic
 from ..report.stats import BagStats
-from ..report.validate import BagScan
 from .features import GLOBAL_KEY, EpisodeSpec, FrameColumns, ImageSize, check_arm_ids, roi_image_key
 from .video import as_rgb
 
@@ -86,15 +85,7 @@ def read_source(path: Path, params: GateParams) -> RoiSource:
         assert columns is not None  # RoiBag refuses a bag without records
         video_topics = _video_topics(bag, columns.arms)
         sizes, stamps = _image_stamps(bag, video_topics)
-        scan = BagScan(
-            path=path,
-            topics=bag.topics,
-            information=bag.information,
-            start_ns=bag.start_ns,
-            end_ns=bag.end_ns,
-            summary=stats.finish((bag.information.get("custom_data") or {}).get(STATUS_KEY)),
-            samples=[],
-        )
+        scan = BagScan.of(path, bag, stats, [])
     usable = _usable(columns, stamps)
     if not usable:
         raise BagError(f"{path}: no frame has an image on every one of {', '.join(video_topics.values())}")

@@ -8,10 +8,12 @@ from typing import Any
 
 from .. import __version__
 from ..bag.reader import TopicStats
+from ..bag.writer import STATUS_KEY
 from ..core.metadata import METADATA_SCHEMA
 from .gates import GateResult, GateSet
+from .roibag import RoiBag
 from .samples import Sample
-from .stats import BagSummary
+from .stats import BagStats, BagSummary
 
 VALIDATION_SCHEMA = "roi_node/validation/v1"
 
@@ -27,6 +29,19 @@ class BagScan:
     end_ns: int
     summary: BagSummary
     samples: list[Sample]
+
+    @classmethod
+    def of(cls, path: Path, bag: RoiBag, stats: BagStats, samples: list[Sample]) -> BagScan:
+        """The scan of a bag whose records `stats` has seen (the recorded status finishes its summary)."""
+        return cls(
+            path=path,
+            topics=bag.topics,
+            information=bag.information,
+            start_ns=bag.start_ns,
+            end_ns=bag.end_ns,
+            summary=stats.finish((bag.information.get("custom_data") or {}).get(STATUS_KEY)),
+            samples=samples,
+        )
 
 
 @dataclass

@@ -10,7 +10,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ..bag.writer import STATUS_KEY
 from ..core.atomic_output import atomic_output
 from ..core.errors import BagError
 from .bagfiles import fingerprint
@@ -32,15 +31,7 @@ def scan_bag(path: Path, params: GateParams, *, with_samples: bool = False) -> B
             stats.add(message.record, message.position)
             if chooser is not None:
                 chooser.offer(message)
-        return BagScan(
-            path=path,
-            topics=bag.topics,
-            information=bag.information,
-            start_ns=bag.start_ns,
-            end_ns=bag.end_ns,
-            summary=stats.finish((bag.information.get("custom_data") or {}).get(STATUS_KEY)),
-            samples=chooser.samples() if chooser is not None else [],
-        )
+        return BagScan.of(path, bag, stats, chooser.samples() if chooser is not None else [])
 
 
 def _drift_dict(arms: dict[str, ArmDrift]) -> dict[str, Any]:
