@@ -47,6 +47,7 @@ from .stream_stats import StreamStats
 from .sync import FrameSynchronizer, JointStateBuffer, PendingFrame, SyncResult, command_residual
 
 EARLY_JOINT_STATES = 2000  # joint states kept while waiting for a URDF (2 s at 1 kHz)
+REFUSED_STAMPS_KEPT = 2000  # per joint: stamps of out-of-limit samples, for flagging the frames near them
 LIMIT_MARGIN_FRACTION = 0.05  # of the joint's range
 LIMIT_MARGIN_MIN = 0.02  # radians or metres: encoder noise at a hard stop stays inside
 
@@ -304,7 +305,7 @@ class StreamEngine:
             for name, _value, _limits in out_of_limits:
                 stamps = self._limit_refusals.setdefault((epoch, name), [])
                 bisect.insort(stamps, event.stamp_ns)
-                if len(stamps) > EARLY_JOINT_STATES:
+                if len(stamps) > REFUSED_STAMPS_KEPT:
                     del stamps[0]
             bad = {name for name, _, _ in out_of_limits}
             kept = [(n, p) for n, p in zip(names, positions, strict=True) if n not in bad]

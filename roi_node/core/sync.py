@@ -63,10 +63,6 @@ class SyncResult:
     missing: tuple[str, ...] = ()
     joint_rate_hz: float | None = None
 
-    @property
-    def usable(self) -> bool:
-        return self.status != SyncStatus.MISSING
-
 
 def _worse(a: SyncStatus, b: SyncStatus) -> SyncStatus:
     return a if STATUS_ORDER.index(a) >= STATUS_ORDER.index(b) else b
