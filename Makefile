@@ -43,7 +43,8 @@ $(LEROBOT_STAMP): setup.py setup.cfg package.xml
 	touch $(LEROBOT_STAMP)
 
 test-lerobot: $(LEROBOT_STAMP)
-	HF_HUB_OFFLINE=1 HF_DATASETS_OFFLINE=1 HF_HOME=$$(mktemp -d) ROI_NODE_LEROBOT_TESTS=1 \
+	hf_home=$$(mktemp -d) && trap 'rm -rf "$$hf_home"' EXIT && \
+		HF_HUB_OFFLINE=1 HF_DATASETS_OFFLINE=1 HF_HOME=$$hf_home ROI_NODE_LEROBOT_TESTS=1 \
 		$(LEROBOT_VENV)/bin/python -m pytest -q -p no:cacheprovider test/lerobot
 
 demo: $(STAMP)
