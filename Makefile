@@ -56,11 +56,8 @@ bench: $(STAMP)
 	$(PY) bench/sim.py
 	$(PY) bench/replay.py
 	$(PY) bench/validate.py
-<<<<<<< HEAD
 	$(PY) bench/bagwrite.py
-=======
 	$(PY) bench/export.py
->>>>>>> issue-14
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-73} $(PY) bench/live.py
 
 lint: $(STAMP)
