@@ -14,8 +14,10 @@ from typing import Any
 from .. import __version__
 from ..bag.reader import TopicStats
 from ..bag.writer import STATUS_KEY
+from ..core.config import RigConfig
 from ..core.metadata import METADATA_SCHEMA
 from .bagfiles import fingerprint
+from .calibration import CalibrationCheck, Tolerances, carries_inputs, check_calibration
 from .drift import ArmDrift, baseline_drift, window_drift
 from .gates import GateParams, GateResult, GateSet, evaluate
 from .report import prepare_report_dir, write_bag_figures, write_report
@@ -81,8 +83,10 @@ def _drift_dict(arms: dict[str, ArmDrift]) -> dict[str, Any]:
     return {arm_id: drift.as_dict() for arm_id, drift in arms.items()}
 
 
-def judge(scan: BagScan, gates: GateSet, name: str, baseline: BagScan | None = None) -> BagValidation:
-    """Gates and drift for a scanned bag."""
+def judge(
+    scan: BagScan, gates: GateSet, name: str, baseline: BagScan | None = None, calibration: CalibrationCheck | None = None
+) -> BagValidation:
+    """Gates and drift for a scanned bag (and the calibration gates when its check was run)."""
     summary = scan.summary
     windows = window_drift(summary.series, gates.params.window_fraction)
     drift_metrics: dict[str, dict[str, Any]] = {arm: d.metrics("window") for arm, d in windows.items()}
@@ -99,7 +103,8 @@ def judge(scan: BagScan, gates: GateSet, name: str, baseline: BagScan | None = N
             "same_lineage": base_lineage == [seg["tuple"] for seg in summary.details["lineage"]],
             "arms": _drift_dict(arms),
         }
-    results = evaluate(gates, summary.bag_metrics, summary.arm_metrics, drift_metrics)
+    calibration_metrics = calibration.gate_metrics() if calibration is not None else None
+    results = evaluate(gates, summary.bag_metrics, summary.arm_metrics, drift_metrics, calibration_metrics)
     result = {
         "path": str(scan.path.resolve()),
         "name": name,
@@ -114,6 +119,7 @@ def judge(scan: BagScan, gates: GateSet, name: str, baseline: BagScan | None = N
             "baseline": baseline_part,
             "window": {"fraction": gates.params.window_fraction, "arms": _drift_dict(windows)},
         },
+        "calibration": None if calibration is None else calibration.as_dict(),
     }
     return BagValidation(scan.path, name, results, result)
 
@@ -157,15 +163,23 @@ def unique_names(paths: list[Path]) -> list[str]:
     return names
 
 
-def validate_bags(paths: list[Path], gates: GateSet, *, baseline: Path | None = None, report_dir: Path | None = None) -> ValidationRun:
-    """Validate every bag (in order); with `report_dir`, also draw figures and write REPORT.md + validation.json."""
+def validate_bags(
+    paths: list[Path], gates: GateSet, *, baseline: Path | None = None, report_dir: Path | None = None, rig: RigConfig | None = None
+) -> ValidationRun:
+    """Validate every bag (in order); with `report_dir`, also draw figures and write REPORT.md + validation.json.
+
+    With `rig`, bags that carry their inputs also get the image-based calibration check (check-calibration).
+    """
     if report_dir is not None:
         prepare_report_dir(report_dir)
     base = scan_bag(baseline, gates.params) if baseline is not None else None
     run = ValidationRun(gates, baseline, [])
     for path, name in zip(paths, unique_names(paths), strict=True):
         scan = scan_bag(path, gates.params, with_samples=report_dir is not None)
-        validation = judge(scan, gates, name, base)
+        calibration = None
+        if rig is not None and carries_inputs(scan.topics):
+            calibration = check_calibration(path, rig, Tolerances.from_gates(gates))
+        validation = judge(scan, gates, name, base, calibration)
         if report_dir is not None:
             validation.figures = write_bag_figures(scan, validation, gates, report_dir)
         run.bags.append(validation)

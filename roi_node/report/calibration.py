@@ -1,0 +1,331 @@
+"""`roi-node check-calibration`: camera delay and reprojection offsets from a bag's own images.
+
+Every ROI is only as good as its timing and calibration, and neither shows in
+the metadata: a camera that stamps frames 100 ms late still yields records
+that say `ok`. The images do show it. The arm moves and the scene mostly
+does not; FK says where and how fast the arm moves, so the delay at which the
+projected skeleton lands on the moving pixels (calibration_fit) is the
+camera's delay, and the image shift that best aligns it is the reprojection
+offset (a drift proxy for extrinsics or intrinsics). No detector is learned
+or trained: the evidence is the difference from the bag's own static scene.
+
+The bag is read in two passes over the image topic: frames sampled across
+the bag for the static scene, then every frame for the evidence around each
+arm. Works on recorded input bags and on ROI bags that carry their inputs
+(`replay --include-inputs`): roi_node's own /roi/ topics are never inputs.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rosbags.highlevel import AnyReader
+
+from ..bag.inputs import IMAGE_TYPES, OUTPUT_NAMESPACE, InputSelection, decode_frame, select_inputs
+from ..bag.reader import DESERIALIZE_ERRORS, TopicStats, open_bag, read_messages, stamp_ns, topic_stats
+from ..bag.streams import IntrinsicsSchedule, read_streams
+from ..core import topics as topics_module
+from ..core.camera import CameraModel
+from ..core.config import RigConfig
+from ..core.errors import BagError, ImageError
+from ..core.sync import NS_PER_MS
+from .arm_tracks import ArmTrack, JointSeries, arm_tracks
+from .calibration_fit import DelayFit, FrameEvidence, OffsetFit, fit_delay, fit_offsets
+from .gates import BAG_SCOPE, CALIBRATION_DELAY_GATE, CALIBRATION_OFFSET_GATE, GateSet, gate_threshold
+from .motion_evidence import EvidenceCrop, WorkingScale, arm_mask, background, box_around, noise_threshold
+
+CALIBRATION_SCHEMA = "roi_node/calibration/v1"
+SEARCH_MS = (-50.0, 250.0)
+BACKGROUND_FRAMES = 32  # frames sampled across the bag for the static-scene median
+TRACK_STEP_NS = 5 * NS_PER_MS
+OFFSET_RADIUS_PX = 48.0  # raw px: the largest reprojection offset searched
+MIN_MOVING_FRAMES = 10
+DEFAULT_DELAY_TOLERANCE_MS = 10.0
+DEFAULT_OFFSET_TOLERANCE_PX = 8.0
+_CROP_DELAYS = 16
+SKIPPED_FRAME_ERRORS: tuple[type[BaseException], ...] = (ImageError, *DESERIALIZE_ERRORS)  # a bad frame is left out  # candidate delays whose points bound an arm's crop
+
+
+class Verdict(StrEnum):
+    OK = "ok"
+    OFF = "off"  # outside the tolerance
+    UNKNOWN = "unknown"  # not enough evidence to say
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """What counts as right: the gates calibration_delay_error_ms and calibration_reprojection_offset_px."""
+
+    delay_ms: float = DEFAULT_DELAY_TOLERANCE_MS
+    reprojection_px: float = DEFAULT_OFFSET_TOLERANCE_PX
+
+    @classmethod
+    def from_gates(cls, gates: GateSet) -> Tolerances:
+        """The gates' max bounds; a gate switched off leaves the default tolerance."""
+        delay = gate_threshold(gates, CALIBRATION_DELAY_GATE, "max")
+        offset = gate_threshold(gates, CALIBRATION_OFFSET_GATE, "max")
+        return cls(DEFAULT_DELAY_TOLERANCE_MS if delay is None else delay, DEFAULT_OFFSET_TOLERANCE_PX if offset is None else offset)
+
+
+@dataclass(frozen=True)
+class CalibrationCheck:
+    bag: Path
+    image_topic: str
+    frames: int
+    configured_delay_ms: float
+    delay: DelayFit
+    offsets: dict[str, OffsetFit]
+    tolerances: Tolerances
+
+    @property
+    def delay_error_ms(self) -> float:
+        """How far the configured camera.delay_ms is from the measured delay."""
+        return abs(self.delay.delay_ms - self.configured_delay_ms)
+
+    @property
+    def delay_confidence(self) -> float:
+        """1 when the 95% interval is far inside the tolerance, 0 when it is as wide as the tolerance."""
+        if self.delay.moving_frames < MIN_MOVING_FRAMES or self.delay.contrast <= 0:
+            return 0.0
+        half_width = (self.delay.ci_ms[1] - self.delay.ci_ms[0]) / 2
+        return float(np.clip(1.0 - half_width / self.tolerances.delay_ms, 0.0, 1.0))
+
+    @property
+    def delay_verdict(self) -> Verdict:
+        if self.delay_confidence == 0.0:
+            return Verdict.UNKNOWN
+        return Verdict.OK if self.delay_error_ms <= self.tolerances.delay_ms else Verdict.OFF
+
+    def offset_px(self, arm_id: str) -> float | None:
+        offset = self.offsets[arm_id].offset_px
+        return None if offset is None else math.hypot(*offset)
+
+    def offset_verdict(self, arm_id: str) -> Verdict:
+        size = self.offset_px(arm_id)
+        if size is None or self.offsets[arm_id].frames < MIN_MOVING_FRAMES:
+            return Verdict.UNKNOWN
+        return Verdict.OK if size <= self.tolerances.reprojection_px else Verdict.OFF
+
+    @property
+    def verdict(self) -> Verdict:
+        verdicts = [self.delay_verdict, *(self.offset_verdict(a) for a in self.offsets)]
+        if Verdict.OFF in verdicts:
+            return Verdict.OFF
+        return Verdict.UNKNOWN if Verdict.UNKNOWN in verdicts else Verdict.OK
+
+    def hints(self) -> list[str]:
+        out = []
+        if self.delay_verdict is Verdict.OFF:
+            out.append(f"set camera.delay_ms: {self.delay.delay_ms:.1f} (configured {self.configured_delay_ms:g})")
+        drifted = [a for a in self.offsets if self.offset_verdict(a) is Verdict.OFF]
+        if drifted:
+            out.append(f"recalibrate extrinsics (or intrinsics): arms {', '.join(drifted)} are drawn away from where FK puts them")
+        return out
+
+    def gate_metrics(self) -> dict[str, dict[str, float | None]]:
+        """The calibration gates' values: the bag's delay error (BAG_SCOPE) and every arm's offset; None when unknown."""
+        out: dict[str, dict[str, float | None]] = {
+            BAG_SCOPE: {CALIBRATION_DELAY_GATE: None if self.delay_verdict is Verdict.UNKNOWN else round(self.delay_error_ms, 2)}
+        }
+        for arm_id in self.offsets:
+            size = self.offset_px(arm_id)
+            known = size is not None and self.offset_verdict(arm_id) is not Verdict.UNKNOWN
+            out[arm_id] = {CALIBRATION_OFFSET_GATE: round(size, 2) if known and size is not None else None}
+        return out
+
+    def as_dict(self) -> dict[str, Any]:
+        arms = {}
+        for arm_id, fit in self.offsets.items():
+            arms[arm_id] = {
+                "offset_px": None if fit.offset_px is None else [round(v, 2) for v in fit.offset_px],
+                "offset_norm_px": None if (size := self.offset_px(arm_id)) is None else round(size, 2),
+                "spread_px": None if fit.spread_px is None else [round(v, 2) for v in fit.spread_px],
+                "frames": fit.frames,
+                "verdict": str(self.offset_verdict(arm_id)),
+            }
+        return {
+            "schema": CALIBRATION_SCHEMA,
+            "bag": str(self.bag),
+            "image_topic": self.image_topic,
+            "frames": self.frames,
+            "delay_ms": round(self.delay.delay_ms, 2),
+            "delay_ci_ms": [round(v, 2) for v in self.delay.ci_ms],
+            "delay_std_ms": round(self.delay.std_ms, 3),
+            "delay_confidence": round(self.delay_confidence, 3),
+            "configured_delay_ms": self.configured_delay_ms,
+            "delay_error_ms": round(self.delay_error_ms, 2),
+            "delay_verdict": str(self.delay_verdict),
+            "moving_frames": self.delay.moving_frames,
+            "reprojection_offset_px": {a: v["offset_px"] for a, v in arms.items()},
+            "arms": arms,
+            "tolerances": {"delay_ms": self.tolerances.delay_ms, "reprojection_px": self.tolerances.reprojection_px},
+            "verdict": str(self.verdict),
+            "hints": self.hints(),
+        }
+
+    def lines(self) -> list[str]:
+        d = self.delay
+        out = [
+            f"{self.bag}: {self.frames} frames on {self.image_topic}, {d.moving_frames} with arm motion",
+            f"camera delay: {d.delay_ms:.1f} ms (95% interval {d.ci_ms[0]:.1f} .. {d.ci_ms[1]:.1f}, confidence "
+            f"{self.delay_confidence:.2f}); configured {self.configured_delay_ms:g} ms: {self.delay_verdict} "
+            f"(tolerance {self.tolerances.delay_ms:g} ms)",
+        ]
+        for arm_id, fit in self.offsets.items():
+            if fit.offset_px is None or fit.spread_px is None:
+                out.append(f"arm {arm_id}: reprojection offset unknown (the arm was not seen moving)")
+                continue
+            (dx, dy), (sx, sy) = fit.offset_px, fit.spread_px
+            out.append(
+                f"arm {arm_id}: reprojection offset ({dx:+.1f}, {dy:+.1f}) px (per-frame spread {sx:.1f}, {sy:.1f}; "
+                f"{fit.frames} frames): {self.offset_verdict(arm_id)} (tolerance {self.tolerances.reprojection_px:g} px)"
+            )
+        out.extend(f"hint: {h}" for h in self.hints())
+        out.append(f"verdict: {self.verdict}")
+        return out
+
+
+def carries_inputs(topics: dict[str, TopicStats]) -> bool:
+    """Whether a bag has a camera stream and joint states to check (an ROI bag does with --include-inputs)."""
+    images = [t for t in topics.values() if t.msgtype in IMAGE_TYPES and not t.name.startswith(OUTPUT_NAMESPACE) and t.count]
+    joints = [t for t in topics.values() if t.msgtype == topics_module.JOINT_STATE_TYPE and t.count]
+    return bool(images and joints)
+
+
+def check_calibration(
+    bag_path: Path, rig: RigConfig, tolerances: Tolerances, *, search_ms: tuple[float, float] = SEARCH_MS
+) -> CalibrationCheck:
+    """Measure the camera delay and every arm's reprojection offset from one bag."""
+    path = Path(bag_path)
+    with open_bag(path) as reader:
+        if reader.message_count == 0:
+            raise BagError(f"{path}: the bag is empty (no messages)")
+        selection = select_inputs(path, topic_stats(reader), need_camera_info=rig.camera.intrinsics is None)
+        streams = read_streams(reader, selection, path, rig.camera.rectified)
+        camera = rig.camera.intrinsics
+        if camera is None:
+            if not streams.cameras:
+                raise BagError(f"{path}: {selection.camera_info_topic}: no usable CameraInfo message")
+            camera = IntrinsicsSchedule(streams.cameras).first
+        continuous = _continuous(rig, frozenset(streams.joint_names()))
+        joints = JointSeries.from_samples([(s.stamp_ns, s.names, s.positions) for s in streams.joints], continuous)
+        required = _required_joints(rig)
+        absent = [n for n in required if n not in joints.values]
+        if absent:
+            raise BagError(f"{path}: the rig needs joints {', '.join(absent)} that the bag's joint states do not name")
+        start, stop = joints.span_ns(required)
+        tracks = arm_tracks(rig, camera, joints, start, stop, TRACK_STEP_NS)
+        scale = WorkingScale.for_image(camera.width_px, camera.height_px)
+        frames = _FrameReader(reader, selection, path, camera)
+        static = _static_scene(frames, tracks, scale, search_ms)
+        radius_work = max(1, math.ceil(OFFSET_RADIUS_PX * scale.factor))
+        evidence = _evidence(frames, tracks, scale, static, search_ms, radius_work)
+    delay = fit_delay(evidence, tracks, scale, search_ms, {})
+    offsets = fit_offsets(evidence, tracks, scale, round(delay.delay_ms * NS_PER_MS), radius_work)
+    return CalibrationCheck(path, selection.image_topic, len(evidence), rig.camera.delay_ms, delay, offsets, tolerances)
+
+
+def _required_joints(rig: RigConfig) -> list[str]:
+    from ..core.kinematics import RobotKinematics
+
+    names: list[str] = []
+    for robot in rig.robots:
+        kin = RobotKinematics(robot.id, robot.urdf_path)
+        for arm in (a for a in rig.arms if a.robot == robot.id):
+            frames = [arm.ee_frame] + ([arm.tip.frame] if arm.tip.frame else [])
+            names += [robot.joint_prefix + j for f in frames for j in kin.chain_joints(f)]
+    return list(dict.fromkeys(names))
+
+
+def _continuous(rig: RigConfig, names: frozenset[str]) -> frozenset[str]:
+    from ..core.kinematics import RobotKinematics
+
+    out: set[str] = set()
+    for robot in rig.robots:
+        kin = RobotKinematics(robot.id, robot.urdf_path)
+        out.update(n for n in names if n.startswith(robot.joint_prefix) and kin.is_continuous(n.removeprefix(robot.joint_prefix)))
+    return frozenset(out)
+
+
+class _FrameReader:
+    """The image topic of an open bag, decoded frame by frame (bad frames skipped)."""
+
+    def __init__(self, reader: AnyReader, selection: InputSelection, path: Path, camera: CameraModel) -> None:
+        self.reader = reader
+        self.selection = selection
+        self.path = path
+        self.camera = camera
+        self.connections = [c for c in reader.connections if c.topic == selection.image_topic]
+        self.where = f"{path}: {selection.image_topic}"
+
+    def frames(self, every: int = 1) -> Any:
+        """(header stamp, RGB pixels) of every `every`-th frame."""
+        for index, (_, _, raw) in enumerate(read_messages(self.reader, self.connections, self.path)):
+            if index % every:
+                continue
+            try:
+                msg: Any = self.reader.deserialize(raw, self.selection.image_type)
+                image = decode_frame(msg, self.selection.image_type, f"{self.where}: message {index}")
+            except SKIPPED_FRAME_ERRORS:
+                continue
+            self.camera.check_image_size(image.shape[1], image.shape[0], self.where)
+            yield stamp_ns(msg.header), image
+
+    def sampled(self, count: int) -> list[tuple[int, np.ndarray]]:
+        every = max(1, self.selection.frame_count // count)
+        images = list(self.frames(every))
+        if not images:
+            raise ImageError(f"{self.where}: none of the {self.selection.frame_count} frames could be decoded")
+        return images
+
+
+def _crop_delays_ns(search_ms: tuple[float, float]) -> np.ndarray:
+    return np.round(np.linspace(search_ms[0], search_ms[1], _CROP_DELAYS) * NS_PER_MS).astype(np.int64)
+
+
+def _static_scene(frames: _FrameReader, tracks: tuple[ArmTrack, ...], scale: WorkingScale, search_ms: tuple[float, float]) -> np.ndarray:
+    """The median of frames sampled across the bag, leaving out where FK puts an arm at any candidate delay."""
+    delays = _crop_delays_ns(search_ms)
+    images, masks = [], []
+    for stamp, image in frames.sampled(BACKGROUND_FRAMES):
+        small = scale.shrink(image)
+        skeletons = []
+        for track in tracks:
+            times = stamp - delays
+            points = scale.to_work(track.at(times))
+            reach = track.reach_at(times) * scale.factor
+            skeletons += [(p, float(r)) for p, r in zip(points, reach, strict=True)]
+        images.append(small)
+        masks.append(arm_mask(small.shape[:2], skeletons))
+    return background(images, masks)
+
+
+def _evidence(
+    frames: _FrameReader,
+    tracks: tuple[ArmTrack, ...],
+    scale: WorkingScale,
+    static: np.ndarray,
+    search_ms: tuple[float, float],
+    radius_work: int,
+) -> list[FrameEvidence]:
+    delays = _crop_delays_ns(search_ms)
+    out = []
+    first = max(t.start_ns for t in tracks) + int(delays.max())
+    last = min(t.stop_ns for t in tracks) + int(delays.min())
+    for stamp, image in frames.frames():
+        if not first <= stamp <= last:  # every candidate capture time must have joint samples
+            continue
+        small = scale.shrink(image)
+        threshold = noise_threshold(small, static)
+        crops: dict[str, EvidenceCrop] = {}
+        for track in tracks:
+            box = box_around(scale.to_work(track.at(stamp - delays)).reshape(-1, 2), radius_work + 2, static.shape[:2])
+            if box is not None:
+                crops[track.arm_id] = EvidenceCrop.of(small, static, threshold, box)
+        out.append(FrameEvidence(stamp, crops))
+    return out
