@@ -45,6 +45,7 @@ BACKGROUND_FRAMES = 32  # frames sampled across the bag for the static-scene med
 TRACK_STEP_NS = 5 * NS_PER_MS
 OFFSET_RADIUS_PX = 48.0  # raw px: the largest reprojection offset searched
 MIN_MOVING_FRAMES = 10
+REFINE_ROUNDS = 2  # delay and offsets fitted again, each with the other's estimate
 DEFAULT_DELAY_TOLERANCE_MS = 10.0
 DEFAULT_OFFSET_TOLERANCE_PX = 8.0
 _CROP_DELAYS = 16
@@ -225,8 +226,14 @@ def check_calibration(
         static = _static_scene(frames, tracks, scale, search_ms)
         radius_work = max(1, math.ceil(OFFSET_RADIUS_PX * scale.factor))
         evidence = _evidence(frames, tracks, scale, static, search_ms, radius_work)
+    # a miscalibrated camera shifts the skeleton off the arm, which the delay alone would try to absorb:
+    # fit the delay, then the offsets at that delay, then the delay again with the skeleton shifted by them
     delay = fit_delay(evidence, tracks, scale, search_ms, {})
     offsets = fit_offsets(evidence, tracks, scale, round(delay.delay_ms * NS_PER_MS), radius_work)
+    for _ in range(REFINE_ROUNDS):
+        shifts = {a: np.asarray(f.offset_px) * scale.factor for a, f in offsets.items() if f.offset_px is not None}
+        delay = fit_delay(evidence, tracks, scale, search_ms, shifts)
+        offsets = fit_offsets(evidence, tracks, scale, round(delay.delay_ms * NS_PER_MS), radius_work)
     return CalibrationCheck(path, selection.image_topic, len(evidence), rig.camera.delay_ms, delay, offsets, tolerances)
 
 
