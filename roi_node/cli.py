@@ -17,7 +17,7 @@ from .core.errors import RoiNodeError
 EXIT_ERROR = 2
 
 
-VERB_MODULES = ("roi_node.ros.verbs", "roi_node.bag.verbs", "roi_node.report.verbs", "roi_node.sim.verbs")
+VERB_MODULES = ("roi_node.ros.verbs", "roi_node.bag.verbs", "roi_node.report.verbs", "roi_node.sim.verbs", "roi_node.app.verbs")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,1 @@
+"""Whole-job verbs built on every layer (the stress sweeps)."""
