@@ -48,8 +48,8 @@ MIN_MOVING_FRAMES = 10
 REFINE_ROUNDS = 2  # delay and offsets fitted again, each with the other's estimate
 DEFAULT_DELAY_TOLERANCE_MS = 10.0
 DEFAULT_OFFSET_TOLERANCE_PX = 8.0
-_CROP_DELAYS = 16
-SKIPPED_FRAME_ERRORS: tuple[type[BaseException], ...] = (ImageError, *DESERIALIZE_ERRORS)  # a bad frame is left out  # candidate delays whose points bound an arm's crop
+_CROP_DELAYS = 16  # candidate delays whose points bound an arm's crop
+SKIPPED_FRAME_ERRORS: tuple[type[BaseException], ...] = (ImageError, *DESERIALIZE_ERRORS)  # a bad frame is left out
 
 
 class Verdict(StrEnum):
