@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 
@@ -32,9 +33,9 @@ def test_curves_are_monotone_where_they_should_be(stress: tuple[Path, dict]) -> 
         errors = [r["centre_error_px"] for r in rows]
         shifts = [r["shift_px"] for r in rows]
         coverage = [r["coverage_mean"] for r in rows]
-        assert all(b >= a - 0.25 for a, b in zip(errors, errors[1:])), (name, errors)
-        assert all(b > a for a, b in zip(shifts, shifts[1:])), (name, shifts)
-        assert all(b <= a + 1e-3 for a, b in zip(coverage, coverage[1:])), (name, coverage)
+        assert all(b >= a - 0.25 for a, b in itertools.pairwise(errors)), (name, errors)
+        assert all(b > a for a, b in itertools.pairwise(shifts)), (name, shifts)
+        assert all(b <= a + 1e-3 for a, b in itertools.pairwise(coverage)), (name, coverage)
         assert errors[-1] > errors[0] + 1.0, (name, errors)
     latency = sweeps["latency"]
     assert latency["results"][-1]["coverage_p05"] < 0.95  # 200 ms costs coverage at the 5th percentile

@@ -26,13 +26,13 @@ from typing import Any
 import numpy as np
 from rosbags.highlevel import AnyReader
 
-from ..bag.inputs import IMAGE_TYPES, OUTPUT_NAMESPACE, InputSelection, decode_frame, select_inputs
+from ..bag.inputs import IMAGE_TYPES, OUTPUT_NAMESPACE, InputSelection, camera_from_msg, decode_frame, select_inputs
 from ..bag.reader import DESERIALIZE_ERRORS, TopicStats, open_bag, read_messages, stamp_ns, topic_stats
-from ..bag.streams import IntrinsicsSchedule, read_streams
+from ..bag.streams import IntrinsicsSchedule
 from ..core import topics as topics_module
 from ..core.camera import CameraModel
 from ..core.config import RigConfig
-from ..core.errors import BagError, ImageError
+from ..core.errors import BagError, CalibrationError, ImageError
 from ..core.sync import NS_PER_MS
 from .arm_tracks import ArmTrack, JointSeries, arm_tracks
 from .calibration_fit import DelayFit, FrameEvidence, OffsetFit, fit_delay, fit_offsets
@@ -50,6 +50,7 @@ DEFAULT_DELAY_TOLERANCE_MS = 10.0
 DEFAULT_OFFSET_TOLERANCE_PX = 8.0
 _CROP_DELAYS = 16  # candidate delays whose points bound an arm's crop
 SKIPPED_FRAME_ERRORS: tuple[type[BaseException], ...] = (ImageError, *DESERIALIZE_ERRORS)  # a bad frame is left out
+SKIPPED_STREAM_ERRORS: tuple[type[BaseException], ...] = (CalibrationError, *DESERIALIZE_ERRORS)
 
 
 class Verdict(StrEnum):
@@ -207,14 +208,14 @@ def check_calibration(
         if reader.message_count == 0:
             raise BagError(f"{path}: the bag is empty (no messages)")
         selection = select_inputs(path, topic_stats(reader), need_camera_info=rig.camera.intrinsics is None)
-        streams = read_streams(reader, selection, path, rig.camera.rectified)
+        first = _FirstPass(reader, selection, path, rig.camera.rectified)
         camera = rig.camera.intrinsics
         if camera is None:
-            if not streams.cameras:
+            if not first.cameras:
                 raise BagError(f"{path}: {selection.camera_info_topic}: no usable CameraInfo message")
-            camera = IntrinsicsSchedule(streams.cameras).first
-        continuous = _continuous(rig, frozenset(streams.joint_names()))
-        joints = JointSeries.from_samples([(s.stamp_ns, s.names, s.positions) for s in streams.joints], continuous)
+            camera = IntrinsicsSchedule(first.cameras).first
+        continuous = _continuous(rig, frozenset(n for _, names, _ in first.joints for n in names))
+        joints = JointSeries.from_samples(first.joints, continuous)
         required = _required_joints(rig)
         absent = [n for n in required if n not in joints.values]
         if absent:
@@ -223,17 +224,17 @@ def check_calibration(
         tracks = arm_tracks(rig, camera, joints, start, stop, TRACK_STEP_NS)
         scale = WorkingScale.for_image(camera.width_px, camera.height_px)
         frames = _FrameReader(reader, selection, path, camera)
-        static = _static_scene(frames, tracks, scale, search_ms)
+        static = _static_scene(first.sampled(camera), tracks, scale, search_ms)
         radius_work = max(1, math.ceil(OFFSET_RADIUS_PX * scale.factor))
         evidence = _evidence(frames, tracks, scale, static, search_ms, radius_work)
     # a miscalibrated camera shifts the skeleton off the arm, which the delay alone would try to absorb:
     # fit the delay, then the offsets at that delay, then the delay again with the skeleton shifted by them
     delay = fit_delay(evidence, tracks, scale, search_ms, {})
     offsets = fit_offsets(evidence, tracks, scale, round(delay.delay_ms * NS_PER_MS), radius_work)
-    for _ in range(REFINE_ROUNDS):
+    for round_index in range(REFINE_ROUNDS):
         shifts = {a: np.asarray(f.offset_px) * scale.factor for a, f in offsets.items() if f.offset_px is not None}
-        delay = fit_delay(evidence, tracks, scale, search_ms, shifts)
-        offsets = fit_offsets(evidence, tracks, scale, round(delay.delay_ms * NS_PER_MS), radius_work)
+        delay = fit_delay(evidence, tracks, scale, search_ms, shifts, previous=delay if round_index else None)
+        offsets = fit_offsets(evidence, tracks, scale, round(delay.delay_ms * NS_PER_MS), radius_work, previous=offsets)
     return CalibrationCheck(path, selection.image_topic, len(evidence), rig.camera.delay_ms, delay, offsets, tolerances)
 
 
@@ -283,24 +284,70 @@ class _FrameReader:
             self.camera.check_image_size(image.shape[1], image.shape[0], self.where)
             yield stamp_ns(msg.header), image
 
-    def sampled(self, count: int) -> list[tuple[int, np.ndarray]]:
-        every = max(1, self.selection.frame_count // count)
-        images = list(self.frames(every))
-        if not images:
-            raise ImageError(f"{self.where}: none of the {self.selection.frame_count} frames could be decoded")
-        return images
+
+class _FirstPass:
+    """One read of the bag: every joint state and camera info, and BACKGROUND_FRAMES frames spread over it.
+
+    Chunks interleave the topics, so reading the joint states reads the images anyway: the frames
+    for the static scene come from the same pass, each shrunk to the working size at once.
+    """
+
+    def __init__(self, reader: AnyReader, selection: InputSelection, path: Path, rectified: bool) -> None:
+        self.joints: list[tuple[int, tuple[str, ...], np.ndarray]] = []
+        self.cameras: list[tuple[int, CameraModel]] = []
+        self._frames: list[tuple[int, np.ndarray]] = []
+        self._sizes: set[tuple[int, int]] = set()
+        every = max(1, selection.frame_count // BACKGROUND_FRAMES)
+        wanted = {*selection.joint_topics, selection.camera_info_topic, selection.image_topic}
+        connections = [c for c in reader.connections if c.topic in wanted]
+        where = f"{path}: {selection.image_topic}"
+        image_index = 0
+        for connection, _, raw in read_messages(reader, connections, path):
+            if connection.topic == selection.image_topic:
+                index, image_index = image_index, image_index + 1
+                if index % every == 0:
+                    self._sample(reader, raw, selection.image_type, f"{where}: message {index}")
+                continue
+            try:
+                msg: Any = reader.deserialize(raw, connection.msgtype)
+                if connection.topic == selection.camera_info_topic:
+                    self.cameras.append((stamp_ns(msg.header), camera_from_msg(msg, rectified, f"{path}: {connection.topic}")))
+                else:
+                    self.joints.append((stamp_ns(msg.header), tuple(msg.name), np.asarray(msg.position, np.float64)))
+            except SKIPPED_STREAM_ERRORS:
+                continue  # a malformed message is left out, as replay leaves it out
+        self.where = where
+        self.frame_count = selection.frame_count
+
+    def _sample(self, reader: AnyReader, raw: bytes, msgtype: str, where: str) -> None:
+        try:
+            msg: Any = reader.deserialize(raw, msgtype)
+            image = decode_frame(msg, msgtype, where)
+        except SKIPPED_FRAME_ERRORS:
+            return
+        self._sizes.add((image.shape[1], image.shape[0]))
+        self._frames.append((stamp_ns(msg.header), WorkingScale.for_image(image.shape[1], image.shape[0]).shrink(image)))
+
+    def sampled(self, camera: CameraModel) -> list[tuple[int, np.ndarray]]:
+        """The sampled frames at the working size (CalibrationError when they do not fit the calibration)."""
+        if not self._frames:
+            raise ImageError(f"{self.where}: none of the {self.frame_count} frames could be decoded")
+        for width, height in self._sizes:
+            camera.check_image_size(width, height, self.where)
+        return self._frames
 
 
 def _crop_delays_ns(search_ms: tuple[float, float]) -> np.ndarray:
     return np.round(np.linspace(search_ms[0], search_ms[1], _CROP_DELAYS) * NS_PER_MS).astype(np.int64)
 
 
-def _static_scene(frames: _FrameReader, tracks: tuple[ArmTrack, ...], scale: WorkingScale, search_ms: tuple[float, float]) -> np.ndarray:
+def _static_scene(
+    sampled: list[tuple[int, np.ndarray]], tracks: tuple[ArmTrack, ...], scale: WorkingScale, search_ms: tuple[float, float]
+) -> np.ndarray:
     """The median of frames sampled across the bag, leaving out where FK puts an arm at any candidate delay."""
     delays = _crop_delays_ns(search_ms)
     images, masks = [], []
-    for stamp, image in frames.sampled(BACKGROUND_FRAMES):
-        small = scale.shrink(image)
+    for stamp, small in sampled:
         skeletons = []
         for track in tracks:
             times = stamp - delays

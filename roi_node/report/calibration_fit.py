@@ -116,16 +116,25 @@ def fit_delay(
     scale: WorkingScale,
     search_ms: tuple[float, float],
     offsets_work: dict[str, Float64Array],
+    previous: DelayFit | None = None,
     seed: int = 0,
 ) -> DelayFit:
-    """The delay maximising the alignment score, with a block-bootstrap confidence interval."""
-    lo, hi = search_ms
-    coarse_ms: Float64Array = np.arange(lo, hi + COARSE_STEP_MS / 2, COARSE_STEP_MS, dtype=np.float64)
-    coarse, moving = score_curves(frames, tracks, scale, np.round(coarse_ms * NS_PER_MS).astype(np.int64), offsets_work)
-    total = coarse.sum(axis=0)
-    centre = float(coarse_ms[int(np.argmax(total))])
-    peak_value = float(total.max())
-    contrast = (peak_value - float(np.median(total))) / peak_value if peak_value > 0 else 0.0
+    """The delay maximising the alignment score, with a block-bootstrap confidence interval.
+
+    With `previous` (a refit after a small change, e.g. of the offsets), only the fine search around it is run.
+    """
+    if previous is None:
+        lo, hi = search_ms
+        coarse_ms: Float64Array = np.arange(lo, hi + COARSE_STEP_MS / 2, COARSE_STEP_MS, dtype=np.float64)
+        coarse, moving_frames = score_curves(frames, tracks, scale, np.round(coarse_ms * NS_PER_MS).astype(np.int64), offsets_work)
+        total = coarse.sum(axis=0)
+        centre = float(coarse_ms[int(np.argmax(total))])
+        peak_value = float(total.max())
+        contrast = (peak_value - float(np.median(total))) / peak_value if peak_value > 0 else 0.0
+        moving = int(moving_frames.sum())
+    else:
+        centre = round(previous.delay_ms / FINE_STEP_MS) * FINE_STEP_MS
+        contrast, moving = previous.contrast, previous.moving_frames
     fine_ms: Float64Array = np.arange(
         centre - FINE_HALF_WIDTH_MS, centre + FINE_HALF_WIDTH_MS + FINE_STEP_MS / 2, FINE_STEP_MS, dtype=np.float64
     )
@@ -135,7 +144,7 @@ def fit_delay(
     estimates = _peak(fine_ms, resampled)
     tail = (1.0 - CI_LEVEL) / 2 * 100
     ci = (float(np.percentile(estimates, tail)), float(np.percentile(estimates, 100 - tail)))
-    return DelayFit(delay, ci, float(np.std(estimates)), int(moving.sum()), contrast)
+    return DelayFit(delay, ci, float(np.std(estimates)), moving, contrast)
 
 
 def _bootstrap(curves: Float64Array, stamps_ns: NDArray[np.int64], seed: int) -> Float64Array:
@@ -155,11 +164,13 @@ def fit_offsets(
     scale: WorkingScale,
     delay_ns: int,
     radius_work: int,
+    previous: dict[str, OffsetFit] | None = None,
 ) -> dict[str, OffsetFit]:
     """Per arm, the image shift that best aligns its skeleton with the foreground at the fitted delay.
 
-    A coarse grid over +-radius_work finds the basin, a 1 px grid of +-OFFSET_FINE_HALF_PX around it the
-    peak (refined by parabolas); the per-frame maxima on the fine grid give the spread.
+    A coarse grid over +-radius_work finds the basin (or `previous` says where it is), a 1 px grid of
+    +-OFFSET_FINE_HALF_PX around it the peak (refined by parabolas); the per-frame maxima on the fine
+    grid give the spread.
     """
     coarse_step = max(1, radius_work // OFFSET_COARSE_STEPS)
     out: dict[str, OffsetFit] = {}
@@ -170,16 +181,23 @@ def fit_offsets(
             if (crop := frame.crops.get(track.arm_id)) is not None
         ]
         points = [(crop, p) for crop, p in points if np.isfinite(p).all(axis=1).any()]
-        coarse = _square_grid(np.zeros(2), radius_work, coarse_step)
-        total = sum((crop.sample(p[None] + coarse[:, None]).sum(axis=1) for crop, p in points), np.zeros(len(coarse)))
-        if not points or total.max() <= 0:
-            out[track.arm_id] = OffsetFit(track.arm_id, None, None, 0)
-            continue
-        centre = coarse[int(np.argmax(total))]
+        known = None if previous is None else previous[track.arm_id].offset_px
+        if known is not None:
+            centre = np.round(np.asarray(known) * scale.factor)
+        else:
+            coarse = _square_grid(np.zeros(2), radius_work, coarse_step)
+            total = sum((crop.sample(p[None] + coarse[:, None]).sum(axis=1) for crop, p in points), np.zeros(len(coarse)))
+            if not points or total.max() <= 0:
+                out[track.arm_id] = OffsetFit(track.arm_id, None, None, 0)
+                continue
+            centre = coarse[int(np.argmax(total))]
         fine = _square_grid(centre, OFFSET_FINE_HALF_PX, 1)
         side = 2 * OFFSET_FINE_HALF_PX + 1
-        responses = np.array([crop.sample(p[None] + fine[:, None]).sum(axis=1) for crop, p in points])
+        responses = np.array([crop.sample(p[None] + fine[:, None]).sum(axis=1) for crop, p in points]).reshape(-1, len(fine))
         seen = responses.max(axis=1) > 0
+        if not seen.any():
+            out[track.arm_id] = OffsetFit(track.arm_id, None, None, 0)
+            continue
         mean_work = centre + _refine(responses.sum(axis=0).reshape(side, side))
         offsets = np.array([centre + _refine(r.reshape(side, side)) for r in responses[seen]])
         spread_work = 1.4826 * np.median(np.abs(offsets - np.median(offsets, axis=0)), axis=0)
