@@ -37,6 +37,8 @@ bench: $(STAMP)
 	$(PY) bench/sim.py
 	$(PY) bench/replay.py
 	$(PY) bench/validate.py
+	$(PY) bench/calibration.py
+	$(PY) bench/offset.py
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-73} $(PY) bench/live.py
 
 lint: $(STAMP)

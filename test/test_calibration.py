@@ -157,9 +157,11 @@ def test_validate_fails_the_delay_gate_on_the_150_ms_bag_and_passes_the_0_ms_one
     gates = {(g["gate"], g["arm"]): g for g in passed["gates"]}
     assert gates[("calibration_delay_error_ms", "-")]["status"] == "pass"
     assert gates[("calibration_reprojection_offset_px", "hand")]["status"] == "pass"
-    assert main(["validate", str(bags[150.0]), "--config", str(rig)]) == 1
+    assert main(["validate", str(bags[150.0]), "--config", str(rig), "--report", str(tmp_path / "report")]) == 1
     out = capsys.readouterr().out
     assert "FAIL roi_150: gate calibration_delay_error_ms failed: arm -: value 1" in out
+    report = (tmp_path / "report" / "REPORT.md").read_text()
+    assert "### Calibration from the images" in report and "- hint: set camera.delay_ms: 1" in report
     # without --config the bags have no calibration gates at all
     main(["validate", str(bags[0.0]), "--json"])
     assert not [g for g in json.loads(capsys.readouterr().out)["bags"][0]["gates"] if g["gate"].startswith("calibration")]
