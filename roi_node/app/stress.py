@@ -32,7 +32,7 @@ from ..core.config import RigConfig
 from ..core.errors import ConfigError
 from ..core.kinematics import RobotKinematics
 from ..core.transforms import Transform
-from ..report.gates import GateSet, evaluate
+from ..report.gates import CALIBRATION_DELAY_GATE, CALIBRATION_OFFSET_GATE, GateSet, evaluate, gate_threshold
 from ..report.stats import BagStats
 from ..sim.rig_sim import SimRig
 from ..sim.truth import FrameTruth
@@ -40,6 +40,7 @@ from .stress_run import FrameArm, Perturbation, run
 
 STRESS_SCHEMA = "roi_node/stress/v1"
 COVERAGE_FLOOR = 0.95
+TIMING_SWEEPS = ("latency", "joint_rate", "stamp_jitter")
 FLAG_RISE = 0.02  # a flag "trips" at the first size where its share exceeds the unperturbed share by this much
 DURATION_S = 20.0  # of the sim's trajectory: every beat of its script (in view, near, far, partly and fully out)
 QUICK_EVERY = 10  # --quick measures every 10th frame of it
@@ -268,9 +269,10 @@ def _thresholds(sweep: Sweep, results: list[SizeResult], at: float | None) -> di
         return {}
     sizes = [r.size for r in results]
     out: dict[str, float | None] = {
-        "calibration_reprojection_offset_px": _interp(sizes, [r.shift_px for r in results], at),
         "sync_residual_ms_p95": _interp(sizes, [_num(r.gate_metrics.get("sync_residual_ms_p95")) for r in results], at),
     }
+    if sweep.name not in TIMING_SWEEPS:
+        out["calibration_reprojection_offset_px"] = _interp(sizes, [r.shift_px for r in results], at)
     if sweep.name == "latency":
         out["calibration_delay_error_ms"] = at  # check-calibration measures the latency itself
     jitters = [_num(next((v for k, v in r.gate_metrics.items() if k.startswith("center_jitter_px_p95[")), None)) for r in results]
@@ -282,10 +284,23 @@ def _num(value: Any) -> float | None:
     return float(value) if isinstance(value, int | float) and math.isfinite(value) else None
 
 
-def _taxonomy(sweep: Sweep, results: list[SizeResult]) -> list[dict[str, Any]]:
-    """Each flag and gate the sweep trips, with the first size that trips it."""
+def _taxonomy(sweep: Sweep, results: list[SizeResult], gates: GateSet) -> list[dict[str, Any]]:
+    """Each flag and gate the sweep trips, with the first size that trips it.
+
+    The calibration gates are measured from images, which stress does not render: they are derived, the delay
+    error from the injected latency (check-calibration measures it to a few ms) and the reprojection offset
+    from how far the perturbation moves the projected wrist.
+    """
     base = results[0]
     trips: dict[str, float] = {}
+    delay_max = gate_threshold(gates, CALIBRATION_DELAY_GATE, "max")
+    offset_max = gate_threshold(gates, CALIBRATION_OFFSET_GATE, "max")
+    for r in results[1:]:
+        if sweep.name == "latency" and delay_max is not None and r.size > delay_max:
+            trips.setdefault(f"gate {CALIBRATION_DELAY_GATE} (derived)", r.size)
+        geometric = sweep.name not in TIMING_SWEEPS  # a timing error moves the wrist along its path, not by a constant offset
+        if geometric and offset_max is not None and r.shift_px is not None and r.shift_px > offset_max:
+            trips.setdefault(f"gate {CALIBRATION_OFFSET_GATE} (derived)", r.size)
     for r in results[1:]:
         for flag, share in r.flag_shares.items():
             if share > base.flag_shares.get(flag, 0.0) + FLAG_RISE:
@@ -331,7 +346,7 @@ def run_stress(
                     "at_mean_floor": _thresholds(sweep, results, mean_at),
                     "at_p05_floor": _thresholds(sweep, results, p05_at),
                 },
-                "taxonomy": _taxonomy(sweep, results),
+                "taxonomy": _taxonomy(sweep, results, gates),
             }
         )
     return {
