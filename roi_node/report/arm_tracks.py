@@ -15,7 +15,7 @@ silhouette of an arm lies along it, whatever the robot's link meshes look like.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -120,11 +120,16 @@ def _sample_polyline(points: Float64Array, per_segment: int) -> Float64Array:
 
 
 def arm_tracks(
-    rig: RigConfig, camera: CameraModel, joints: JointSeries, start_ns: int, stop_ns: int, step_ns: int
+    rig: RigConfig,
+    kinematics: Mapping[str, RobotKinematics],
+    camera: CameraModel,
+    joints: JointSeries,
+    span_ns: tuple[int, int],
+    step_ns: int,
 ) -> tuple[ArmTrack, ...]:
-    """Every arm's projected skeleton from start_ns to stop_ns (NaN where its joints have no samples)."""
+    """Every arm's projected skeleton over span_ns (NaN where its joints have no samples); one model per robot id."""
     cam_T_world = rig.camera.world_T_cam.inverse()
-    kinematics = {r.id: RobotKinematics(r.id, r.urdf_path) for r in rig.robots}
+    start_ns, stop_ns = span_ns
     times = np.arange(start_ns, stop_ns + step_ns, step_ns, dtype=np.int64)
     tracks = []
     for arm in rig.arms:

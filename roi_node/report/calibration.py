@@ -18,6 +18,7 @@ arm. Works on recorded input bags and on ROI bags that carry their inputs
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -33,6 +34,7 @@ from ..core import topics as topics_module
 from ..core.camera import CameraModel
 from ..core.config import RigConfig
 from ..core.errors import BagError, CalibrationError, ImageError
+from ..core.kinematics import RobotKinematics
 from ..core.sync import NS_PER_MS
 from .arm_tracks import ArmTrack, JointSeries, arm_tracks
 from .calibration_fit import DelayFit, FrameEvidence, OffsetFit, fit_delay, fit_offsets
@@ -214,14 +216,15 @@ def check_calibration(
             if not first.cameras:
                 raise BagError(f"{path}: {selection.camera_info_topic}: no usable CameraInfo message")
             camera = IntrinsicsSchedule(first.cameras).first
-        continuous = _continuous(rig, frozenset(n for _, names, _ in first.joints for n in names))
+        kinematics = {r.id: RobotKinematics(r.id, r.urdf_path) for r in rig.robots}
+        continuous = _continuous(rig, kinematics, frozenset(n for _, names, _ in first.joints for n in names))
         joints = JointSeries.from_samples(first.joints, continuous)
-        required = _required_joints(rig)
+        required = _required_joints(rig, kinematics)
         absent = [n for n in required if n not in joints.values]
         if absent:
             raise BagError(f"{path}: the rig needs joints {', '.join(absent)} that the bag's joint states do not name")
         start, stop = joints.span_ns(required)
-        tracks = arm_tracks(rig, camera, joints, start, stop, TRACK_STEP_NS)
+        tracks = arm_tracks(rig, kinematics, camera, joints, (start, stop), TRACK_STEP_NS)
         scale = WorkingScale.for_image(camera.width_px, camera.height_px)
         frames = _FrameReader(reader, selection, path, camera)
         static = _static_scene(first.sampled(camera), tracks, scale, search_ms)
@@ -238,24 +241,22 @@ def check_calibration(
     return CalibrationCheck(path, selection.image_topic, len(evidence), rig.camera.delay_ms, delay, offsets, tolerances)
 
 
-def _required_joints(rig: RigConfig) -> list[str]:
-    from ..core.kinematics import RobotKinematics
-
+def _required_joints(rig: RigConfig, kinematics: dict[str, RobotKinematics]) -> list[str]:
+    """The joint state names of every arm's chain, as the pipeline requires them."""
     names: list[str] = []
     for robot in rig.robots:
-        kin = RobotKinematics(robot.id, robot.urdf_path)
+        kin = kinematics[robot.id]
         for arm in (a for a in rig.arms if a.robot == robot.id):
             frames = [arm.ee_frame] + ([arm.tip.frame] if arm.tip.frame else [])
             names += [robot.joint_prefix + j for f in frames for j in kin.chain_joints(f)]
     return list(dict.fromkeys(names))
 
 
-def _continuous(rig: RigConfig, names: frozenset[str]) -> frozenset[str]:
-    from ..core.kinematics import RobotKinematics
-
+def _continuous(rig: RigConfig, kinematics: dict[str, RobotKinematics], names: frozenset[str]) -> frozenset[str]:
+    """Which of the bag's joint names are continuous joints (interpolated the short way round)."""
     out: set[str] = set()
     for robot in rig.robots:
-        kin = RobotKinematics(robot.id, robot.urdf_path)
+        kin = kinematics[robot.id]
         out.update(n for n in names if n.startswith(robot.joint_prefix) and kin.is_continuous(n.removeprefix(robot.joint_prefix)))
     return frozenset(out)
 
@@ -271,11 +272,9 @@ class _FrameReader:
         self.connections = [c for c in reader.connections if c.topic == selection.image_topic]
         self.where = f"{path}: {selection.image_topic}"
 
-    def frames(self, every: int = 1) -> Any:
-        """(header stamp, RGB pixels) of every `every`-th frame."""
+    def frames(self) -> Iterator[tuple[int, np.ndarray]]:
+        """(header stamp, RGB pixels) of every frame that decodes."""
         for index, (_, _, raw) in enumerate(read_messages(self.reader, self.connections, self.path)):
-            if index % every:
-                continue
             try:
                 msg: Any = self.reader.deserialize(raw, self.selection.image_type)
                 image = decode_frame(msg, self.selection.image_type, f"{self.where}: message {index}")
