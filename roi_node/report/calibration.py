@@ -48,6 +48,8 @@ TRACK_STEP_NS = 5 * NS_PER_MS
 OFFSET_RADIUS_PX = 48.0  # raw px: the largest reprojection offset searched
 MIN_MOVING_FRAMES = 10
 REFINE_ROUNDS = 2  # delay and offsets fitted again, each with the other's estimate
+# an offset below this (raw px) is within the method's own bias on a well-calibrated rig: the delay is not refitted for it
+REFIT_MIN_OFFSET_PX = 3.0
 DEFAULT_DELAY_TOLERANCE_MS = 10.0
 DEFAULT_OFFSET_TOLERANCE_PX = 8.0
 _CROP_DELAYS = 16  # candidate delays whose points bound an arm's crop
@@ -235,7 +237,13 @@ def check_calibration(
     delay = fit_delay(evidence, tracks, scale, search_ms, {})
     offsets = fit_offsets(evidence, tracks, scale, round(delay.delay_ms * NS_PER_MS), radius_work)
     for round_index in range(REFINE_ROUNDS):
-        shifts = {a: np.asarray(f.offset_px) * scale.factor for a, f in offsets.items() if f.offset_px is not None}
+        shifts = {
+            a: np.asarray(f.offset_px) * scale.factor
+            for a, f in offsets.items()
+            if f.offset_px is not None and math.hypot(*f.offset_px) >= REFIT_MIN_OFFSET_PX
+        }
+        if not shifts:
+            break
         delay = fit_delay(evidence, tracks, scale, search_ms, shifts, previous=delay if round_index else None)
         offsets = fit_offsets(evidence, tracks, scale, round(delay.delay_ms * NS_PER_MS), radius_work, previous=offsets)
     return CalibrationCheck(path, selection.image_topic, len(evidence), rig.camera.delay_ms, delay, offsets, tolerances)
