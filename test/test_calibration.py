@@ -172,3 +172,10 @@ def test_bag_without_images_is_one_clear_error(sim_bags: SimBags, tmp_path: Path
     assert main(["check-calibration", str(missing), "--config", str(sim_bags.rigs["single"])]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no such bag" in err
+
+
+def test_a_bag_too_short_for_the_search_is_one_clear_error(sim_bags: SimBags, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    short = write_events(SimRig(sim_bags.rigs["single"]), tmp_path / "short", duration_s=0.3).path
+    assert main(["check-calibration", str(short), "--config", str(sim_bags.rigs["single"])]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "frames have joint states for every capture time searched" in err

@@ -232,6 +232,11 @@ def check_calibration(
         static = _static_scene(first.sampled(camera), tracks, scale, search_ms)
         radius_work = max(1, math.ceil(OFFSET_RADIUS_PX * scale.factor))
         evidence = _evidence(frames, tracks, scale, static, search_ms, radius_work)
+    if len(evidence) < MIN_MOVING_FRAMES:
+        raise BagError(
+            f"{path}: only {len(evidence)} frames have joint states for every capture time searched "
+            f"({search_ms[0]:g} .. {search_ms[1]:g} ms before their stamps); the check needs at least {MIN_MOVING_FRAMES}"
+        )
     # a miscalibrated camera shifts the skeleton off the arm, which the delay alone would try to absorb:
     # fit the delay, then the offsets at that delay, then the delay again with the skeleton shifted by them
     delay = fit_delay(evidence, tracks, scale, search_ms, {})
