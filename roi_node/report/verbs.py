@@ -33,6 +33,9 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         print(f"{bag.path}: {frames} frames, arms {', '.join(bag.result['arms'])}: {verdict}", file=out)
         for gate in failed:
             print(f"FAIL {bag.name}: {gate.line()}", file=out)
+        if rig is not None and bag.result["calibration"] is None:
+            print(f"note {bag.name}: the bag has no camera stream and joint states (replay --include-inputs): calibration not checked",
+                  file=out)
     if report_dir is not None:
         print(f"report: {report_dir / REPORT_NAME}", file=out)
     if args.json:
