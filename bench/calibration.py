@@ -5,15 +5,16 @@ checked; the baseline measured in the same run is reading and decoding every
 frame of the same bag (what any pass over the images costs). Prints both
 and their ratio. Accuracy: every injected delay (0, 30, 80, 150 ms) at every
 joint rate (100, 200, 500 Hz) on the single-arm and the bimanual rig, at
-half resolution (640x360, 10 s, as the tests), plus a 1 degree extrinsic
-rotation; prints the error of each. The machine may be shared: compare the
+half resolution (640x360, 10 s, as the tests), for each --seeds; prints
+the error of each. The machine may be shared: compare the
 ratio, not the seconds.
-Run: `.venv/bin/python bench/calibration.py [--seconds 60] [--skip-matrix]`.
+Run: `.venv/bin/python bench/calibration.py [--seconds 60] [--skip-matrix] [--seeds 0,1]`.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 import tempfile
 import time
@@ -63,7 +64,7 @@ def speed(folder: Path, seconds: float) -> None:
           f"({check_s / base_s:.2f}x the baseline); delay {check.delay.delay_ms:.2f} ms (true 40)")
 
 
-def matrix(folder: Path) -> None:
+def matrix(folder: Path, seeds: list[int]) -> None:
     rigs = {
         "single": scaled_camera_rig(folder, CONFIG / "rig_panda_single.yaml", "single"),
         "bimanual": scaled_camera_rig(folder, CONFIG / "rig_demo_bimanual.yaml", "bimanual"),
@@ -71,14 +72,13 @@ def matrix(folder: Path) -> None:
     errors = []
     for name, rig_path in rigs.items():
         rig = load_rig_config(rig_path)
-        for delay in (0.0, 30.0, 80.0, 150.0):
-            for rate in (100.0, 200.0, 500.0):
-                bag = folder / f"{name}_{delay:g}_{rate:g}"
-                write_sim_bag(rig_path, bag, duration_s=10.0, joint_rate_hz=rate, camera_delay_ms=delay)
-                check = check_calibration(bag, rig, Tolerances())
-                errors.append(check.delay.delay_ms - delay)
-                print(f"{name:8s} delay {delay:5.1f} ms joints {rate:5.0f} Hz: measured {check.delay.delay_ms:7.2f} ms "
-                      f"(error {errors[-1]:+.2f}, 95% {check.delay.ci_ms[0]:.1f}..{check.delay.ci_ms[1]:.1f})", flush=True)
+        for seed, delay, rate in itertools.product(seeds, (0.0, 30.0, 80.0, 150.0), (100.0, 200.0, 500.0)):
+            bag = folder / f"{name}_{seed}_{delay:g}_{rate:g}"
+            write_sim_bag(rig_path, bag, duration_s=10.0, joint_rate_hz=rate, camera_delay_ms=delay, seed=seed)
+            check = check_calibration(bag, rig, Tolerances())
+            errors.append(check.delay.delay_ms - delay)
+            print(f"{name:8s} seed {seed} delay {delay:5.1f} ms joints {rate:5.0f} Hz: measured {check.delay.delay_ms:7.2f} ms "
+                  f"(error {errors[-1]:+.2f}, 95% {check.delay.ci_ms[0]:.1f}..{check.delay.ci_ms[1]:.1f})", flush=True)
     worst, rms = np.max(np.abs(errors)), np.sqrt(np.mean(np.square(errors)))
     print(f"delay error over {len(errors)} bags: max |error| {worst:.2f} ms, rms {rms:.2f} ms")
 
@@ -87,11 +87,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seconds", type=float, default=60.0, help="length of the 720p bag (default: 60)")
     parser.add_argument("--skip-matrix", action="store_true", help="only the speed measurement")
+    parser.add_argument("--seeds", default="0", help="comma-separated sim seeds of the matrix (default: 0)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="roi_node_bench_calibration_") as tmp:
         speed(Path(tmp), args.seconds)
         if not args.skip_matrix:
-            matrix(Path(tmp))
+            matrix(Path(tmp), [int(v) for v in args.seeds.split(",")])
 
 
 if __name__ == "__main__":
