@@ -49,9 +49,11 @@ def perturbation_figure(sweep: dict[str, Any], floor: float) -> np.ndarray:
         ratios.line(sizes, values, SERIES_COLOURS[i], thickness)
         ratios.points(sizes, values, SERIES_COLOURS[i], 3)
     ratios.hline(floor, FLOOR_COLOUR, f"coverage floor {floor:g}")
-    for key, label in (("coverage_below_floor_at", "mean"), ("coverage_p05_below_floor_at", "p5")):
+    for row, (key, label) in enumerate((("coverage_below_floor_at", "mean"), ("coverage_p05_below_floor_at", "p5"))):
         if sweep[key] is not None:
-            ratios.vline(float(sweep[key]), FLOOR_COLOUR, f"{label} < floor at {sweep[key]:g}")
+            ratios.vline(float(sweep[key]), FLOOR_COLOUR)  # labelled at the bottom, clear of the floor's label
+            text = f"{label} coverage < floor from {sweep[key]:g} {sweep['unit']}"
+            put_text(img, text, (ratios.x0 + 8, ratios.y1 - 10 - 18 * row), 0.45, FLOOR_COLOUR)
     errors = _values(results, "centre_error_px")
     top = float(np.nanmax(errors)) * 1.1 if np.isfinite(errors).any() else 1.0
     centre = Axes(img, (PANEL_W + 70, 100, 2 * PANEL_W - 20, PANEL_H + 10), x_range, (0.0, max(top, 1.0)),
