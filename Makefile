@@ -58,6 +58,8 @@ bench: $(STAMP)
 	$(PY) bench/validate.py
 	$(PY) bench/bagwrite.py
 	$(PY) bench/export.py
+	$(PY) bench/calibration.py
+	$(PY) bench/offset.py
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-73} $(PY) bench/live.py
 
 lint: $(STAMP)

@@ -13,10 +13,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import yaml
+
 from roi_node.core import engine
 from roi_node.core.camera import CameraModel, calibration_yaml_text, camera_from_info
 from roi_node.core.config import RigConfig, load_rig_config
 from roi_node.core.pipeline import FrameResult
+from roi_node.core.transforms import matrix_to_quat_xyzw
 from roi_node.sim.rig_sim import CameraInfoEvent, ImageEvent, JointStateEvent, SimEvent
 from roi_node.sim.truth import GripperTruth
 
@@ -128,3 +132,41 @@ def write_so101_rig(tmp_path: Path) -> Path:
         ],
     }
     return write_rig(tmp_path, doc, "so101.yaml")
+
+
+def scaled_camera_rig(
+    folder: Path, base: Path, name: str, *, scale: float = 0.5, rotate_deg: tuple[float, float, float] | None = None, **camera: Any
+) -> Path:
+    """A bundled rig seen by its camera at `scale` of the resolution (a small, fast sim), optionally rotated.
+
+    `rotate_deg` turns the camera optical frame about its own x, y, z axes: a
+    miscalibrated extrinsic when the images were rendered with the original.
+    """
+    rig = load_rig_config(base)
+    source = rig.camera.intrinsics
+    assert source is not None
+    k = source.k.copy()
+    k[:2, :2] *= scale
+    k[:2, 2] = (k[:2, 2] + 0.5) * scale - 0.5
+    small = camera_from_info(
+        width_px=round(source.width_px * scale), height_px=round(source.height_px * scale),
+        distortion_model=source.distortion_model, d=source.d, k=k,
+    )
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / f"{name}_intrinsics.yaml").write_text(calibration_yaml_text(small, "front"))
+    doc = yaml.safe_load(base.read_text())
+    doc["camera"]["intrinsics"] = f"{name}_intrinsics.yaml"
+    doc["camera"].update(camera)
+    if rotate_deg is not None:
+        turn = np.eye(3)
+        for axis, angle in enumerate(np.radians(rotate_deg)):
+            c, s = np.cos(angle), np.sin(angle)
+            i, j = [a for a in range(3) if a != axis]
+            about = np.eye(3)
+            about[i, i], about[i, j], about[j, i], about[j, j] = c, -s, s, c
+            turn = turn @ about
+        world_R_cam = rig.camera.world_T_cam.rotation @ turn
+        doc["camera"]["extrinsics"]["rotation_xyzw"] = [float(v) for v in matrix_to_quat_xyzw(world_R_cam)]
+    path = folder / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path

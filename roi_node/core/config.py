@@ -84,6 +84,7 @@ class ArmConfig:
     offset_px: float
     scale: DepthScale | FixedScale
     aspect: tuple[float, float]
+    offset_m: float | None = None  # instead of offset_px: centre on the point this far along ee -> tip (metres)
 
 
 @dataclass(frozen=True)
@@ -365,7 +366,9 @@ def _load_robot(node: _Node, base_dir: Path) -> RobotConfig:
 
 
 def _load_arm(node: _Node, robot_ids: set[str]) -> ArmConfig:
-    node.check_keys(("id", "robot", "ee_frame", "tip", "offset_px", "scale", "aspect"))
+    node.check_keys(("id", "robot", "ee_frame", "tip", "offset_px", "offset_m", "scale", "aspect"))
+    if node.has("offset_px") and node.has("offset_m"):
+        raise node.fail("offset_m", "give one of offset_px (pixels along d_in) or offset_m (metres along ee -> tip), not both")
     robot = node.text("robot")
     if robot not in robot_ids:
         raise node.fail("robot", f"unknown robot {robot!r}; robots are {', '.join(sorted(robot_ids))}")
@@ -410,6 +413,7 @@ def _load_arm(node: _Node, robot_ids: set[str]) -> ArmConfig:
         offset_px=node.number("offset_px", 0.0, minimum=-MAX_WINDOW_SIDE_PX, maximum=MAX_WINDOW_SIDE_PX, unit="px"),
         scale=scale,
         aspect=(aspect[0], aspect[1]),
+        offset_m=node.number("offset_m", minimum=-10.0, maximum=10.0, unit="m") if node.has("offset_m") else None,
     )
 
 

@@ -168,6 +168,10 @@ class RobotKinematics:
             return None
         return j.lower, j.upper
 
+    def joint_child_frame(self, joint: str) -> str:
+        """The link a joint moves (its origin is the joint's origin)."""
+        return self._joints[joint].child
+
     def is_continuous(self, joint: str) -> bool:
         return joint in self._continuous
 

@@ -252,6 +252,9 @@ class RoiPipeline:
         base_T_ee = poses[0]
         base_T_tip = poses[1] if arm.tip_frame else base_T_ee @ arm.ee_T_tip  # type: ignore[operator]
         points_cam = arm.cam_T_base.apply(np.vstack([base_T_ee.translation_m, base_T_tip.translation_m]))
+        if cfg.offset_m is not None:  # the metric inward offset: a 3D point along ee -> tip
+            axis = points_cam[1] - points_cam[0]
+            points_cam = np.vstack([points_cam, points_cam[0] + cfg.offset_m * axis / max(float(np.linalg.norm(axis)), 1e-12)])
         uv, valid = camera.project(points_cam, self.rig.camera.z_min_m)
         if not valid[0]:
             flags.append(ArmFlag.BEHIND_CAMERA)
@@ -259,7 +262,10 @@ class RoiPipeline:
         wrist = (float(uv[0, 0]), float(uv[0, 1]))
         tip = (float(uv[1, 0]), float(uv[1, 1])) if valid[1] else None
         depth_m = float(points_cam[0, 2])
-        geometry = roi_geometry(cfg, wrist, tip, depth_m, camera.fx_px)
+        centre = (float(uv[2, 0]), float(uv[2, 1])) if cfg.offset_m is not None and valid[2] else None
+        if centre is not None:
+            depth_m = float(points_cam[2, 2])
+        geometry = roi_geometry(cfg, wrist, tip, depth_m, camera.fx_px, centre)
         flags.extend(geometry.flags)
         resampled, inside = crop_resize(
             image, geometry.window, (out_w, out_h), self.rig.output.resize_policy, self.rig.output.interpolation

@@ -95,12 +95,17 @@ def roi_geometry(
     tip_px: tuple[float, float] | None,
     depth_m: float,
     fx_px: float,
+    center_px: tuple[float, float] | None = None,
 ) -> RoiGeometry:
+    """`center_px` (the projected `offset_m` point; `depth_m` is then its depth) replaces wrist + offset_px * d_in."""
     flags: list[str] = []
     direction, degenerate = inward_direction(wrist_px, tip_px)
     if degenerate:
         flags.append("degenerate_inward_dir")
-    center = (wrist_px[0] + arm.offset_px * direction[0], wrist_px[1] + arm.offset_px * direction[1])
+    if center_px is not None:
+        center = center_px
+    else:
+        center = (wrist_px[0] + arm.offset_px * direction[0], wrist_px[1] + arm.offset_px * direction[1])
     side, clip_flag = scale_px(arm, fx_px, depth_m)
     if clip_flag:
         flags.append(clip_flag)

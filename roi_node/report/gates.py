@@ -25,7 +25,16 @@ from .drift import DRIFT_METRICS
 from .stats import ARM_METRICS, BAG_METRICS, Metric
 
 GATES_SCHEMA = "roi_node/gates/v1"
-SCOPES = {**dict.fromkeys(ARM_METRICS, "arm"), **dict.fromkeys(BAG_METRICS, "bag"), **dict.fromkeys(DRIFT_METRICS, "drift")}
+# measured by check-calibration from a bag's images (validate --config RIG, on bags that carry their inputs)
+CALIBRATION_DELAY_GATE = "calibration_delay_error_ms"  # per bag: |measured camera delay - camera.delay_ms|
+CALIBRATION_OFFSET_GATE = "calibration_reprojection_offset_px"  # per arm: |reprojection offset|
+CALIBRATION_METRICS = (CALIBRATION_DELAY_GATE, CALIBRATION_OFFSET_GATE)
+SCOPES = {
+    **dict.fromkeys(ARM_METRICS, "arm"),
+    **dict.fromkeys(BAG_METRICS, "bag"),
+    **dict.fromkeys(DRIFT_METRICS, "drift"),
+    **dict.fromkeys(CALIBRATION_METRICS, "calibration"),
+}
 BAG_SCOPE = "-"  # the `arm` of a bag-level gate result
 
 
@@ -38,7 +47,7 @@ class GateParams:
 @dataclass(frozen=True)
 class Gate:
     metric: str
-    scope: str  # arm | bag | drift
+    scope: str  # arm | bag | drift | calibration
     op: str  # min | max
     threshold: float
 
@@ -164,17 +173,29 @@ def _verdict(gate: Gate, arm: str, value: Metric) -> GateResult:
     return GateResult(gate.metric, gate.op, gate.threshold, arm, value, status)
 
 
+def gate_threshold(gates: GateSet, metric: str, op: str) -> float | None:
+    """The bound a gates file sets on a metric, or None when it sets none."""
+    return next((g.threshold for g in gates.gates if g.metric == metric and g.op == op), None)
+
+
 def evaluate(
     gates: GateSet,
     bag_metrics: Mapping[str, Metric],
     arm_metrics: Mapping[str, Mapping[str, Metric]],
     drift_metrics: Mapping[str, Mapping[str, Metric]],
+    calibration_metrics: Mapping[str, Mapping[str, Metric]] | None = None,
 ) -> list[GateResult]:
     """Every gate on every arm it applies to. A drift gate whose comparison was not made (no
-    --baseline, or a bag too short for windows) is left out; a metric without data is `no_data`."""
+    --baseline, or a bag too short for windows) is left out, and so is a calibration gate when
+    the check was not run (no --config, or a bag without its inputs); a metric without data is `no_data`.
+    `calibration_metrics` is keyed by arm id, and by BAG_SCOPE for the bag's delay."""
     results: list[GateResult] = []
     for gate in gates.gates:
-        if gate.scope == "bag":
+        if gate.scope == "calibration":
+            results.extend(
+                _verdict(gate, key, metrics[gate.metric]) for key, metrics in (calibration_metrics or {}).items() if gate.metric in metrics
+            )
+        elif gate.scope == "bag":
             results.append(_verdict(gate, BAG_SCOPE, bag_metrics[gate.metric]))
         elif gate.scope == "arm":
             results.extend(_verdict(gate, arm, metrics[gate.metric]) for arm, metrics in arm_metrics.items())

@@ -199,6 +199,7 @@ def _bag_section(bag: Mapping[str, Any]) -> list[str]:
     lines += _arm_section(bag)
     lines += _timing_section(bag)
     lines += _drift_section(bag)
+    lines += _calibration_section(bag)
     lines += _lineage_section(details["lineage"])
     lines += _governance_section(bag)
     return lines
@@ -254,6 +255,25 @@ def _drift_rows(arms: Mapping[str, Any]) -> list[list[Any]]:
         rows.append([arm_id, d["mode"], d["frames"], "n/a" if offset is None else f"({offset[0]:.3f}, {offset[1]:.3f})", shift,
                      d["scale_ratio"], d["in_frame_delta"], d["padding_delta"]])
     return rows
+
+
+def _calibration_section(bag: Mapping[str, Any]) -> list[str]:
+    """check-calibration's findings, when validate ran it (--config, on a bag with its inputs)."""
+    check = bag.get("calibration")
+    if not check:
+        return []
+    low, high = check["delay_ci_ms"]
+    lines = [
+        "### Calibration from the images",
+        "",
+        f"Camera delay {check['delay_ms']:g} ms (95% interval {low:g} .. {high:g}, confidence {check['delay_confidence']:g}); "
+        f"configured {check['configured_delay_ms']:g} ms: {check['delay_verdict']}. Verdict: {check['verdict']}.",
+        "",
+    ]
+    rows = [[arm, a["offset_px"], a["spread_px"], a["frames"], a["verdict"]] for arm, a in check["arms"].items()]
+    lines += _table(["arm", "reprojection offset px (dx, dy)", "per-frame spread px", "frames", "verdict"], rows)
+    lines += [f"- hint: {hint}" for hint in check["hints"]] + ([""] if check["hints"] else [])
+    return lines
 
 
 def _drift_section(bag: Mapping[str, Any]) -> list[str]:

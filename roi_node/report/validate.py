@@ -11,8 +11,10 @@ from pathlib import Path
 from typing import Any
 
 from ..core.atomic_output import atomic_output
+from ..core.config import RigConfig
 from ..core.errors import BagError
 from .bagfiles import fingerprint
+from .calibration import CalibrationCheck, Tolerances, carries_inputs, check_calibration
 from .drift import ArmDrift, baseline_drift, window_drift
 from .gates import GateParams, GateSet, evaluate
 from .report import JSON_NAME, prepare_report_dir, write_bag_figures, write_report
@@ -38,8 +40,10 @@ def _drift_dict(arms: dict[str, ArmDrift]) -> dict[str, Any]:
     return {arm_id: drift.as_dict() for arm_id, drift in arms.items()}
 
 
-def judge(scan: BagScan, gates: GateSet, name: str, baseline: BagScan | None = None) -> BagValidation:
-    """Gates and drift for a scanned bag."""
+def judge(
+    scan: BagScan, gates: GateSet, name: str, baseline: BagScan | None = None, calibration: CalibrationCheck | None = None
+) -> BagValidation:
+    """Gates and drift for a scanned bag (and the calibration gates when its check was run)."""
     summary = scan.summary
     windows = window_drift(summary.series, gates.params.window_fraction)
     drift_metrics: dict[str, dict[str, Any]] = {arm: d.metrics("window") for arm, d in windows.items()}
@@ -56,7 +60,8 @@ def judge(scan: BagScan, gates: GateSet, name: str, baseline: BagScan | None = N
             "same_lineage": base_lineage == [seg["tuple"] for seg in summary.details["lineage"]],
             "arms": _drift_dict(arms),
         }
-    results = evaluate(gates, summary.bag_metrics, summary.arm_metrics, drift_metrics)
+    calibration_metrics = calibration.gate_metrics() if calibration is not None else None
+    results = evaluate(gates, summary.bag_metrics, summary.arm_metrics, drift_metrics, calibration_metrics)
     result = {
         "path": str(scan.path.resolve()),
         "name": name,
@@ -71,6 +76,7 @@ def judge(scan: BagScan, gates: GateSet, name: str, baseline: BagScan | None = N
             "baseline": baseline_part,
             "window": {"fraction": gates.params.window_fraction, "arms": _drift_dict(windows)},
         },
+        "calibration": None if calibration is None else calibration.as_dict(),
     }
     return BagValidation(scan.path, name, results, result)
 
@@ -87,16 +93,19 @@ def unique_names(paths: list[Path]) -> list[str]:
     return names
 
 
-def validate_bags(paths: list[Path], gates: GateSet, *, baseline: Path | None = None, report_dir: Path | None = None) -> ValidationRun:
+def validate_bags(
+    paths: list[Path], gates: GateSet, *, baseline: Path | None = None, report_dir: Path | None = None, rig: RigConfig | None = None
+) -> ValidationRun:
     """Validate every bag (in order); with `report_dir`, also draw figures and write REPORT.md + validation.json.
 
+    With `rig`, bags that carry their inputs also get the image-based calibration check (check-calibration).
     The report folder is built in a temporary sibling and replaces `report_dir` only when complete.
     """
     if report_dir is None:
-        return _validate(paths, gates, baseline, None)
+        return _validate(paths, gates, baseline, None, rig)
     check_report_target(report_dir)
     with atomic_output(report_dir, overwrite=True) as partial:
-        return _validate(paths, gates, baseline, partial)
+        return _validate(paths, gates, baseline, partial, rig)
 
 
 def check_report_target(report_dir: Path) -> None:
@@ -107,14 +116,19 @@ def check_report_target(report_dir: Path) -> None:
         raise BagError(f"{report_dir}: exists and is not a folder; choose another --report folder")
 
 
-def _validate(paths: list[Path], gates: GateSet, baseline: Path | None, report_dir: Path | None) -> ValidationRun:
+def _validate(
+    paths: list[Path], gates: GateSet, baseline: Path | None, report_dir: Path | None, rig: RigConfig | None
+) -> ValidationRun:
     if report_dir is not None:
         prepare_report_dir(report_dir)
     base = scan_bag(baseline, gates.params) if baseline is not None else None
     run = ValidationRun(gates, baseline, [])
     for path, name in zip(paths, unique_names(paths), strict=True):
         scan = scan_bag(path, gates.params, with_samples=report_dir is not None)
-        validation = judge(scan, gates, name, base)
+        calibration = None
+        if rig is not None and carries_inputs(scan.topics):
+            calibration = check_calibration(path, rig, Tolerances.from_gates(gates))
+        validation = judge(scan, gates, name, base, calibration)
         if report_dir is not None:
             validation.figures = write_bag_figures(scan, validation, gates, report_dir)
         run.bags.append(validation)

@@ -6,6 +6,10 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..core.config import RigConfig
 
 EXIT_GATE_FAILED = 1
 
@@ -17,8 +21,9 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
     gates = load_gates(Path(args.gates) if args.gates else None)
     report_dir = Path(args.report) if args.report else None
+    rig = _rig(args.config) if args.config else None
     run = validate_bags(
-        [Path(p) for p in args.bags], gates, baseline=Path(args.baseline) if args.baseline else None, report_dir=report_dir
+        [Path(p) for p in args.bags], gates, baseline=Path(args.baseline) if args.baseline else None, report_dir=report_dir, rig=rig
     )
     out = sys.stderr if args.json else sys.stdout  # with --json, stdout is the JSON document only
     for bag in run.bags:
@@ -28,11 +33,34 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         print(f"{bag.path}: {frames} frames, arms {', '.join(bag.result['arms'])}: {verdict}", file=out)
         for gate in failed:
             print(f"FAIL {bag.name}: {gate.line()}", file=out)
+        if rig is not None and bag.result["calibration"] is None:
+            print(f"note {bag.name}: the bag has no camera stream and joint states (replay --include-inputs): calibration not checked",
+                  file=out)
     if report_dir is not None:
         print(f"report: {report_dir / REPORT_NAME}", file=out)
     if args.json:
         print(json.dumps(run.as_dict(), indent=2, allow_nan=False))
     return 0 if run.passed else EXIT_GATE_FAILED
+
+
+def _rig(path: str) -> RigConfig:
+    from ..core.config import load_rig_config
+    from ..core.resources import resolve_config_file
+
+    return load_rig_config(resolve_config_file(path))
+
+
+def _cmd_check_calibration(args: argparse.Namespace) -> int:
+    from .calibration import Tolerances, Verdict, check_calibration
+    from .gates import load_gates
+
+    tolerances = Tolerances.from_gates(load_gates(Path(args.gates) if args.gates else None))
+    check = check_calibration(Path(args.bag), _rig(args.config), tolerances)
+    if args.json:
+        print(json.dumps(check.as_dict(), indent=2, allow_nan=False))
+    else:
+        print("\n".join(check.lines()))
+    return EXIT_GATE_FAILED if check.verdict is Verdict.OFF else 0
 
 
 def _cmd_manifest(args: argparse.Namespace) -> int:
@@ -80,7 +108,26 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     validate.add_argument("--report", metavar="DIR", help="write REPORT.md, figures and validation.json here")
     validate.add_argument("--json", action="store_true", help="print the validation result as JSON on stdout")
     validate.add_argument("--baseline", metavar="BAG", help="compare ROI statistics against this ROI bag (calibration drift)")
+    validate.add_argument(
+        "--config", metavar="RIG", help="the rig config: also check camera delay and reprojection from the images of bags that carry "
+        "their inputs (replay --include-inputs), as the calibration_* gates"
+    )
     validate.set_defaults(func=_cmd_validate)
+
+    check = verbs.add_parser(
+        "check-calibration",
+        help="camera delay and reprojection offsets measured from a bag's images and joint states",
+        description="From the bag alone (images, joint states) and the rig config, measure how late the image stamps are "
+        "relative to the joint clock (the camera delay, with a 95% interval) and, per arm, the mean image offset between where the "
+        "images show the arm and where FK + calibration project it. Each is judged against the calibration_* gates of the gates file. "
+        "Works on input bags and on ROI bags written with replay --include-inputs. Exit 0 when both are within tolerance (or there "
+        "was not enough motion to tell), 1 when one is not, 2 when an input cannot be used.",
+    )
+    check.add_argument("bag", metavar="BAG", help="bag folder or .mcap/.db3 file with an image topic and joint states")
+    check.add_argument("--config", required=True, metavar="RIG", help="rig config the bag was recorded with")
+    check.add_argument("--gates", metavar="FILE", help="gates YAML whose calibration_* gates are the tolerances (default: bundled)")
+    check.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    check.set_defaults(func=_cmd_check_calibration)
 
     manifest = verbs.add_parser(
         "manifest",

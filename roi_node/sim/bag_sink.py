@@ -19,6 +19,7 @@ from ..core import topics
 from ..core.config import RigConfig
 from ..core.errors import ConfigError
 from ..core.image_codec import encode_compressed
+from .look import Look
 from .rig_sim import CameraInfoEvent, ImageEvent, JointStateEvent, SimRig
 
 COMPRESSED_FORMATS = ("png", "jpeg")
@@ -49,6 +50,7 @@ def write_sim_bag(
     camera_delay_ms: float | None = None,
     start_ns: int = 0,
     chunk_compression: Compression | str = Compression.NONE,
+    look: Look | None = None,
 ) -> SimBagSummary:
     """Simulate `duration_s` seconds of the rig into an MCAP bag at `out_path` (a bag directory).
 
@@ -58,7 +60,9 @@ def write_sim_bag(
     """
     fmt = _compression(compressed)
     bag = BagWriter(Path(out_path), overwrite=overwrite, compression=chunk_compression)  # refuses an existing output before the slow setup
-    sim = SimRig(rig_config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms, start_ns=start_ns)
+    sim = SimRig(
+        rig_config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms, start_ns=start_ns, look=look
+    )
     return _drain(sim, bag, duration_s, fmt)
 
 

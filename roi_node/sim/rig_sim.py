@@ -35,6 +35,7 @@ from .arms import load_arms, required_joints
 from .capsules import CameraView, ProjectedCapsule
 from .choreography import script_rig
 from .layout import plan_layout
+from .look import Look
 from .painter import RigPainter
 from .scene import render_static_scene
 from .truth import FrameTruth, gripper_truth
@@ -99,6 +100,7 @@ class SimRig:
         camera_delay_ms: float | None = None,
         start_ns: int = 0,
         intrinsics: CameraModel | None = None,
+        look: Look | None = None,
     ) -> None:
         """`camera_delay_ms=None` uses the rig's `camera.delay_ms`, so the pipeline's capture time is right.
 
@@ -136,7 +138,9 @@ class SimRig:
         self.view = CameraView.of(camera, world_T_cam, self.rig.camera.z_min_m)
         bases = [a.world_T_base.translation_m for a in self.arms]
         self.layout = plan_layout(camera, world_T_cam, bases, max(a.reach_m for a in self.arms), seed)
-        self.scene = render_static_scene(camera, world_T_cam, self.layout, seed)
+        self.look = look or Look()
+        texture_seed = seed if self.look.texture_seed is None else self.look.texture_seed
+        self.scene = render_static_scene(camera, world_T_cam, self.layout, texture_seed)
         self.trajectory = script_rig(self.arms, self.view, self.layout.table_z_m, seed)
         reference_depth = float(np.median(self.view.cam_T_world.apply(np.array(bases))[:, 2]))
         self.painter = RigPainter(self.scene, max(reference_depth, self.view.z_near_m))
@@ -169,9 +173,16 @@ class SimRig:
         """What the camera sees at capture time (header stamp - delay), without rendering."""
         return self._project(capture_ns)[0]
 
-    def render(self, capture_ns: int) -> tuple[np.ndarray, FrameTruth]:
+    def render(self, capture_ns: int, frame_index: int = 0) -> tuple[np.ndarray, FrameTruth]:
+        """The frame captured at capture_ns and its truth; with a Look, blurred over the exposure, lit and noisy."""
         truth, projected = self._project(capture_ns)
-        return self.painter.paint(projected), truth
+        if self.look.default:
+            return self.painter.paint(projected), truth
+        if self.look.blurred:
+            frame = np.mean([self.painter.paint(self._project(capture_ns + dt)[1]) for dt in self.look.exposure_offsets_ns()], axis=0)
+        else:
+            frame = self.painter.paint(projected)
+        return self.look.finish(frame, frame_index, (capture_ns - self.start_ns) / NS_PER_S, self.seed), truth
 
     def _project(self, capture_ns: int) -> tuple[FrameTruth, list[ProjectedCapsule]]:
         q = self.positions(capture_ns)
@@ -215,7 +226,7 @@ class SimRig:
             capture = self.capture_ns(k)
             stamp = capture + self.delay_ns
             yield CameraInfoEvent(stamp, self.frame_id, self.camera)
-            image, truth = self.render(capture)
+            image, truth = self.render(capture, k)
             yield ImageEvent(stamp, capture, k, self.frame_id, image, truth)
 
 

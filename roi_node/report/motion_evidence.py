@@ -1,0 +1,169 @@
+"""Image evidence of where the arms are: what differs from the static scene.
+
+The camera is fixed and the scene mostly static; what moves is the robot. A
+temporal median over frames sampled across the bag is the empty scene
+wherever no arm stood for most of the bag, and a frame's difference from it
+(strongest colour channel, above a threshold that rises with the frame's
+own median difference: sensor noise, a global lighting change) is
+foreground. The evidence is the distance from each foreground pixel to the
+nearest background pixel: a ridge along the centre line of every moving
+part, so a projected skeleton point scores highest on the middle of a limb
+and the score falls off linearly to either side. A plain mask would score
+every point inside a limb the same, and the best delay would be anywhere
+the skeleton stays inside the silhouette.
+
+Everything runs at a working resolution of about WORK_WIDTH_PX across, and
+per frame only the region each arm can be in (over the candidate delays and
+offsets) is kept, so a long 720p bag fits in memory.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..core.transforms import Float64Array
+
+WORK_WIDTH_PX = 640  # working resolution across: enough for sub-pixel alignment, cheap per frame
+_NOISE_FACTOR = 3.0  # foreground: this many median differences from the static scene ...
+_THRESHOLD_FLOOR = 12.0  # ... plus this many grey levels (the threshold in a noise-free frame)
+_NOISE_STRIDE = 4  # the noise level is measured on every 4th pixel of every 4th row
+_MASKED = np.uint16(1 << 15)  # sorts after every uint8 value
+_KERNEL = np.ones((3, 3), np.uint8)
+MAX_DEPTH_PX = 31.0  # working px: the evidence saturates this deep inside a part
+_DEPTH_LEVELS = 8.0  # uint8 levels per working px in a stored crop
+_BLUR_SIGMA_PX = 1.0  # working pixels: smooths the distance ridge for sub-pixel interpolation
+_OUTSIDE = -1.0e5  # a remap coordinate that lands outside every map
+
+
+@dataclass(frozen=True)
+class WorkingScale:
+    """Raw image pixels <-> working pixels (pixel centres map to pixel centres)."""
+
+    factor: float
+    width_px: int
+    height_px: int
+
+    @classmethod
+    def for_image(cls, width_px: int, height_px: int) -> WorkingScale:
+        factor = min(1.0, WORK_WIDTH_PX / width_px)
+        return cls(factor, max(1, round(width_px * factor)), max(1, round(height_px * factor)))
+
+    def to_work(self, uv_px: Float64Array) -> Float64Array:
+        return (uv_px + 0.5) * self.factor - 0.5
+
+    def shrink(self, image: np.ndarray) -> np.ndarray:
+        if self.factor == 1.0:
+            return image
+        return cv2.resize(image, (self.width_px, self.height_px), interpolation=cv2.INTER_AREA)
+
+
+def arm_mask(shape: tuple[int, int], skeletons_work: list[tuple[Float64Array, float]]) -> np.ndarray:
+    """Where an arm may be drawn: each skeleton (P x 2 working px) as a polyline `radius` px thick on each side."""
+    mask = np.zeros(shape, np.uint8)
+    for points, radius in skeletons_work:
+        finite = points[np.isfinite(points).all(axis=1)]
+        if len(finite) == 0 or not np.isfinite(radius):
+            continue
+        fixed = np.round(np.clip(finite, -1e4, 1e4) * 16).astype(np.int32).reshape(-1, 1, 2)
+        thickness = max(1, round(2 * radius))
+        cv2.polylines(mask, [fixed], False, 1, thickness, cv2.LINE_8, 4)
+        for x, y in fixed.reshape(-1, 2):
+            cv2.circle(mask, (int(x), int(y)), max(1, round(radius)) * 16, 1, -1, cv2.LINE_8, 4)
+    return mask.astype(bool)
+
+
+def background(frames: list[np.ndarray], arm_masks: list[np.ndarray]) -> np.ndarray:
+    """The static scene (H x W x C uint8): per pixel, the median of the frames where no arm can be.
+
+    A pixel that some arm covers in every sampled frame keeps the plain median.
+    """
+    stack = np.stack(frames)
+    shape = stack.shape[1:]
+    n = len(frames)
+    samples = stack.reshape(n, -1).T.astype(np.uint16)  # pixel-major: each row sorts contiguously
+    plain = np.sort(samples, axis=1)[:, n // 2]
+    masked = np.stack(arm_masks).reshape(n, -1).T
+    if len(shape) == 3:
+        masked = np.repeat(masked, shape[2], axis=0)  # the same mask for every channel of a pixel
+    samples[masked] = _MASKED
+    samples.sort(axis=1)  # masked samples last
+    count = n - masked.sum(axis=1)
+    rows = np.arange(len(samples))
+    median = samples[rows, np.maximum(count - 1, 0) // 2]
+    out = np.where(count > 0, median, plain)
+    return out.astype(np.uint8).reshape(shape)
+
+
+def noise_threshold(frame: np.ndarray, static: np.ndarray) -> float:
+    """The foreground threshold of a frame: grows with its typical difference from the static scene."""
+    sparse = (slice(None, None, _NOISE_STRIDE), slice(None, None, _NOISE_STRIDE))
+    strongest = _strongest(cv2.absdiff(np.ascontiguousarray(frame[sparse]), np.ascontiguousarray(static[sparse])))
+    return _NOISE_FACTOR * float(np.median(strongest)) + _THRESHOLD_FLOOR
+
+
+def _strongest(diff: np.ndarray) -> np.ndarray:
+    """The largest channel of a difference image (cv2: numpy's reduction over 3 channels is slow)."""
+    if diff.ndim == 2:
+        return diff
+    channels = cv2.split(diff)
+    out = channels[0]
+    for channel in channels[1:]:
+        out = cv2.max(out, channel)
+    return out
+
+
+def evidence(frame: np.ndarray, static: np.ndarray, threshold: float) -> np.ndarray:
+    """Depth inside the foreground (float32 working px, capped): highest on the centre lines of the moving parts."""
+    mask: np.ndarray = (_strongest(cv2.absdiff(frame, static)) > threshold).astype(np.uint8)
+    opened = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _KERNEL)  # isolated noise pixels
+    closed = cv2.morphologyEx(opened, cv2.MORPH_CLOSE, _KERNEL)  # pinholes inside a part
+    inside = cv2.distanceTransform(closed, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return cv2.GaussianBlur(np.minimum(inside, MAX_DEPTH_PX), (0, 0), _BLUR_SIGMA_PX)
+
+
+def box_around(points_work: Float64Array, margin_px: float, shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
+    """(x0, y0, x1, y1) around every finite point, widened by `margin_px` and clipped to the image; None when empty."""
+    finite = points_work[np.isfinite(points_work).all(axis=-1)]
+    if finite.size == 0:
+        return None
+    h, w = shape
+    x0 = int(max(0, np.floor(finite[:, 0].min() - margin_px)))
+    y0 = int(max(0, np.floor(finite[:, 1].min() - margin_px)))
+    x1 = int(min(w, np.ceil(finite[:, 0].max() + margin_px) + 1))
+    y1 = int(min(h, np.ceil(finite[:, 1].max() + margin_px) + 1))
+    return (x0, y0, x1, y1) if x1 > x0 and y1 > y0 else None
+
+
+@dataclass(frozen=True)
+class EvidenceCrop:
+    """A part of a frame's foreground map; (x0, y0) is its top-left working pixel."""
+
+    x0: int
+    y0: int
+    values: np.ndarray  # h x w uint8: the map in 1/_DEPTH_LEVELS px (a quarter of the memory of float32)
+
+    @classmethod
+    def of(cls, frame: np.ndarray, static: np.ndarray, threshold: float, box: tuple[int, int, int, int]) -> EvidenceCrop:
+        x0, y0, x1, y1 = box
+        depth = evidence(frame[y0:y1, x0:x1], static[y0:y1, x0:x1], threshold)
+        return cls(x0, y0, np.round(depth * _DEPTH_LEVELS).astype(np.uint8))
+
+    def sample(self, points_work: Float64Array) -> Float64Array:
+        """Bilinear values at points (... x 2 working px); 0 outside the crop or at NaN points."""
+        shape = points_work.shape[:-1]
+        flat = points_work.reshape(-1, 2)
+        x = np.where(np.isfinite(flat[:, 0]), flat[:, 0] - self.x0, _OUTSIDE).astype(np.float32)
+        y = np.where(np.isfinite(flat[:, 1]), flat[:, 1] - self.y0, _OUTSIDE).astype(np.float32)
+        n = len(x)
+        cols = min(n, 4096) or 1
+        rows = -(-n // cols)
+        mx = np.full(rows * cols, _OUTSIDE, np.float32)
+        my = np.full(rows * cols, _OUTSIDE, np.float32)
+        mx[:n], my[:n] = x, y
+        values = self.values.astype(np.float32) * (1.0 / _DEPTH_LEVELS)
+        maps = (mx.reshape(rows, cols), my.reshape(rows, cols))
+        out = cv2.remap(values, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        return out.reshape(-1)[:n].astype(np.float64).reshape(shape)
