@@ -112,7 +112,7 @@ def test_one_degree_extrinsic_rotation_is_reported_as_the_pixel_shift_it_causes(
     shifts = []
     for k in range(0, sim.frame_count(DURATION_S), 10):
         positions = sim.ground_truth(sim.capture_ns(k)).positions
-        centres = [p.process(blank, 0, k, ok_sync(positions)).record["arms"][0]["projected_center"] for p in pipelines]
+        centres = [p.process(blank, 0, k, ok_sync(positions)).record.arms[0].projected_center for p in pipelines]
         if all(c is not None for c in centres):
             shifts.append(np.subtract(centres[0], centres[1]))  # images (true) minus FK + turned calibration
     expected = np.mean(shifts, axis=0)

@@ -29,7 +29,7 @@ def test_offset_m_centres_on_the_projected_point_and_scales_with_its_depth(tmp_p
     camera = rig.camera.intrinsics
     assert camera is not None
     image = np.zeros((camera.height_px, camera.width_px, 3), np.uint8)
-    record = pipeline.process(image, 0, 0, ok_sync(bimanual_positions())).record["arms"][0]
+    record = pipeline.process(image, 0, 0, ok_sync(bimanual_positions())).record.as_dict()["arms"][0]
     # the oracle: FK of the ee and tip frames, the point 6 cm along, through the camera model
     robot = rig.robots[0]
     ee, tip = RobotKinematics(robot.id, robot.urdf_path).fk(PANDA_HOME, ["panda_hand", "panda_hand_tcp"])

@@ -5,7 +5,7 @@ the drawn gripper polygon (its ground truth, no rendering needed). The
 pipeline sees the world through a Perturbation: its rig config (camera pose,
 intrinsics), its URDF texts (a link length), its joint states (an offset on a
 joint, a lower rate) and the frame stamps (a late or jittery camera). Frames
-and joint states go through a RoiSession as offline replay feeds it (every
+and joint states go through the stream engine as offline replay feeds it (every
 joint sample first), on a blank image of the calibrated size: only the
 windows matter here, and they do not depend on the pixels.
 """
@@ -20,8 +20,8 @@ import cv2
 import numpy as np
 
 from ..core.config import RigConfig
-from ..core.session import RoiSession
-from ..core.sync import NS_PER_MS, NS_PER_S
+from ..core.engine import FrameEvent, JointStateEvent, StreamEngine
+from ..core.stamps import NS_PER_MS, NS_PER_S
 from ..sim.rig_sim import SimRig
 from ..sim.truth import FrameTruth, GripperTruth
 
@@ -59,7 +59,7 @@ def run(
     Joint states are fed only around each frame's (perturbed) capture time, so a sparse set of frames
     spread over a long trajectory costs what its frames cost. `truths` caches the world's ground truth by frame.
     """
-    session = RoiSession(view.rig, urdf_texts=dict(view.urdf_texts) or None, max_pending=len(frame_indices) + 1)
+    engine = StreamEngine(view.rig, urdf_texts=dict(view.urdf_texts) or None, max_pending=len(frame_indices) + 1)
     period_ns = round(NS_PER_S / view.joint_rate_hz)
     names = world.required_joints
     offsets = np.array([view.joint_offsets_rad.get(n, 0.0) for n in names])
@@ -74,7 +74,7 @@ def run(
         samples.update(range(first, (around + margin - world.start_ns - JOINT_PHASE_NS) // period_ns + 2))
     for j in sorted(samples):
         stamp = world.start_ns + JOINT_PHASE_NS + j * period_ns
-        session.add_joint_state(stamp, names, world.positions(stamp) + offsets)
+        engine.feed(JointStateEvent(stamp, names, world.positions(stamp) + offsets))
     camera = view.rig.camera.intrinsics
     assert camera is not None
     blank = np.zeros((camera.height_px, camera.width_px, 3), np.uint8)
@@ -84,12 +84,16 @@ def run(
     for k in frame_indices:
         if k not in truths:
             truths[k] = world.ground_truth(world.capture_ns(k))
-        pending[session.add_frame(stamps[k], blank)] = truths[k]
-        for ready in session.pop_ready(None):
-            result = session.process(ready)
-            records.append(result.record)
-            truth = pending.pop(ready.payload.frame_index)
-            frames.append([_compare(truth.gripper(arm["arm_id"]), arm, camera.width_px, camera.height_px) for arm in result.record["arms"]])
+        pending[stamps[k]] = truths[k]
+        engine.feed(FrameEvent(stamps[k], blank))
+        for ready in engine.pop_ready(None):
+            result = engine.run(ready)
+            if result is None:
+                continue
+            record = result.record.as_dict()  # as a bag carries it: the gates read records in this form
+            records.append(record)
+            truth = pending.pop(ready.payload.stamp_ns)
+            frames.append([_compare(truth.gripper(arm["arm_id"]), arm, camera.width_px, camera.height_px) for arm in record["arms"]])
     return records, frames
 
 

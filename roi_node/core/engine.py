@@ -30,7 +30,7 @@ from __future__ import annotations
 import bisect
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -151,7 +151,7 @@ class StreamEngine:
         rig: RigConfig,
         *,
         intrinsics_from_stream: bool = False,
-        urdf_text: str | None = None,
+        urdf_texts: Mapping[str, str] | None = None,
         urdf_from_stream: bool = False,
         max_pending: int = 8,
         stats: StreamStats | None = None,
@@ -176,7 +176,7 @@ class StreamEngine:
         self._limit_refusals: dict[tuple[int, str], list[int]] = {}  # (epoch, joint) -> stamps of refused samples
         self.frames_offered = 0
         if not urdf_from_stream:
-            self._start(RoiPipeline(rig, urdf_texts=None if urdf_text is None else {r.id: urdf_text for r in rig.robots}), -1)
+            self._start(RoiPipeline(rig, urdf_texts=urdf_texts), -1)
 
     # -- set-up ---------------------------------------------------------------------------------
 

@@ -76,16 +76,16 @@ class RoiNode(Node):
         start_ns = time.monotonic_ns()
         self.stats = StreamStats(tuple(a.id for a in self.rig.arms), start_ns)
         self.health = StreamHealth(start_ns, round(self.params.silence_timeout_s * NS_PER_S))
-        urdf_text = None
+        urdf_texts = None
         if self.params.robot_description_source == "parameter":
             if not self.params.robot_description:
                 raise ConfigError("parameter robot_description: empty, but robot_description_source is 'parameter'")
-            urdf_text = self.params.robot_description
+            urdf_texts = {robot.id: self.params.robot_description for robot in self.rig.robots}
         # a bad URDF or calibration in the rig config fails here, at start
         self.engine = StreamEngine(
             self.rig,
             intrinsics_from_stream=self.params.use_camera_info,
-            urdf_text=urdf_text,
+            urdf_texts=urdf_texts,
             urdf_from_stream=self.params.robot_description_source == "topic",
             max_pending=self.params.max_pending_frames,
             stats=self.stats,
