@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from .area_resample import warm_up as warm_up_resampling
 from .camera import CameraModel
 from .config import ArmConfig, RigConfig
 from .errors import ConfigError, ImageError
@@ -109,6 +110,7 @@ class RoiPipeline:
         )
         self.camera: CameraModel = camera
         self.lineage: Lineage = self._lineage(camera)
+        warm_up_resampling()  # compiled (or loaded from the disk cache) now, not on the first frame
 
     def _arm_model(self, arm: ArmConfig, kin: RobotKinematics) -> _ArmModel:
         where = f"{self.rig.path}: arms[{arm.id}]"
