@@ -29,6 +29,7 @@ import numpy as np
 
 F = TypeVar("F", bound=Callable[..., Any])
 
+_DROP_PX = 1e-3  # partial overlaps up to this width are ignored, as OpenCV does
 BLOCK_ROWS = 4  # output rows resampled together: their row buffers stay in L1/L2
 _HALF_EVEN = np.float32(12582912.0)  # 1.5 * 2**23: adding and subtracting it rounds a float32 in [0, 2**22) half to even
 
@@ -44,6 +45,36 @@ def _jit(func: F, inline: Literal["never", "always"] = "never") -> F:
 def _jit_inline(func: F) -> F:
     """Small helpers called in inner loops: inlined into their callers."""
     return _jit(func, "always")
+
+
+@_jit
+def axis_taps(src_px: int, dst_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """OpenCV's INTER_AREA weights of one axis, src_px -> dst_px: (start, offset, weight); see area_resample."""
+    scale = 1.0 / (dst_px / src_px)  # OpenCV's expression: it can differ from src_px / dst_px in the last bit
+    start = np.empty(dst_px, dtype=np.int64)
+    offset = np.empty(dst_px + 1, dtype=np.int64)
+    weight = np.empty(src_px + 2 * dst_px, dtype=np.float32)
+    k = 0
+    for d in range(dst_px):
+        lo = d * scale
+        hi = lo + scale
+        cell = min(scale, src_px - lo)
+        last = min(int(np.floor(hi)), src_px - 1)
+        first = min(int(np.ceil(lo)), last)
+        offset[d] = k
+        start[d] = first
+        if first - lo > _DROP_PX:
+            start[d] = first - 1
+            weight[k] = (first - lo) / cell
+            k += 1
+        for _ in range(first, last):
+            weight[k] = 1.0 / cell
+            k += 1
+        if hi - last > _DROP_PX:
+            weight[k] = min(min(hi - last, 1.0), cell) / cell
+            k += 1
+    offset[dst_px] = k
+    return start, offset, weight[:k].copy()
 
 
 @_jit

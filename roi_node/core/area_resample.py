@@ -16,15 +16,12 @@ cv2.INTER_AREA on the zero-padded crop (test/test_resample.py).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
 from . import area_kernels
-
-_DROP_PX = 1e-3  # partial overlaps up to this width are ignored, as OpenCV does
 
 
 @dataclass(frozen=True)
@@ -39,30 +36,7 @@ class AxisTaps:
 @lru_cache(maxsize=256)
 def axis_taps(src_px: int, dst_px: int) -> AxisTaps:
     """Per-output source runs and weights of area resampling src_px -> dst_px (dst_px <= src_px)."""
-    scale = 1.0 / (dst_px / src_px)  # OpenCV's expression: it can differ from src_px / dst_px in the last bit
-    starts: list[int] = []
-    counts: list[int] = []
-    weights: list[float] = []
-    for d in range(dst_px):
-        lo = d * scale
-        hi = lo + scale
-        cell = min(scale, src_px - lo)
-        last = min(math.floor(hi), src_px - 1)
-        first = min(math.ceil(lo), last)
-        run: list[float] = []
-        start = first
-        if first - lo > _DROP_PX:
-            start = first - 1
-            run.append((first - lo) / cell)
-        run.extend(1.0 / cell for _ in range(first, last))
-        if hi - last > _DROP_PX:
-            run.append(min(hi - last, 1.0, cell) / cell)
-        starts.append(start)
-        counts.append(len(run))
-        weights.extend(run)
-    offset = np.zeros(dst_px + 1, dtype=np.int64)
-    offset[1:] = np.cumsum(counts)
-    return AxisTaps(np.asarray(starts, dtype=np.int64), offset, np.asarray(weights, dtype=np.float32))
+    return AxisTaps(*area_kernels.axis_taps(src_px, dst_px))
 
 
 def resample_window(
