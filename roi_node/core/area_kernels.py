@@ -90,28 +90,41 @@ def _vertical_block(
     n_elem: int,
     block: np.ndarray,
 ) -> None:
-    """block[r, :n_elem] = sum over the in-image source rows of output row dy0 + r."""
+    """block[r, :n_elem] = sum over the in-image source rows of output row dy0 + r (two source rows per pass)."""
     height = src.shape[0]
     for r in range(rows):
         dy = dy0 + r
         acc = block[r]
-        first = True
-        for t in range(y_offset[dy], y_offset[dy + 1]):
-            sy = window_y0 + y_start[dy] + t - y_offset[dy]
-            if sy < 0 or sy >= height:
-                continue
-            w = y_weight[t]
-            row = src[sy, elem0 : elem0 + n_elem]
-            if first:
-                for i in range(n_elem):
-                    acc[i] = w * np.float32(row[i])
-                first = False
-            else:
-                for i in range(n_elem):
-                    acc[i] += w * np.float32(row[i])
-        if first:
+        t0 = y_offset[dy]
+        t1 = y_offset[dy + 1]
+        sy0 = window_y0 + y_start[dy] - t0  # source row of weight index t is sy0 + t
+        if sy0 + t0 < 0:
+            t0 = -sy0
+        if sy0 + t1 > height:
+            t1 = height - sy0
+        if t1 <= t0:
             for i in range(n_elem):
                 acc[i] = 0.0
+            continue
+        t = t0
+        if (t1 - t0) % 2 == 1:
+            w = y_weight[t]
+            row = src[sy0 + t, elem0 : elem0 + n_elem]
+            for i in range(n_elem):
+                acc[i] = w * np.float32(row[i])
+            t += 1
+        else:
+            w, v = y_weight[t], y_weight[t + 1]
+            row, nxt = src[sy0 + t, elem0 : elem0 + n_elem], src[sy0 + t + 1, elem0 : elem0 + n_elem]
+            for i in range(n_elem):
+                acc[i] = w * np.float32(row[i]) + v * np.float32(nxt[i])
+            t += 2
+        while t < t1:
+            w, v = y_weight[t], y_weight[t + 1]
+            row, nxt = src[sy0 + t, elem0 : elem0 + n_elem], src[sy0 + t + 1, elem0 : elem0 + n_elem]
+            for i in range(n_elem):
+                acc[i] += w * np.float32(row[i]) + v * np.float32(nxt[i])
+            t += 2
 
 
 @_jit_inline
@@ -120,46 +133,48 @@ def _to_u8(v: np.float32) -> np.uint8:
     return np.uint8(min(r, np.float32(255.0)))
 
 
-@_jit_inline
-def _tap_range(x_start: np.ndarray, x_offset: np.ndarray, window_x0: int, col0: int, col1: int, dx: int) -> tuple[int, int, int]:
-    """First and end index into the weights of output column dx's in-image taps, and the first tap's column."""
-    sx = window_x0 + x_start[dx]
-    t0 = x_offset[dx]
-    t1 = x_offset[dx + 1]
-    if sx < col0:
-        t0 += col0 - sx
-        sx = col0
-    end_col = window_x0 + x_start[dx] + (x_offset[dx + 1] - x_offset[dx])
-    if end_col > col1:
-        t1 -= end_col - col1
-    return t0, t1, sx
+@_jit
+def _clip_taps(
+    x_start: np.ndarray,
+    x_offset: np.ndarray,
+    window_x0: int,
+    col0: int,
+    col1: int,
+    cn: int,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    elem: np.ndarray,
+) -> None:
+    """Per output column: weight index range of its in-image taps and the block element of the first one."""
+    for dx in range(x_start.shape[0]):
+        sx = window_x0 + x_start[dx]
+        t0 = x_offset[dx]
+        t1 = x_offset[dx + 1]
+        end_col = sx + (t1 - t0)
+        if sx < col0:
+            t0 += col0 - sx
+            sx = col0
+        if end_col > col1:
+            t1 -= end_col - col1
+        lo[dx] = t0
+        hi[dx] = max(t0, t1)
+        elem[dx] = (sx - col0) * cn
 
 
 @_jit
 def _horizontal_block_c3(
-    block: np.ndarray,
-    rows: int,
-    x_start: np.ndarray,
-    x_offset: np.ndarray,
-    x_weight: np.ndarray,
-    window_x0: int,
-    col0: int,
-    col1: int,
-    out: np.ndarray,
-    oy: int,
-    ox: int,
+    block: np.ndarray, rows: int, lo: np.ndarray, hi: np.ndarray, elem: np.ndarray, x_weight: np.ndarray, out: np.ndarray, oy: int, ox: int
 ) -> None:
     """Three channels, four rows at a time: twelve independent sums hide the float add latency."""
-    dw = x_start.shape[0]
+    dw = lo.shape[0]
     r = 0
     while r + 4 <= rows:
         b0, b1, b2, b3 = block[r], block[r + 1], block[r + 2], block[r + 3]
         o0, o1, o2, o3 = out[oy + r], out[oy + r + 1], out[oy + r + 2], out[oy + r + 3]
         for dx in range(dw):
-            t0, t1, sx = _tap_range(x_start, x_offset, window_x0, col0, col1, dx)
-            j = (sx - col0) * 3
+            j = elem[dx]
             a0 = a1 = a2 = c0 = c1 = c2 = d0 = d1 = d2 = e0 = e1 = e2 = np.float32(0.0)
-            for t in range(t0, t1):
+            for t in range(lo[dx], hi[dx]):
                 w = x_weight[t]
                 a0 += w * b0[j]
                 a1 += w * b0[j + 1]
@@ -180,7 +195,7 @@ def _horizontal_block_c3(
             o2[o], o2[o + 1], o2[o + 2] = _to_u8(d0), _to_u8(d1), _to_u8(d2)
             o3[o], o3[o + 1], o3[o + 2] = _to_u8(e0), _to_u8(e1), _to_u8(e2)
         r += 4
-    _horizontal_block(block, r, rows, 3, x_start, x_offset, x_weight, window_x0, col0, col1, out, oy, ox)
+    _horizontal_block(block, r, rows, 3, lo, hi, elem, x_weight, out, oy, ox)
 
 
 @_jit
@@ -189,27 +204,24 @@ def _horizontal_block(
     r0: int,
     rows: int,
     cn: int,
-    x_start: np.ndarray,
-    x_offset: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    elem: np.ndarray,
     x_weight: np.ndarray,
-    window_x0: int,
-    col0: int,
-    col1: int,
     out: np.ndarray,
     oy: int,
     ox: int,
 ) -> None:
     """Any channel count, one sum at a time (rows r0..rows-1 of the block)."""
-    dw = x_start.shape[0]
+    dw = lo.shape[0]
     for r in range(r0, rows):
         b = block[r]
         orow = out[oy + r]
         for dx in range(dw):
-            t0, t1, sx = _tap_range(x_start, x_offset, window_x0, col0, col1, dx)
             for c in range(cn):
-                j = (sx - col0) * cn + c
+                j = elem[dx] + c
                 a = np.float32(0.0)
-                for t in range(t0, t1):
+                for t in range(lo[dx], hi[dx]):
                     a += x_weight[t] * b[j]
                     j += cn
                 orow[(ox + dx) * cn + c] = _to_u8(a)
@@ -249,10 +261,14 @@ def area_resample(
             for i in range(dw * cn):
                 out[oy + dy, ox * cn + i] = 0
         return
+    lo = np.empty(dw, dtype=np.int64)
+    hi = np.empty(dw, dtype=np.int64)
+    elem = np.empty(dw, dtype=np.int64)
+    _clip_taps(x_start, x_offset, window_x0, col0, col1, cn, lo, hi, elem)
     for dy0 in range(0, dh, BLOCK_ROWS):
         rows = min(BLOCK_ROWS, dh - dy0)
         _vertical_block(src, y_start, y_offset, y_weight, window_y0, dy0, rows, col0 * cn, (col1 - col0) * cn, block)
         if cn == 3:
-            _horizontal_block_c3(block, rows, x_start, x_offset, x_weight, window_x0, col0, col1, out, oy + dy0, ox)
+            _horizontal_block_c3(block, rows, lo, hi, elem, x_weight, out, oy + dy0, ox)
         else:
-            _horizontal_block(block, 0, rows, cn, x_start, x_offset, x_weight, window_x0, col0, col1, out, oy + dy0, ox)
+            _horizontal_block(block, 0, rows, cn, lo, hi, elem, x_weight, out, oy + dy0, ox)
