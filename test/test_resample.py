@@ -8,6 +8,9 @@ wholly outside the image, stretched or letterboxed.
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import cv2
 import numpy as np
 import pytest
@@ -15,6 +18,8 @@ import pytest
 from roi_node.core.area_resample import resample_window
 from roi_node.core.resample import crop_resize, output_layout, place_in_output
 from roi_node.core.roi_policy import Window, window_around
+
+from .conftest import REPO
 
 W, H = 640, 480
 
@@ -257,3 +262,31 @@ def test_exact_halving_keeps_opencvs_fast_path_bit_for_bit() -> None:
     window = Window(-40, 20, 472, 276)  # 512 x 256 -> 256 x 128, crossing the left border
     result, _ = crop_resize(image, window, (256, 128), "stretch")
     np.testing.assert_array_equal(result.image, _inter_area(image, window, (256, 128)))
+
+
+_FRAMES_AFTER_WARM_UP = """
+import numpy as np
+from roi_node.core import area_kernels
+from roi_node.core.area_resample import warm_up
+from roi_node.core.resample import crop_resize
+from roi_node.core.roi_policy import Window
+warm_up()
+compiled = len(area_kernels.area_resample.signatures)
+for shape in ((90, 120), (90, 120, 1), (90, 120, 3), (90, 120, 4)):
+    for writeable in (True, False):
+        image = np.full(shape, 9, dtype=np.uint8)
+        image.flags.writeable = writeable
+        assert crop_resize(image, Window(-10, 5, 70, 85), (50, 50), "letterbox")[0].interpolation == "area"
+print(compiled, len(area_kernels.area_resample.signatures))
+"""
+
+
+def test_warm_up_compiles_every_variant_a_frame_needs() -> None:
+    """After warm-up (done when a pipeline is built) no frame triggers a JIT compile: any channel count, writable or not.
+
+    In a fresh process, so variants compiled by earlier tests cannot hide a missing one.
+    """
+    run = subprocess.run([sys.executable, "-c", _FRAMES_AFTER_WARM_UP], cwd=REPO, capture_output=True, text=True, timeout=240)
+    assert run.returncode == 0, run.stderr
+    before, after = run.stdout.split()
+    assert before == after

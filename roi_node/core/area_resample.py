@@ -65,8 +65,14 @@ def resample_window(
 
 
 def warm_up() -> None:
-    """Compile (or load from the disk cache) the kernels for 1, 3 and 4 channels before the first frame."""
-    for shape in ((8, 8), (8, 8, 3), (8, 8, 4)):
-        image = np.zeros(shape, dtype=np.uint8)
-        out = np.zeros((5, 5, *shape[2:]), dtype=np.uint8)
+    """Compile (or load from the disk cache) the kernels before the first frame.
+
+    One compiled variant serves every channel count; frames arrive writable
+    (a live Image buffer) or read-only (a bag message's bytes), which numba
+    compiles separately, so both are built here.
+    """
+    for writeable in (True, False):
+        image = np.zeros((8, 8, 3), dtype=np.uint8)
+        image.flags.writeable = writeable
+        out = np.zeros((5, 5, 3), dtype=np.uint8)
         resample_window(image, (-1, -1), (7, 7), out, (0, 0), (5, 5))
