@@ -16,6 +16,7 @@ cv2.INTER_AREA on the zero-padded crop (test/test_resample.py).
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -64,15 +65,27 @@ def resample_window(
     )
 
 
-def warm_up() -> None:
-    """Compile (or load from the disk cache) the kernels before the first frame.
+def _compile_variants() -> None:
+    """Compile (or load from the disk cache) every variant a frame needs.
 
     One compiled variant serves every channel count; frames arrive writable
     (a live Image buffer) or read-only (a bag message's bytes), which numba
-    compiles separately, so both are built here.
+    compiles separately, so both are built.
     """
     for writeable in (True, False):
         image = np.zeros((8, 8, 3), dtype=np.uint8)
         image.flags.writeable = writeable
         out = np.zeros((5, 5, 3), dtype=np.uint8)
         resample_window(image, (-1, -1), (7, 7), out, (0, 0), (5, 5))
+
+
+# Started at import, so a node that builds its pipeline only once CameraInfo arrives
+# does not stall its callbacks on the JIT then; numba serialises compiles, so a
+# frame resampled meanwhile just waits for it.
+_warm_up_thread = threading.Thread(target=_compile_variants, name="roi_node-jit-warm-up", daemon=True)
+_warm_up_thread.start()
+
+
+def warm_up() -> None:
+    """Return once the kernels are compiled (RoiPipeline calls it: the first frame is not slow)."""
+    _warm_up_thread.join()
