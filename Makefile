@@ -26,6 +26,7 @@ $(STAMP): setup.py setup.cfg package.xml
 
 test: $(STAMP)
 	$(PY) -m compileall -q roi_node test examples  # a cold first import must not slow the first live test
+	$(PY) -c "from roi_node.core.area_resample import warm_up; warm_up()"  # nor the resampling kernels' first JIT compile
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-71} $(PY) -m pytest -q test
 
 # Opt-in, not part of `make test`: the real LeRobot reader (lerobot pulls torch, several GB) in its own
@@ -49,6 +50,7 @@ test-lerobot: $(LEROBOT_STAMP)
 
 demo: $(STAMP)
 	$(PY) -m compileall -q roi_node
+	$(PY) -c "from roi_node.core.area_resample import warm_up; warm_up()"
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-72} $(VENV)/bin/roi-node demo --out $(DEMO_OUT)
 
 bench: $(STAMP)

@@ -27,6 +27,8 @@ setup(
     # install on a real rig runs.
     install_requires=[
         "numpy>=1.26",
+        # the exact area resampling kernel (roi_node/core/area_kernels.py); wheels, no compiler needed
+        "numba>=0.59",
         "opencv-python-headless>=4.8,<5",
         "placo>=0.9",
         "pyyaml>=6.0",

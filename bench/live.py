@@ -8,7 +8,9 @@ shared-memory FastDDS profile and the malloc settings in every process):
       receive time - source stamp of each left-arm ROI; the node's CPU time
       is read from /proc over the run.
 Prints medians, p99, frames dropped, the node's CPU per frame and share of a
-core, and the node-added latency (b - a).
+core, and the node-added latency (b - a, at the median and at p99), marked
+against the targets (720p: <= 4 ms median; 1080p: <= 6 ms median, <= 12 ms p99;
+no drops).
 
 Run: `.venv/bin/python bench/live.py [--duration-s 60] [--sizes 720 1080]`.
 """
@@ -41,6 +43,7 @@ from roi_node.core.config import load_rig_config
 REPO = Path(__file__).resolve().parents[1]
 RIG = REPO / "config" / "rig_demo_bimanual.yaml"
 SIZES = {720: (1280, 720), 1080: (1920, 1080)}
+TARGETS_MS = {720: (4.0, None), 1080: (6.0, 12.0)}  # node-added latency: (median, p99)
 
 
 def env_for(domain: int) -> dict[str, str]:
@@ -159,18 +162,25 @@ def main() -> int:
     parser.add_argument("--interpolation", choices=["area", "area_pyramid"], default="area", help="the rig's output.interpolation")
     parser.add_argument("--domain", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "73")) % 200 + 20)
     args = parser.parse_args()
+    print(f"load average at start: {os.getloadavg()[0]:.2f} ({os.cpu_count()} CPUs)")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for i, size in enumerate(args.sizes):
             rows.append(run_case(size, args.duration_s, Path(tmp), args.domain + 2 * i, args.interpolation))
     print(f"output.interpolation: {args.interpolation}")
-    print(f"{'stream':>14} | {'(a) transport p50/p99 ms':>25} | {'(b) via node p50/p99 ms':>24} | {'b-a p50 ms':>10} | "
-          f"{'dropped a/b':>11} | {'node CPU ms/frame':>17} | {'node CPU % core':>15}")
+    print(f"{'stream':>14} | {'(a) transport p50/p99 ms':>25} | {'(b) via node p50/p99 ms':>24} | {'b-a p50/p99 ms':>14} | "
+          f"{'dropped a/b':>11} | {'node CPU ms/frame':>17} | {'node CPU % core':>15} | target")
     for r in rows:
-        w, h = SIZES[int(r["size"])]
+        size = int(r["size"])
+        w, h = SIZES[size]
+        added_p50, added_p99 = r["b_median_ms"] - r["a_median_ms"], r["b_p99_ms"] - r["a_p99_ms"]
+        target_p50, target_p99 = TARGETS_MS[size]
+        met = added_p50 <= target_p50 and (target_p99 is None or added_p99 <= target_p99) and r["b_dropped"] == 0
+        wanted = f"<= {target_p50:g} ms p50" + (f", <= {target_p99:g} ms p99" if target_p99 is not None else "") + ", 0 drops"
         print(f"{w}x{h}@30 | {r['a_median_ms']:11.2f} / {r['a_p99_ms']:11.2f} | {r['b_median_ms']:10.2f} / {r['b_p99_ms']:11.2f} | "
-              f"{r['b_median_ms'] - r['a_median_ms']:10.2f} | {r['a_dropped']:5.0f} / {r['b_dropped']:3.0f} | "
-              f"{r['node_cpu_ms_per_frame']:17.2f} | {100 * r['node_cpu_share']:15.1f}")
+              f"{added_p50:6.2f} / {added_p99:5.2f} | {r['a_dropped']:5.0f} / {r['b_dropped']:3.0f} | "
+              f"{r['node_cpu_ms_per_frame']:17.2f} | {100 * r['node_cpu_share']:15.1f} | {'MET' if met else 'NOT MET'} ({wanted})")
+    print(f"load average at end: {os.getloadavg()[0]:.2f} ({os.cpu_count()} CPUs)")
     return 0
 
 

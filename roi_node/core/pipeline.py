@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .area_resample import warm_up as warm_up_resampling
 from .camera import CameraModel
 from .config import ArmConfig, RigConfig
 from .errors import ImageError
@@ -120,6 +121,7 @@ class RoiPipeline:
         camera = intrinsics or rig.camera.intrinsics
         if camera is not None:
             self.set_intrinsics(camera)
+        warm_up_resampling()  # compiled (or loaded from the disk cache) now, not on the first frame
 
     def _arm_model(self, arm: ArmConfig, kin: RobotKinematics) -> _ArmModel:
         where = f"{self.rig.path}: arms[{arm.id}]"

@@ -1,8 +1,12 @@
 """Crop from the original frame, zero-pad what leaves it, resize to the output size.
 
-Area resampling (cv2.INTER_AREA) when shrinking, as the method prescribes; it
-degenerates to nearest-neighbour when enlarging, so windows smaller than the
-output are enlarged with INTER_LINEAR and the metadata says so. Every function
+Area resampling (cv2.INTER_AREA's box filter) when shrinking, as the method
+prescribes; it degenerates to nearest-neighbour when enlarging, so windows
+smaller than the output are enlarged with INTER_LINEAR and the metadata says
+so. Shrinking by a non-halving factor runs the exact area kernel
+(area_resample), which reads the window straight from the frame and writes the
+output's content region, so the zero-padded crop is never materialised; an
+exact halving on both axes stays with OpenCV's own fast path. Every function
 returns the affine `roi_to_image` that maps an output pixel centre to the
 original-image pixel centre it was sampled around (pixel (0,0) = centre of the
 top-left pixel, cv2.resize's convention).
@@ -16,6 +20,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from .area_resample import resample_window
 from .roi_policy import Window, round_half_up
 
 Image = NDArray[np.uint8]
@@ -38,7 +43,7 @@ def crop_padded(image: np.ndarray, window: Window) -> tuple[np.ndarray, int]:
     h, w = image.shape[:2]
     ix0, iy0 = max(window.x0, 0), max(window.y0, 0)
     ix1, iy1 = min(window.x1, w), min(window.y1, h)
-    inside = max(0, ix1 - ix0) * max(0, iy1 - iy0)
+    inside = _inside_px(image, window)
     if inside == window.width * window.height:
         return image[window.y0 : window.y1, window.x0 : window.x1], inside
     canvas = np.zeros((window.height, window.width, *image.shape[2:]), dtype=image.dtype)
@@ -121,33 +126,61 @@ def place_in_output(
     src: np.ndarray, origin: tuple[int, int], out_size_px: tuple[int, int], policy: str, method: str = "area"
 ) -> Resampled:
     """Resize `src` (whose pixel (0,0) is image pixel `origin`) into the output."""
-    src_size = (src.shape[1], src.shape[0])
-    layout = output_layout(src_size, out_size_px, policy)
-    resized, method = resize_to(src, layout.content_px, method)
-    if layout.content_px != out_size_px:
-        out = np.zeros((out_size_px[1], out_size_px[0], *src.shape[2:]), dtype=src.dtype)
-        (ox, oy), (cw, ch) = layout.offset_px, layout.content_px
-        out[oy : oy + ch, ox : ox + cw] = resized
-    else:
-        out = resized
-    content = layout.content_px[0] * layout.content_px[1]
-    return Resampled(out, roi_to_image_affine(origin, src_size, layout), _scale_factor(src_size, layout), method, content)
+    h, w = src.shape[:2]
+    return _resample(src, Window(0, 0, w, h), origin, out_size_px, policy, method)
 
 
 def crop_resize(
     image: np.ndarray, window: Window, out_size_px: tuple[int, int], policy: str, method: str = "area"
 ) -> tuple[Resampled, int]:
     """Crop `window` (zero-padded) and resize; returns the result and in-image pixel count."""
+    origin = (window.x0, window.y0)
     if _fully_outside(image, window):
         # nothing to resample: the exact result of zero-padding is all zeros
         src_size = (window.width, window.height)
         layout = output_layout(src_size, out_size_px, policy)
         blank = np.zeros((out_size_px[1], out_size_px[0], *image.shape[2:]), dtype=image.dtype)
-        affine = roi_to_image_affine((window.x0, window.y0), src_size, layout)
+        affine = roi_to_image_affine(origin, src_size, layout)
         content = layout.content_px[0] * layout.content_px[1]
         return Resampled(blank, affine, _scale_factor(src_size, layout), "none", content), 0
-    crop, inside = crop_padded(image, window)
-    return place_in_output(crop, (window.x0, window.y0), out_size_px, policy, method), inside
+    return _resample(image, window, origin, out_size_px, policy, method), _inside_px(image, window)
+
+
+def _resample(
+    image: np.ndarray, window: Window, origin: tuple[int, int], out_size_px: tuple[int, int], policy: str, method: str
+) -> Resampled:
+    """Resample `window` of `image` into the output; `origin` is the window's top-left in original-image pixels."""
+    src_size = (window.width, window.height)
+    layout = output_layout(src_size, out_size_px, policy)
+    (cw, ch), (ox, oy) = layout.content_px, layout.offset_px
+    fills_output = layout.content_px == out_size_px
+    shape = (out_size_px[1], out_size_px[0], *image.shape[2:])
+    if _exact_area_kernel_applies(src_size, layout.content_px, method) and image.dtype == np.uint8:
+        out = np.empty(shape, dtype=np.uint8) if fills_output else np.zeros(shape, dtype=np.uint8)
+        resample_window(image, (window.x0, window.y0), src_size, out, layout.offset_px, layout.content_px)
+        interpolation = "area"
+    else:
+        crop, _ = crop_padded(image, window)
+        resized, interpolation = resize_to(crop, layout.content_px, method)
+        if fills_output:
+            out = resized
+        else:
+            out = np.zeros(shape, dtype=image.dtype)
+            out[oy : oy + ch, ox : ox + cw] = resized
+    content = cw * ch
+    return Resampled(out, roi_to_image_affine(origin, src_size, layout), _scale_factor(src_size, layout), interpolation, content)
+
+
+def _exact_area_kernel_applies(src_size_px: tuple[int, int], content_px: tuple[int, int], method: str) -> bool:
+    """Shrinking with exact area on both axes, except an exact halving of both (OpenCV's SIMD path is cheaper there)."""
+    (w, h), (cw, ch) = src_size_px, content_px
+    shrinking = cw <= w and ch <= h and (cw, ch) != (w, h)
+    return method == "area" and shrinking and (w, h) != (2 * cw, 2 * ch)
+
+
+def _inside_px(image: np.ndarray, window: Window) -> int:
+    h, w = image.shape[:2]
+    return max(0, min(window.x1, w) - max(window.x0, 0)) * max(0, min(window.y1, h) - max(window.y0, 0))
 
 
 def _fully_outside(image: np.ndarray, window: Window) -> bool:

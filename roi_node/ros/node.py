@@ -275,15 +275,16 @@ class RoiNode(Node):
         self.context.try_shutdown()
 
     def _publish(self, result: FrameResult, frame_id: str) -> None:
+        # the ROIs (what a policy waits for) first, then the metadata, the global view last
         out_w, out_h = self.rig.output.size_px
         encoding = self.params.output_encoding
         for roi in result.rois:
-            image_pub, info_pub = self._roi_pubs[roi.arm_id]
-            image_pub.publish(image_msg(result.stamp_ns, frame_id, roi.image, encoding))
-            info_pub.publish(camera_info_msg(result.stamp_ns, frame_id, roi.camera, out_w, out_h))
+            self._roi_pubs[roi.arm_id][0].publish(image_msg(result.stamp_ns, frame_id, roi.image, encoding))
+        for roi in result.rois:
+            self._roi_pubs[roi.arm_id][1].publish(camera_info_msg(result.stamp_ns, frame_id, roi.camera, out_w, out_h))
+        self._metadata_pub.publish(String(data=result.record_json))
         if self._global_pub is not None and result.global_view is not None:
             self._global_pub.publish(image_msg(result.stamp_ns, frame_id, result.global_view, encoding))
-        self._metadata_pub.publish(String(data=result.record_json))
 
     def _publish_diagnostics(self) -> None:
         now_ns = time.monotonic_ns()
