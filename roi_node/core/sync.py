@@ -63,6 +63,11 @@ class SyncResult:
     missing: tuple[str, ...] = ()
     joint_rate_hz: float | None = None
 
+    @property
+    def usable(self) -> bool:
+        """Every required joint has a value (the ROIs can be computed, however stale)."""
+        return self.status != SyncStatus.MISSING
+
 
 def _worse(a: SyncStatus, b: SyncStatus) -> SyncStatus:
     return a if STATUS_ORDER.index(a) >= STATUS_ORDER.index(b) else b
