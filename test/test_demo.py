@@ -8,10 +8,13 @@ import sys
 from pathlib import Path
 
 import cv2
+import pytest
 import yaml
 
 from .conftest import REPO
 from .live.harness import next_domain, ros_env
+
+pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
 
 
 def test_demo_runs_the_whole_job_and_live_equals_offline(tmp_path: Path) -> None:

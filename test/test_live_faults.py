@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticStatus
 
@@ -23,6 +24,8 @@ from roi_node.core.robot_models import resolve_robot_reference
 
 from .conftest import CONFIG, REPO
 from .live.harness import Collector, diagnostics_values, next_domain, process, ros_env
+
+pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 ARMS = ["left", "right"]

@@ -9,8 +9,12 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from .conftest import CONFIG, REPO
 from .live.harness import Collector, next_domain, node_args, process, ros_env
+
+pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 

@@ -23,6 +23,8 @@ from .conftest import CONFIG, REPO
 from .live.harness import Collector, diagnostics_values, next_domain, node_args, process, ros_env
 from .rigs import base_rig, look_at_quat_xyzw, marker_centroid, write_rig
 
+pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
+
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 ARMS = ["left", "right"]
 

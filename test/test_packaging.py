@@ -16,6 +16,8 @@ import pytest
 from .conftest import REPO
 from .live.harness import next_domain, ros_env
 
+pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
+
 
 def _tracked_files() -> list[str]:
     out = subprocess.run(

@@ -22,6 +22,8 @@ from roi_node.bag.writer import typestore
 from .conftest import CONFIG, REPO
 from .live.harness import Collector, next_domain, node_args, process, ros_env
 
+pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
+
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 INPUTS = ["/image_raw", "/joint_states"]
 OUTPUTS = ["/roi/left/image_raw", "/roi/right/image_raw", "/roi/global/image_raw", "/roi/left/camera_info", "/roi/right/camera_info",

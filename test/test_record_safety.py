@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import pytest
 from mcap_ros2.reader import read_ros2_messages
 from rosbags.highlevel import AnyReader
 
@@ -27,6 +28,8 @@ from .conftest import CONFIG, REPO
 from .live.harness import next_domain, process, ros_env
 from .roibags import read_records
 from .test_record_play import wait_for_log
+
+pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 TOPICS = ["/image_raw", "/joint_states", "/camera_info"]

@@ -84,6 +84,7 @@ def test_offline_records_carry_the_fingers_of_every_arm(tmp_path: Path, robot: s
     check_state(records, rig, SimRig(rig, seed=3))
 
 
+@pytest.mark.dds
 def test_live_records_carry_the_baxter_fingers(tmp_path: Path) -> None:
     config = baxter_rig(tmp_path)
     rig = load_rig_config(config)
