@@ -27,8 +27,7 @@ $(STAMP): setup.py setup.cfg package.xml
 test: $(STAMP)
 	$(PY) -m compileall -q roi_node test examples  # a cold first import must not slow the first live test
 	$(PY) -c "from roi_node.core.area_resample import warm_up; warm_up()"  # nor the resampling kernels' first JIT compile
-	$(PY) -m pytest -q -n 2 -m "not dds" test  # offline tests on both cores
-	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-71} $(PY) -m pytest -q -m dds test  # real DDS processes, one at a time: timing-sensitive
+	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-71} $(PY) -m pytest -q test
 
 # Opt-in, not part of `make test`: the real LeRobot reader (lerobot pulls torch, several GB) in its own
 # venv loads what `roi-node export lerobot` writes. Offline: nothing is fetched from the Hub.

@@ -44,7 +44,6 @@ setup(
         "dev": [
             "pytest>=8",
             "pytest-timeout>=2.3",
-            "pytest-xdist>=3.5",
             "ruff>=0.6",
             "mypy>=1.10",
             "types-PyYAML",

@@ -16,6 +16,7 @@ import struct
 import subprocess
 import sys
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +48,12 @@ def roi_node(*args: str, env: dict[str, str] | None = None, limit_file_bytes: in
         [sys.executable, "-m", "roi_node.cli", *args], cwd=REPO, capture_output=True, text=True, timeout=120,
         env=env, preexec_fn=limits,
     )
+
+
+def run_concurrently(*commands: list[str]) -> list[subprocess.CompletedProcess[str]]:
+    """Several CLI runs at once (each is mostly process start-up): the matrix stays cheap in `make test`."""
+    with ThreadPoolExecutor(max_workers=3) as pool:
+        return list(pool.map(lambda args: roi_node(*args), commands))
 
 
 def assert_one_line_error(result: subprocess.CompletedProcess[str], *names: str, code: int = 2) -> str:
@@ -146,12 +153,14 @@ def test_damaged_bag_files_give_one_line_naming_the_file(tmp_path: Path, good_ba
     else:
         bad = {"truncated": _truncated, "zeroed_summary": _zeroed_summary, "garbage": _garbage}[damage](good_bag, tmp_path / damage)
     name = bad.name
-    assert_one_line_error(roi_node("replay", str(bad), "-o", str(tmp_path / "out"), "--config", str(rig)), name)
+    replayed, inspected, validated = run_concurrently(
+        ["replay", str(bad), "-o", str(tmp_path / "out"), "--config", str(rig)], ["inspect", str(bad)], ["validate", str(bad)]
+    )
+    assert_one_line_error(replayed, name)
     assert not (tmp_path / "out").exists()
-    inspected = roi_node("inspect", str(bad))  # inspect reads the index only: a damaged db3 page may not show
-    if damage != "damaged_db3" or inspected.returncode != 0:
+    if damage != "damaged_db3" or inspected.returncode != 0:  # inspect reads the index only: a damaged db3 page may not show
         assert_one_line_error(inspected, name)
-    assert_one_line_error(roi_node("validate", str(bad)), name)
+    assert_one_line_error(validated, name)
 
 
 # --- hostile messages: refused or flagged, the rest of the stream unharmed ------------------------------
@@ -287,44 +296,51 @@ def _set(path: list[Any], value: Any) -> Callable[[dict[str, Any]], None]:
     return edit
 
 
-@pytest.mark.parametrize(
-    ("edit", "names"),
-    [
-        pytest.param(_set(["sync", "max_skew_ms"], 1e308), ["sync.max_skew_ms", "<= 10000 ms"], id="max_skew_1e308"),
-        pytest.param(_set(["camera", "delay_ms"], 1e300), ["camera.delay_ms", "<= 10000 ms"], id="delay_1e300"),
-        pytest.param(_set(["arms", 0, "scale"], {"mode": "fixed", "size_px": 1e9}), ["arms[0].scale.size_px", "<= 8192 px"], id="size_1e9"),
-        pytest.param(_set(["rig_id"], "r" * 5000), ["rig_id", "5000 characters"], id="long_rig_id"),
-        pytest.param(_set(["output", "size"], [100000, 256]), ["output.size", "1..4096"], id="huge_output"),
-        pytest.param(
+RIG_VALUE_CASES = [
+    pytest.param(_set(["sync", "max_skew_ms"], 1e308), ["sync.max_skew_ms", "<= 10000 ms"], id="max_skew_1e308"),
+    pytest.param(_set(["camera", "delay_ms"], 1e300), ["camera.delay_ms", "<= 10000 ms"], id="delay_1e300"),
+    pytest.param(_set(["arms", 0, "scale"], {"mode": "fixed", "size_px": 1e9}), ["arms[0].scale.size_px", "<= 8192 px"], id="size_1e9"),
+    pytest.param(_set(["rig_id"], "r" * 5000), ["rig_id", "5000 characters"], id="long_rig_id"),
+    pytest.param(_set(["output", "size"], [100000, 256]), ["output.size", "1..4096"], id="huge_output"),
+    pytest.param(
             _set(["camera", "extrinsics", "translation"], [1e30, 0, 0]), ["camera.extrinsics.translation", "+-1000"], id="far_camera"
         ),
-    ],
-)
-def test_out_of_range_rig_values_are_refused_naming_the_key(
-    tmp_path: Path, good_bag: Path, rig: Path, edit: Callable[[dict[str, Any]], None], names: list[str]
-) -> None:
-    hostile = _rig_with(rig, tmp_path, edit)
-    assert_one_line_error(roi_node("replay", str(good_bag), "-o", str(tmp_path / "out"), "--config", str(hostile)), str(hostile), *names)
+]
 
 
-@pytest.mark.parametrize(
-    ("content", "names"),
-    [
-        pytest.param(b"\x89PNG\r\n\x1a\n" + os.urandom(2000), ["not a text file"], id="binary"),
-        pytest.param(b"a: " + b"[" * 100_000, ["not valid YAML", "deeper"], id="deep"),
-        pytest.param(
+def test_out_of_range_rig_values_are_refused_naming_the_key(tmp_path: Path, good_bag: Path, rig: Path) -> None:
+    hostile = []
+    for case in RIG_VALUE_CASES:
+        folder = tmp_path / str(case.id)
+        folder.mkdir()
+        hostile.append(_rig_with(rig, folder, case.values[0]))
+    results = run_concurrently(*(["replay", str(good_bag), "-o", str(h.parent / "out"), "--config", str(h)] for h in hostile))
+    for case, path, result in zip(RIG_VALUE_CASES, hostile, results, strict=True):
+        assert_one_line_error(result, str(path), *case.values[1])
+
+
+RIG_FILE_CASES = [
+    pytest.param(b"\x89PNG\r\n\x1a\n" + os.urandom(2000), ["not a text file"], id="binary"),
+    pytest.param(b"a: " + b"[" * 100_000, ["not valid YAML", "deeper"], id="deep"),
+    pytest.param(
             ("a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(f"{c}: &{c} [*{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}, *{p}]\n"
                                                          for p, c in zip("abcdefgh", "bcdefghi", strict=True))).encode(),
             ["not valid YAML", "aliases"],
             id="billion_laughs",
         ),
-        pytest.param(b"x" * (2 << 20), ["bytes", "at most"], id="too_large"),
-    ],
-)
-def test_hostile_rig_files_are_refused_naming_the_file(tmp_path: Path, good_bag: Path, content: bytes, names: list[str]) -> None:
-    hostile = tmp_path / "rig.yaml"
-    hostile.write_bytes(content)
-    assert_one_line_error(roi_node("replay", str(good_bag), "-o", str(tmp_path / "out"), "--config", str(hostile)), str(hostile), *names)
+    pytest.param(b"x" * (2 << 20), ["bytes", "at most"], id="too_large"),
+]
+
+
+def test_hostile_rig_files_are_refused_naming_the_file(tmp_path: Path, good_bag: Path) -> None:
+    paths = []
+    for case in RIG_FILE_CASES:
+        path = tmp_path / f"{case.id}.yaml"
+        path.write_bytes(case.values[0])
+        paths.append(path)
+    results = run_concurrently(*(["replay", str(good_bag), "-o", str(tmp_path / f"out_{p.stem}"), "--config", str(p)] for p in paths))
+    for case, path, result in zip(RIG_FILE_CASES, paths, results, strict=True):
+        assert_one_line_error(result, str(path), *case.values[1])
 
 
 def _urdf_rig(rig: Path, folder: Path, urdf_text: str | bytes) -> tuple[Path, Path]:
@@ -344,23 +360,25 @@ def two_parent_panda() -> str:
     return text.replace("</robot>", bogus + "</robot>")
 
 
-@pytest.mark.parametrize(
-    ("urdf", "names"),
-    [
-        pytest.param(two_parent_panda(), ["link 'panda_hand'", "child of two joints"], id="two_parents"),
-        pytest.param(b"\xff\xfe" + os.urandom(3000), ["not a text file"], id="binary"),
-        pytest.param("<robot name='r'>" + "<a>" * 100_000 + "</a>" * 100_000 + "</robot>", ["elements" ], id="deep_xml"),
-        pytest.param("<robot name='r'><link name='a'/><joint name='j' type='fixed'><parent link='a'/><child link='zz'/></joint></robot>",
+URDF_CASES = [
+    pytest.param(two_parent_panda(), ["link 'panda_hand'", "child of two joints"], id="two_parents"),
+    pytest.param(b"\xff\xfe" + os.urandom(3000), ["not a text file"], id="binary"),
+    pytest.param("<robot name='r'>" + "<a>" * 100_000 + "</a>" * 100_000 + "</robot>", ["elements" ], id="deep_xml"),
+    pytest.param("<robot name='r'><link name='a'/><joint name='j' type='fixed'><parent link='a'/><child link='zz'/></joint></robot>",
                      ["joint 'j'", "'zz' is not a <link>"], id="dangling_joint"),
-    ],
-)
-def test_hostile_urdfs_are_refused_before_placo_sees_them(
-    tmp_path: Path, good_bag: Path, rig: Path, urdf: str | bytes, names: list[str]
-) -> None:
-    hostile_rig, urdf_path = _urdf_rig(rig, tmp_path, urdf)
-    result = roi_node("replay", str(good_bag), "-o", str(tmp_path / "out"), "--config", str(hostile_rig))
-    assert result.returncode != -signal.SIGSEGV
-    assert_one_line_error(result, str(urdf_path), *names)
+]
+
+
+def test_hostile_urdfs_are_refused_before_placo_sees_them(tmp_path: Path, good_bag: Path, rig: Path) -> None:
+    rigs = []
+    for case in URDF_CASES:
+        folder = tmp_path / str(case.id)
+        folder.mkdir()
+        rigs.append(_urdf_rig(rig, folder, case.values[0]))
+    results = run_concurrently(*(["replay", str(good_bag), "-o", str(r.parent / "out"), "--config", str(r)] for r, _ in rigs))
+    for case, (_, urdf_path), result in zip(URDF_CASES, rigs, results, strict=True):
+        assert result.returncode != -signal.SIGSEGV, case.id
+        assert_one_line_error(result, str(urdf_path), *case.values[1])
 
 
 # --- outputs that cannot be written -------------------------------------------------------------------------

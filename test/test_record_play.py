@@ -81,8 +81,14 @@ def record_session(
     return bag, json.loads((tmp_path / "truth.json").read_text())
 
 
-def test_recorded_live_session_equals_offline_replay_and_both_readers_agree(tmp_path: Path) -> None:
-    bag, truth = record_session(tmp_path, frames=30)
+@pytest.fixture(scope="module")
+def session(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Any]]:
+    """One recorded live session (30 frames) for the tests that only read it."""
+    return record_session(tmp_path_factory.mktemp("session"), frames=30)
+
+
+def test_recorded_live_session_equals_offline_replay_and_both_readers_agree(tmp_path: Path, session: tuple[Path, dict[str, Any]]) -> None:
+    bag, truth = session
     meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert meta["version"] == 9 and meta["storage_identifier"] == "mcap"
     topics = {t["topic_metadata"]["name"]: t for t in meta["topics_with_message_count"]}
@@ -156,9 +162,9 @@ def test_live_equals_offline_when_the_calibration_changes_and_the_stamps_loop(tm
                 assert record["joint_positions"][name] == pytest.approx(truth["fingers"][name], abs=1e-9)
 
 
-def test_play_drives_a_live_node_like_the_recording(tmp_path: Path) -> None:
+def test_play_drives_a_live_node_like_the_recording(tmp_path: Path, session: tuple[Path, dict[str, Any]]) -> None:
     """`roi-node play` republishes the recorded inputs; a fresh node produces the recorded outputs again."""
-    bag, _ = record_session(tmp_path, frames=20)
+    bag, _ = session
     recorded = [comparable(m.data) for _, m in read_rosbags(bag)["/roi/metadata"]]
     domain = next_domain()
     env = ros_env(domain)
