@@ -90,6 +90,7 @@ def _run_step(args: list[str], env: dict[str, str], log: Path, name: str) -> str
 
 
 RECORDING_PENDING_FRAMES = 30
+RECORDING_MAX_WAIT_MS = 250.0
 
 
 def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed: int) -> int:
@@ -106,8 +107,10 @@ def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed
     watch = MetadataWatch(int(env["ROS_DOMAIN_ID"]))
     procs: dict[str, tuple[subprocess.Popen[bytes], Path]] = {}
     try:
-        # a recording run wants every frame: a 1 s pending queue rides out a busy moment (the live default, 8, favours latency)
-        node_args = _cli("run", "--config", str(config), "--ros-args", "-p", f"sync.max_pending_frames:={RECORDING_PENDING_FRAMES}")
+        # a recording run wants every frame, correctly paired: a 1 s pending queue and a 250 ms wait for the joint sample
+        # ride out a busy moment (the live defaults, 8 frames and 50 ms, favour latency)
+        node_args = _cli("run", "--config", str(config), "--ros-args", "-p", f"sync.max_pending_frames:={RECORDING_PENDING_FRAMES}",
+                         "-p", f"sync.max_wait_ms:={RECORDING_MAX_WAIT_MS}")
         procs["node"] = (_start(node_args, env, logs / "node.log"), logs / "node.log")
         procs["recorder"] = (_start(_cli("record", "-o", str(session), "--topics", *record_topics), env, logs / "record.log"),
                              logs / "record.log")

@@ -402,6 +402,18 @@ class StreamEngine:
         newest = self._newest_info_ns.get(frame.epoch)
         return newest is not None and newest >= frame.payload.stamp_ns
 
+    def warm_up(self) -> None:
+        """Run the pipeline once on a blank frame, so that first-use costs (OpenCV, the resampling kernels'
+        dispatch, FK) are paid before the first real frame rather than while joint states queue behind it."""
+        pipeline, camera = self.pipeline, self.first_camera()
+        if pipeline is None or camera is None:
+            return
+        pipeline.set_intrinsics(camera)
+        blank = np.zeros((camera.height_px, camera.width_px, 3), np.uint8)
+        positions = dict.fromkeys(pipeline.required_joints, 0.0)
+        sync = SyncResult(self.rig.sync.policy, "ok", positions, 0.0, 0)
+        pipeline.process(blank, 0, 0, sync)
+
     def camera_at(self, stamp_ns: int, epoch: int = 0) -> CameraModel | None:
         """The intrinsics in effect at a frame stamp of an epoch (None before its first camera info)."""
         if self._rig_camera is not None:

@@ -90,6 +90,7 @@ class RoiNode(Node):
             max_pending=self.params.max_pending_frames,
             stats=self.stats,
         )
+        self.engine.warm_up()
         self._create_endpoints()
         self._worker = threading.Thread(target=self._work, name="roi_node_worker", daemon=True)
         self._worker.start()
