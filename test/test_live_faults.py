@@ -161,14 +161,20 @@ def test_a_urdf_that_would_crash_placo_on_robot_description_is_refused_and_repor
 
 
 def test_parameters_of_the_wrong_type_or_name_stop_the_start_with_one_line(tmp_path: Path) -> None:
-    env = ros_env(next_domain())
-    for params, names in (
+    cases = (
         (["opencv_threads:=1.5"], ["parameter opencv_threads", "expected an integer", "double"]),
         (["global_veiw:=false"], ["parameter global_veiw", "not a parameter of roi_node"]),
         (["sync.max_wait_ms:=abc"], ["parameter sync.max_wait_ms", "expected a double", "string"]),
         (["sync.max_skew_ms:=1e308"], ["parameter sync.max_skew_ms", "<= 10000 ms"]),
-    ):
-        result = subprocess.run([sys.executable, *run_args(*params)], cwd=REPO, env=env, capture_output=True, text=True, timeout=60)
+    )
+    starts = [  # each on its own domain, all at once: every one must stop at start, alone
+        subprocess.Popen([sys.executable, *run_args(*params)], cwd=REPO, env=ros_env(next_domain()), stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+        for params, _ in cases
+    ]
+    for (params, names), proc in zip(cases, starts, strict=True):
+        _, stderr = proc.communicate(timeout=60)
+        result = subprocess.CompletedProcess(proc.args, proc.returncode, "", stderr)
         assert result.returncode == 2, (params, result.stderr)
         lines = result.stderr.strip().splitlines()
         assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr

@@ -107,10 +107,11 @@ def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed
     watch = MetadataWatch(int(env["ROS_DOMAIN_ID"]))
     procs: dict[str, tuple[subprocess.Popen[bytes], Path]] = {}
     try:
-        # a recording run wants every frame, correctly paired: a 1 s pending queue and a 250 ms wait for the joint sample
-        # ride out a busy moment (the live defaults, 8 frames and 50 ms, favour latency)
-        node_args = _cli("run", "--config", str(config), "--ros-args", "-p", f"sync.max_pending_frames:={RECORDING_PENDING_FRAMES}",
-                         "-p", f"sync.max_wait_ms:={RECORDING_MAX_WAIT_MS}")
+        # a recording run wants every frame, correctly paired: reliable subscriptions (a starved best-effort reader loses
+        # joint states), a 1 s pending queue and a 250 ms wait for the joint sample ride out a busy moment (the live
+        # defaults, best effort, 8 frames and 50 ms, favour latency)
+        node_args = _cli("run", "--config", str(config), "--ros-args", "-p", "qos.subscription_reliability:=reliable",
+                         "-p", f"sync.max_pending_frames:={RECORDING_PENDING_FRAMES}", "-p", f"sync.max_wait_ms:={RECORDING_MAX_WAIT_MS}")
         procs["node"] = (_start(node_args, env, logs / "node.log"), logs / "node.log")
         procs["recorder"] = (_start(_cli("record", "-o", str(session), "--topics", *record_topics), env, logs / "record.log"),
                              logs / "record.log")
