@@ -91,6 +91,7 @@ def _run_step(args: list[str], env: dict[str, str], log: Path, name: str) -> str
 
 RECORDING_PENDING_FRAMES = 30
 RECORDING_MAX_WAIT_MS = 250.0
+RECORDING_JOINT_DEPTH = 2000
 
 
 def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed: int) -> int:
@@ -107,11 +108,12 @@ def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed
     watch = MetadataWatch(int(env["ROS_DOMAIN_ID"]))
     procs: dict[str, tuple[subprocess.Popen[bytes], Path]] = {}
     try:
-        # a recording run wants every frame, correctly paired: reliable subscriptions (a starved best-effort reader loses
-        # joint states), a 1 s pending queue and a 250 ms wait for the joint sample ride out a busy moment (the live
-        # defaults, best effort, 8 frames and 50 ms, favour latency)
+        # a recording run wants every frame, correctly paired: reliable subscriptions with a 10 s joint-state queue (a
+        # starved reader otherwise loses joint states: the 100-deep default is 0.5 s at 200 Hz), a 1 s pending queue and a
+        # 250 ms wait for the joint sample ride out a busy moment (the live defaults favour latency)
         node_args = _cli("run", "--config", str(config), "--ros-args", "-p", "qos.subscription_reliability:=reliable",
-                         "-p", f"sync.max_pending_frames:={RECORDING_PENDING_FRAMES}", "-p", f"sync.max_wait_ms:={RECORDING_MAX_WAIT_MS}")
+                         "-p", f"qos.joint_state_depth:={RECORDING_JOINT_DEPTH}", "-p", f"sync.max_pending_frames:={RECORDING_PENDING_FRAMES}",
+                         "-p", f"sync.max_wait_ms:={RECORDING_MAX_WAIT_MS}")
         procs["node"] = (_start(node_args, env, logs / "node.log"), logs / "node.log")
         procs["recorder"] = (_start(_cli("record", "-o", str(session), "--topics", *record_topics), env, logs / "record.log"),
                              logs / "record.log")
