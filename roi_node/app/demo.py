@@ -111,9 +111,9 @@ def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed
         # a recording run wants every frame, correctly paired: reliable subscriptions with a 10 s joint-state queue (a
         # starved reader otherwise loses joint states: the 100-deep default is 0.5 s at 200 Hz), a 1 s pending queue and a
         # 250 ms wait for the joint sample ride out a busy moment (the live defaults favour latency)
-        node_args = _cli("run", "--config", str(config), "--ros-args", "-p", "qos.subscription_reliability:=reliable",
-                         "-p", f"qos.joint_state_depth:={RECORDING_JOINT_DEPTH}", "-p", f"sync.max_pending_frames:={RECORDING_PENDING_FRAMES}",
-                         "-p", f"sync.max_wait_ms:={RECORDING_MAX_WAIT_MS}")
+        recording = ["qos.subscription_reliability:=reliable", f"qos.joint_state_depth:={RECORDING_JOINT_DEPTH}",
+                     f"sync.max_pending_frames:={RECORDING_PENDING_FRAMES}", f"sync.max_wait_ms:={RECORDING_MAX_WAIT_MS}"]
+        node_args = _cli("run", "--config", str(config), "--ros-args", *(x for p in recording for x in ("-p", p)))
         procs["node"] = (_start(node_args, env, logs / "node.log"), logs / "node.log")
         procs["recorder"] = (_start(_cli("record", "-o", str(session), "--topics", *record_topics), env, logs / "record.log"),
                              logs / "record.log")
