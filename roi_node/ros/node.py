@@ -90,7 +90,10 @@ class RoiNode(Node):
             max_pending=self.params.max_pending_frames,
             stats=self.stats,
         )
-        self.engine.warm_up()
+        try:
+            self.engine.warm_up()
+        except Exception as exc:  # counted and logged; the real frames will show whether processing works
+            self.get_logger().error(f"warm-up frame failed: {self.stats.processing_error(exc)}")
         self._create_endpoints()
         self._worker = threading.Thread(target=self._work, name="roi_node_worker", daemon=True)
         self._worker.start()
