@@ -42,6 +42,8 @@ from .errors import ImageError, JointStateError, RoiNodeError
 from .metadata import M_DECIMALS, MS_DECIMALS, rnd
 from .pipeline import FrameResult, RoiPipeline
 from .records import TeleopRecord
+from .resample import crop_resize
+from .roi_policy import window_around
 from .stamps import NS_PER_MS, NS_PER_S, StampVerdict, StreamClock
 from .stream_stats import StreamStats
 from .sync import FrameSynchronizer, JointStateBuffer, PendingFrame, SyncResult, command_residual
@@ -413,6 +415,12 @@ class StreamEngine:
         positions = dict.fromkeys(pipeline.required_joints, 0.0)
         sync = SyncResult(self.rig.sync.policy, "ok", positions, 0.0, 0)
         pipeline.process(blank, 0, 0, sync)
+        # the blank pose may put no arm in view: crop windows inside, across and larger than the image too
+        out = self.rig.output
+        centre = (camera.width_px / 2, camera.height_px / 2)
+        for side in (out.size_px[0] * 1.7, out.size_px[0] / 1.6, float(camera.height_px)):
+            for middle in (centre, (0.0, 0.0)):
+                crop_resize(blank, window_around(middle, (side, side)), out.size_px, out.resize_policy, out.interpolation)
 
     def camera_at(self, stamp_ns: int, epoch: int = 0) -> CameraModel | None:
         """The intrinsics in effect at a frame stamp of an epoch (None before its first camera info)."""
