@@ -44,6 +44,7 @@ setup(
         "dev": [
             "pytest>=8",
             "pytest-timeout>=2.3",
+            "pytest-xdist>=3.5",  # make test: the DDS tests on one worker, the rest beside them
             "ruff>=0.6",
             "mypy>=1.10",
             "types-PyYAML",

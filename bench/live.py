@@ -12,7 +12,13 @@ core, and the node-added latency (b - a, at the median and at p99), marked
 against the targets (720p: <= 4 ms median; 1080p: <= 6 ms median, <= 12 ms p99;
 no drops).
 
-Run: `.venv/bin/python bench/live.py [--duration-s 60] [--sizes 720 1080]`.
+Under the default `interpolate` sync policy a frame waits for the first joint
+sample after its capture time (at 200 Hz up to 5 ms); `--sync-policies
+interpolate latest` measures both in one run, so the wait's share of the added
+latency is shown rather than hidden (`latest` pairs the newest sample at hand
+and says so in the record's sync residual).
+
+Run: `.venv/bin/python bench/live.py [--duration-s 60] [--sizes 720 1080] [--sync-policies interpolate latest]`.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import psutil
@@ -113,7 +120,7 @@ def publish(spec_path: Path, truth_path: Path, env: dict[str, str]) -> dict[str,
     return json.loads(truth_path.read_text())  # type: ignore[no-any-return]
 
 
-def run_case(size: int, duration_s: float, tmp: Path, domain: int, interpolation: str) -> dict[str, float]:
+def run_case(size: int, duration_s: float, tmp: Path, domain: int, interpolation: str, sync_policy: str) -> dict[str, Any]:
     width, height = SIZES[size]
     rig = rig_at(width, height, tmp, interpolation)
     frames = int(duration_s * 30)
@@ -129,7 +136,8 @@ def run_case(size: int, duration_s: float, tmp: Path, domain: int, interpolation
 
     through = Receiver(domain + 1, "roi/left/image_raw")
     node_env = env_for(domain + 1)
-    node = subprocess.Popen([sys.executable, "-m", "roi_node.cli", "run", "--config", str(rig)], cwd=REPO, env=node_env,
+    node_args = ["run", "--config", str(rig), "--ros-args", "-p", f"sync.policy:={sync_policy}"]
+    node = subprocess.Popen([sys.executable, "-m", "roi_node.cli", *node_args], cwd=REPO, env=node_env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     while through.node.count_publishers("roi/left/image_raw") < 1:
         time.sleep(0.05)
@@ -147,7 +155,7 @@ def run_case(size: int, duration_s: float, tmp: Path, domain: int, interpolation
     a, b = np.asarray(bare.latency_ms), np.asarray(through.latency_ms)
     run_s = frames / 30.0
     return {
-        "size": size,
+        "size": size, "sync_policy": sync_policy,
         "a_median_ms": float(np.median(a)), "a_p99_ms": float(np.percentile(a, 99)), "a_dropped": sent_a - len(bare.stamps),
         "b_median_ms": float(np.median(b)), "b_p99_ms": float(np.percentile(b, 99)), "b_dropped": sent_b - len(through.stamps),
         "node_cpu_ms_per_frame": cpu_s * 1000 / max(1, len(through.stamps)),
@@ -160,15 +168,18 @@ def main() -> int:
     parser.add_argument("--duration-s", type=float, default=60.0, help="seconds per measurement (default: 60)")
     parser.add_argument("--sizes", type=int, nargs="+", default=[720, 1080], choices=sorted(SIZES))
     parser.add_argument("--interpolation", choices=["area", "area_pyramid"], default="area", help="the rig's output.interpolation")
+    parser.add_argument("--sync-policies", nargs="+", default=["interpolate"], choices=["interpolate", "nearest", "latest"],
+                        help="the node's sync.policy, one measurement each (default: interpolate)")
     parser.add_argument("--domain", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "73")) % 200 + 20)
     args = parser.parse_args()
     print(f"load average at start: {os.getloadavg()[0]:.2f} ({os.cpu_count()} CPUs)")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for i, size in enumerate(args.sizes):
-            rows.append(run_case(size, args.duration_s, Path(tmp), args.domain + 2 * i, args.interpolation))
+        cases = [(size, policy) for size in args.sizes for policy in args.sync_policies]
+        for i, (size, policy) in enumerate(cases):
+            rows.append(run_case(size, args.duration_s, Path(tmp), args.domain + 2 * i, args.interpolation, policy))
     print(f"output.interpolation: {args.interpolation}")
-    print(f"{'stream':>14} | {'(a) transport p50/p99 ms':>25} | {'(b) via node p50/p99 ms':>24} | {'b-a p50/p99 ms':>14} | "
+    print(f"{'stream':>14} | {'sync':>11} | {'(a) transport p50/p99 ms':>25} | {'(b) via node p50/p99 ms':>24} | {'b-a p50/p99 ms':>14} | "
           f"{'dropped a/b':>11} | {'node CPU ms/frame':>17} | {'node CPU % core':>15} | target")
     for r in rows:
         size = int(r["size"])
@@ -177,7 +188,8 @@ def main() -> int:
         target_p50, target_p99 = TARGETS_MS[size]
         met = added_p50 <= target_p50 and (target_p99 is None or added_p99 <= target_p99) and r["b_dropped"] == 0
         wanted = f"<= {target_p50:g} ms p50" + (f", <= {target_p99:g} ms p99" if target_p99 is not None else "") + ", 0 drops"
-        print(f"{w}x{h}@30 | {r['a_median_ms']:11.2f} / {r['a_p99_ms']:11.2f} | {r['b_median_ms']:10.2f} / {r['b_p99_ms']:11.2f} | "
+        print(f"{w}x{h}@30 | {r['sync_policy']:>11} | {r['a_median_ms']:11.2f} / {r['a_p99_ms']:11.2f} | "
+              f"{r['b_median_ms']:10.2f} / {r['b_p99_ms']:11.2f} | "
               f"{added_p50:6.2f} / {added_p99:5.2f} | {r['a_dropped']:5.0f} / {r['b_dropped']:3.0f} | "
               f"{r['node_cpu_ms_per_frame']:17.2f} | {100 * r['node_cpu_share']:15.1f} | {'MET' if met else 'NOT MET'} ({wanted})")
     print(f"load average at end: {os.getloadavg()[0]:.2f} ({os.cpu_count()} CPUs)")

@@ -18,3 +18,10 @@ def bimanual_rig_path() -> Path:
 @pytest.fixture(scope="session")
 def single_rig_path() -> Path:
     return CONFIG / "rig_panda_single.yaml"
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Under pytest-xdist (`--dist loadgroup`) the DDS tests share one worker, so they run one at a time."""
+    for item in items:
+        if item.get_closest_marker("dds") is not None:
+            item.add_marker(pytest.mark.xdist_group("dds"))
