@@ -21,7 +21,11 @@ def single_rig_path() -> Path:
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Under pytest-xdist (`--dist loadgroup`) the DDS tests share one worker, so they run one at a time."""
+    """Under pytest-xdist (`--dist loadgroup`) the DDS tests share one worker, so they run one at a time.
+
+    Every other module is a group of its own, so its module-scoped fixtures (sim bags, recorded sessions) are
+    built once, not once per worker.
+    """
     for item in items:
-        if item.get_closest_marker("dds") is not None:
-            item.add_marker(pytest.mark.xdist_group("dds"))
+        group = "dds" if item.get_closest_marker("dds") is not None else item.nodeid.split("::")[0]
+        item.add_marker(pytest.mark.xdist_group(group))
