@@ -60,4 +60,5 @@ class Look:
         if self.noise_sigma:
             rng = np.random.default_rng([seed, frame_index, 0x9015E])
             out += rng.normal(0.0, self.noise_sigma, out.shape).astype(np.float32)
-        return np.clip(np.round(out), 0, 255).astype(np.uint8)
+        np.rint(out, out=out)
+        return np.clip(out, 0, 255, out=out).astype(np.uint8)

@@ -179,7 +179,12 @@ class SimRig:
         if self.look.default:
             return self.painter.paint(projected), truth
         if self.look.blurred:
-            frame = np.mean([self.painter.paint(self._project(capture_ns + dt)[1]) for dt in self.look.exposure_offsets_ns()], axis=0)
+            offsets = self.look.exposure_offsets_ns()
+            paints = (self.painter.paint(self._project(capture_ns + dt)[1]) for dt in offsets)
+            frame = next(paints).astype(np.float32)  # float32 sums: the mean of a few uint8 renders needs no more
+            for paint in paints:
+                frame += paint
+            frame /= len(offsets)
         else:
             frame = self.painter.paint(projected)
         return self.look.finish(frame, frame_index, (capture_ns - self.start_ns) / NS_PER_S, self.seed), truth
