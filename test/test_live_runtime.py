@@ -106,7 +106,7 @@ def test_lifecycle_node_publishes_only_while_active_and_a_broken_rig_fails_confi
             assert set_parameter(collector, "config", str(BIMANUAL)).successful, "any parameter may change while unconfigured"
             assert transition(collector, Transition.TRANSITION_CONFIGURE)
             assert state(collector) == State.PRIMARY_STATE_INACTIVE
-            publisher = start_publisher(tmp_path, env, frames=450)
+            publisher = start_publisher(tmp_path, env, frames=900)
             collector.wait_for_node()
             assert collector.wait_until(lambda: inactive_drops(collector) >= 15, 30.0), "frames reach the inactive node"
             inactive = (len(collector.metadata), len(roi_images))
@@ -123,8 +123,12 @@ def test_lifecycle_node_publishes_only_while_active_and_a_broken_rig_fails_confi
             assert transition(collector, Transition.TRANSITION_CLEANUP)
             assert state(collector) == State.PRIMARY_STATE_UNCONFIGURED
             assert collector.wait_until(lambda: collector.node.count_publishers("/roi/metadata") == 0, 10.0), "cleanup releases"
-            assert transition(collector, Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)
-            assert node.wait(timeout=15) == 0, "shutdown ends the process cleanly"
+
+            assert transition(collector, Transition.TRANSITION_CONFIGURE), "configure again after cleanup"
+            assert transition(collector, Transition.TRANSITION_ACTIVATE)
+            assert collector.wait_until(lambda: len(collector.metadata) >= after[0] + 10, 20.0), log_path.read_text()
+            assert transition(collector, Transition.TRANSITION_ACTIVE_SHUTDOWN)
+            assert node.wait(timeout=15) == 0, "shutdown from active ends the process cleanly"
     finally:
         if publisher is not None:
             publisher.kill()
@@ -138,7 +142,8 @@ def test_lifecycle_node_publishes_only_while_active_and_a_broken_rig_fails_confi
     assert len(errors) == 1 and "configure failed" in errors[0] and "arms[0].scale.alpha" in errors[0], log
     assert "Traceback" not in log
     stopped = [line for line in log.splitlines() if "stopped: frames in" in line]
-    assert len(stopped) == 1 and "inactive" in stopped[0], "the cleanup's summary counts the frames dropped while inactive"
+    assert len(stopped) == 2, "one summary at cleanup, one at shutdown"
+    assert "inactive" in stopped[0], "the cleanup's summary counts the frames dropped while inactive"
 
 
 def test_runtime_offset_moves_the_next_centres_and_changes_crop_offset_ver(tmp_path: Path) -> None:
@@ -151,7 +156,7 @@ def test_runtime_offset_moves_the_next_centres_and_changes_crop_offset_ver(tmp_p
         args = ["-m", "roi_node.cli", "run", "--config", str(BIMANUAL), "--ros-args", "-p", "status_period_s:=0.5"]
         with process(args, env, log_path):
             collector.wait_for_node()
-            publisher = start_publisher(tmp_path, env, frames=150)
+            publisher = start_publisher(tmp_path, env, frames=300)
             assert collector.wait_until(lambda: len(collector.metadata) >= 15, 20.0), log_path.read_text()
             changed = set_parameter(collector, "arms.left.offset_px", 40.0)
             count_at_change = len(collector.metadata)
@@ -161,6 +166,9 @@ def test_runtime_offset_moves_the_next_centres_and_changes_crop_offset_ver(tmp_p
             out_of_range = set_parameter(collector, "arms.right.scale.min_px", 1000.0)  # above max_px 720
             skew = set_parameter(collector, "sync.max_skew_ms", 25.0)
             assert collector.wait_until(lambda: len(collector.metadata) >= count_at_change + 15, 20.0)
+            restored = set_parameter(collector, "arms.left.offset_px", 30)  # the rig's value, as an integer
+            count_at_restore = len(collector.metadata)
+            assert collector.wait_until(lambda: len(collector.metadata) >= count_at_restore + 10, 20.0)
     finally:
         if publisher is not None:
             publisher.kill()
@@ -177,18 +185,23 @@ def test_runtime_offset_moves_the_next_centres_and_changes_crop_offset_ver(tmp_p
         assert refused.reason.startswith(f"parameter {name}: ") and why in refused.reason, refused.reason
     assert skew.successful, skew.reason
 
+    assert restored.successful, restored.reason
     records = collector.metadata
     versions = [r["lineage"]["crop_offset_ver"] for r in records]
-    before, after = versions[0], versions[-1]
-    assert before != after
-    first_new = versions.index(after)
-    assert versions[first_new:] == [after] * (len(versions) - first_new), "applied from one frame on, for good"
-    assert first_new <= count_at_change + 3, "within the frames already in hand when the change arrived"
+    before = versions[0]
+    changed_ver = next(v for v in versions if v != before)
+    first_new = versions.index(changed_ver)
+    last_new = len(versions) - 1 - versions[::-1].index(changed_ver)
+    assert set(versions) == {before, changed_ver}
+    assert versions[first_new : last_new + 1] == [changed_ver] * (last_new + 1 - first_new), "from one frame on, until restored"
+    assert versions[last_new + 1 :] and first_new > 0, "the rig's value again: the rig's version again"
+    assert first_new <= count_at_change + 5, "within the frames already in hand when the change arrived"
+    assert count_at_restore - 5 <= last_new < count_at_restore + 5
     # the version is the one a rig file saying offset_px: 40.0 gets
     oracle = RoiPipeline(load_rig_config(rig_variant(tmp_path, "offset40.yaml", {"offset_px": 40.0})))
-    assert oracle.lineage is not None and oracle.lineage.crop_offset_ver == after
+    assert oracle.lineage is not None and oracle.lineage.crop_offset_ver == changed_ver
     for i, record in enumerate(records):
-        expected_offset = {"left": 40.0 if i >= first_new else 30.0, "right": 30.0}
+        expected_offset = {"left": 40.0 if first_new <= i <= last_new else 30.0, "right": 30.0}
         for arm in record["arms"]:
             if not arm["projection_valid"]:
                 continue

@@ -116,7 +116,8 @@ class StreamNode(Node):
         self._create_endpoints()
         if self.params.status_period_s > 0:
             self.create_timer(self.params.status_period_s, self._log_status)
-        self._worker = threading.Thread(target=self._work, name="roi_node_worker", daemon=True)
+        # the worker keeps its own stop event: one that outlived its join must not run on a re-configured stream
+        self._worker = threading.Thread(target=self._work, args=(self._stop,), name="roi_node_worker", daemon=True)
         self._worker.start()
         self._stream_entities = tuple(e for e in self._entities() if e not in before)
         self.policy = policy  # streaming from here on
@@ -258,9 +259,9 @@ class StreamNode(Node):
 
     # -- worker thread --------------------------------------------------------------------------
 
-    def _work(self) -> None:
+    def _work(self, stop: threading.Event) -> None:
         try:
-            while not self._stop.is_set():
+            while not stop.is_set():
                 with self._lock:
                     ready = self.engine.pop_ready(time.monotonic_ns(), limit=1)
                     if not ready:
@@ -338,7 +339,7 @@ class StreamNode(Node):
         silence = self.health.silence(now_ns, self.resolve_topic_name(self._image_topic), self.params.joint_state_topics)
         self._diagnostics_pub.publish(diagnostics_msg(self.get_clock().now().nanoseconds, snap, lineage, waiting, silence))
 
-    # -- shutdown -----------------------------------------------------------------------------------
+    # -- status and runtime parameters (executor thread) ------------------------------------------
 
     def _log_status(self) -> None:
         with self._lock:
