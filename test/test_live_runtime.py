@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import yaml
 from lifecycle_msgs.msg import State, Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from rcl_interfaces.msg import SetParametersResult
@@ -29,6 +28,7 @@ from roi_node.core.pipeline import RoiPipeline
 
 from .conftest import CONFIG, REPO
 from .live.harness import Collector, diagnostics_values, next_domain, process, ros_env
+from .rigs import base_rig, write_rig
 
 pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
 
@@ -39,14 +39,11 @@ SERVICE_TIMEOUT_S = 20.0
 
 def rig_variant(tmp_path: Path, name: str, arm_changes: dict[str, Any]) -> Path:
     """The bimanual rig with `arm_changes` merged into its first arm (`scale` merged key by key)."""
-    doc = yaml.safe_load(BIMANUAL.read_text())
-    doc["camera"]["intrinsics"] = str(CONFIG / doc["camera"]["intrinsics"])
+    doc = base_rig()
     arm = doc["arms"][0]
     for key, value in arm_changes.items():
         arm[key] = {**arm[key], **value} if isinstance(value, dict) else value
-    path = tmp_path / name
-    path.write_text(yaml.safe_dump(doc))
-    return path
+    return write_rig(tmp_path, doc, name)
 
 
 def call(collector: Collector, service: type, name: str, request: Any) -> Any:
