@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from roi_node.core.config import load_rig_config
 from roi_node.core.errors import ParameterError
@@ -81,3 +82,15 @@ def test_a_policy_set_at_runtime_gives_the_bytes_of_a_rig_file_saying_so(tmp_pat
 
     restored = policy.update({"arms.left.offset_px": 30.0, "arms.left.aspect": [1.0, 1.0], "arms.left.scale.alpha": 2.0})
     assert running.with_policy(restored).process(image, 1, 0, sync).record_json == before
+
+
+def test_the_params_file_documents_every_parameter_of_the_node() -> None:
+    doc = yaml.safe_load((CONFIG / "roi_node.params.yaml").read_text())["roi_node"]["ros__parameters"]
+
+    def flat(node: dict[str, object], prefix: str = "") -> set[str]:
+        out: set[str] = set()
+        for key, value in node.items():
+            out |= flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {prefix + key}
+        return out
+
+    assert flat(doc) == set(DEFAULTS) | {"use_sim_time"}
