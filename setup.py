@@ -60,6 +60,7 @@ setup(
         "console_scripts": [
             "roi-node = roi_node.cli:main",
             "roi_node = roi_node.cli:ros2_run_main",
+            "roi_node_lifecycle = roi_node.cli:ros2_run_lifecycle_main",
         ],
     },
 )

@@ -1,13 +1,17 @@
 """What a VLA policy receives from a running roi_node, one line per observation.
 
     roi-node run --config config/rig_demo_bimanual.yaml &
-    python examples/vla_observer.py --arms left right --count 10 [--latest]
+    python examples/vla_observer.py --count 10 [--latest] [--arms left right] [--no-global] [--ros-args -r __ns:=/rig1]
 
 Each observation is (I_global, I_roi_left, I_roi_right, s): the global view,
 the per-arm ROI crops and the joint positions they were computed from, all of
 one camera frame (matched on its header stamp), plus its metadata record. A
 policy adds the language instruction. `--latest` is the control-loop mode:
 take only the newest complete observation each step, skipping any backlog.
+The arms and whether the node publishes a global view are discovered from its
+metadata unless given; ROS arguments after --ros-args reach rclpy (a
+namespace, remaps). While nothing arrives, the observer says after
+`--diagnose-s` which topic is silent.
 """
 
 from __future__ import annotations
@@ -15,10 +19,12 @@ from __future__ import annotations
 import argparse
 import sys
 import threading
+import time
 
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.utilities import remove_ros_args
 
 from roi_node.ros.consumer import Observation, ObservationClient
 
@@ -37,14 +43,18 @@ def describe(obs: Observation) -> str:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--arms", nargs="+", default=["left", "right"], help="arm ids of the rig (default: left right)")
+    parser.add_argument("--arms", nargs="+", help="arm ids of the rig (default: the ones the metadata lists)")
+    parser.add_argument("--no-global", action="store_true",
+                        help="observations without the global view (default: with it if the node publishes it)")
     parser.add_argument("--count", type=int, default=10, help="observations to print, then exit (default: 10)")
     parser.add_argument("--latest", action="store_true", help="control-loop mode: newest complete observation only")
     parser.add_argument("--timeout-s", type=float, default=30.0, help="give up after this long without one (default: 30)")
-    args = parser.parse_args()
-    rclpy.init()
+    parser.add_argument("--diagnose-s", type=float, default=3.0,
+                        help="say which topic is silent after this long without an observation (default: 3)")
+    args = parser.parse_args(remove_ros_args(sys.argv)[1:])
+    rclpy.init(args=sys.argv)
     node = Node("vla_observer")
-    client = ObservationClient(node, args.arms)
+    client = ObservationClient(node, args.arms, with_global=False if args.no_global else None)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     stop = threading.Event()
@@ -58,9 +68,9 @@ def main() -> int:
     last_stamp: int | None = None
     try:
         for _ in range(args.count):
-            obs = client.latest(newer_than_ns=last_stamp, timeout_s=args.timeout_s) if args.latest else client.get(args.timeout_s)
+            obs = next_observation(client, args, last_stamp)
             if obs is None:
-                print(f"no observation within {args.timeout_s:g} s", file=sys.stderr)
+                print(f"error: {client.waiting_for() or f'no observation within {args.timeout_s:g} s'}", file=sys.stderr)
                 return 1
             last_stamp = obs.stamp_ns
             print(describe(obs), flush=True)
@@ -71,6 +81,21 @@ def main() -> int:
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def next_observation(client: ObservationClient, args: argparse.Namespace, last_stamp: int | None) -> Observation | None:
+    """The next observation within --timeout-s; says once, after --diagnose-s, what it is waiting for."""
+    deadline = time.monotonic() + args.timeout_s
+    warned = False
+    while (left_s := deadline - time.monotonic()) > 0:
+        wait_s = left_s if warned else min(left_s, args.diagnose_s)
+        obs = client.latest(newer_than_ns=last_stamp, timeout_s=wait_s) if args.latest else client.get(wait_s)
+        if obs is not None:
+            return obs
+        if not warned and (why := client.waiting_for()) is not None:
+            print(f"waiting: {why}", file=sys.stderr, flush=True)
+            warned = True
+    return None
 
 
 if __name__ == "__main__":

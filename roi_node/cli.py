@@ -78,5 +78,10 @@ def ros2_run_main() -> int:
     return main(["run", *sys.argv[1:]])
 
 
+def ros2_run_lifecycle_main() -> int:
+    """`ros2 run roi_node roi_node_lifecycle` is `roi-node run --lifecycle`."""
+    return main(["run", "--lifecycle", *sys.argv[1:]])
+
+
 if __name__ == "__main__":
     sys.exit(main())

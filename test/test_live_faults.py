@@ -116,7 +116,7 @@ def test_a_node_whose_every_frame_fails_stops_with_a_non_zero_exit(tmp_path: Pat
     env = ros_env(domain)
     (tmp_path / "spec.json").write_text(json.dumps({"rig": str(BIMANUAL), "frames": 240}))
     log_path = tmp_path / "node.log"
-    with process(run_args("max_failure_s:=1.5", faulty_every=1), env, log_path) as node:
+    with process(run_args("max_failure_s:=1.5", "status_period_s:=0.5", faulty_every=1), env, log_path) as node:
         pub = subprocess.Popen(
             [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
             cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
@@ -133,6 +133,10 @@ def test_a_node_whose_every_frame_fails_stops_with_a_non_zero_exit(tmp_path: Pat
     assert last.startswith("roi-node run: error: every frame failed for") and "ZeroDivisionError" in last, last
     first_failure = log.index("injected fault")
     assert first_failure > 0 and stopped > 0
+    status = [line for line in log.splitlines() if "status: frames in" in line]
+    assert status and any("processing errors 0" not in line for line in status), "the periodic status counts the failures"
+    summary = [line for line in log.splitlines() if "stopped: frames in" in line]
+    assert len(summary) == 1 and "processing errors: ZeroDivisionError" in summary[0], "the summary on a fatal stop"
 
 
 def test_a_urdf_that_would_crash_placo_on_robot_description_is_refused_and_reported(tmp_path: Path) -> None:
@@ -166,6 +170,8 @@ def test_parameters_of_the_wrong_type_or_name_stop_the_start_with_one_line(tmp_p
         (["global_veiw:=false"], ["parameter global_veiw", "not a parameter of roi_node"]),
         (["sync.max_wait_ms:=abc"], ["parameter sync.max_wait_ms", "expected a double", "string"]),
         (["sync.max_skew_ms:=1e308"], ["parameter sync.max_skew_ms", "<= 10000 ms"]),
+        (["arms.lefty.offset_px:=5.0"], ["parameter arms.lefty.offset_px", "the rig has no arm 'lefty'; its arms are left, right"]),
+        (["arms.left.scale.min_px:=900.0"], ["parameter arms.left.scale.min_px", "must be <= max_px"]),
     )
     starts = [  # each on its own domain, all at once: every one must stop at start, alone
         subprocess.Popen([sys.executable, *run_args(*params)], cwd=REPO, env=ros_env(next_domain()), stdout=subprocess.PIPE,

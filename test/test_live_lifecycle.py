@@ -86,3 +86,39 @@ def test_vla_example_prints_observations_from_the_running_node(tmp_path: Path) -
     latest_stamps = [int(line.split("stamp_ns=")[1].split()[0]) for line in latest_out.strip().splitlines()]
     assert len(latest_stamps) == 3 and latest_stamps == sorted(set(latest_stamps))
     assert set(latest_stamps) <= set(stamps)
+
+
+def test_observer_reaches_a_namespaced_node_discovers_its_outputs_and_names_a_missing_arm(tmp_path: Path) -> None:
+    """`--ros-args -r __ns:=/rig1` reaches the node; arms and the (absent) global view come from the metadata and graph."""
+    domain = next_domain()
+    env = ros_env(domain)
+    spec = {"rig": str(BIMANUAL), "frames": 300, "distinct_frames": 30}
+    (tmp_path / "spec.json").write_text(json.dumps(spec))
+    ns = ["--ros-args", "-r", "__ns:=/rig1"]
+    remaps = ["-r", "__ns:=/rig1", "-r", "image_raw:=/image_raw", "-r", "joint_states:=/joint_states"]
+    node = [*node_args(BIMANUAL, "global_view:=false"), *remaps]
+    observer = [sys.executable, "examples/vla_observer.py"]
+    with process(node, env, tmp_path / "node.log"):
+        found = subprocess.Popen([*observer, "--count", "3", *ns], cwd=REPO, env=env, stdout=subprocess.PIPE, text=True)
+        time.sleep(2.0)  # the observer discovers the node before the first frame
+        pub = subprocess.Popen(
+            [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
+            cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )
+        try:
+            found_out, _ = found.communicate(timeout=60)
+            missing = subprocess.run([*observer, "--count", "1", "--arms", "left", "lefty", "--timeout-s", "5", *ns],
+                                     cwd=REPO, env=env, capture_output=True, text=True, timeout=60)
+        finally:
+            pub.kill()
+            pub.wait()
+    assert found.returncode == 0
+    lines = found_out.strip().splitlines()
+    assert len(lines) == 3
+    for line in lines:
+        assert "global=none" in line and "left=256x256" in line and "right=256x256" in line, line
+    assert missing.returncode == 1
+    said = missing.stderr.strip().splitlines()
+    assert said[0].startswith("waiting: no image on /rig1/roi/lefty/image_raw after "), missing.stderr
+    assert said[0].endswith(" s; metadata lists arms left, right"), missing.stderr
+    assert said[-1].startswith("error: no image on /rig1/roi/lefty/image_raw after ") and len(said) == 2, missing.stderr

@@ -44,6 +44,7 @@ def test_colcon_build_installs_executables_index_marker_and_config(tmp_path: Pat
     install = tmp_path / "ws" / "install" / "roi_node"
     assert (install / "lib" / "roi_node" / "roi_node").is_file()  # what `ros2 run roi_node roi_node` executes
     assert (install / "lib" / "roi_node" / "roi-node").is_file()
+    assert (install / "lib" / "roi_node" / "roi_node_lifecycle").is_file()  # `ros2 run roi_node roi_node_lifecycle`
     assert (install / "share" / "ament_index" / "resource_index" / "packages" / "roi_node").is_file()
     assert (install / "share" / "roi_node" / "package.xml").is_file()
     for name in ("rig_demo_bimanual.yaml", "front_intrinsics.yaml", "metadata.schema.json", "roi_node.params.yaml", "fastdds_shm.xml",

@@ -365,6 +365,12 @@ def _load_robot(node: _Node, base_dir: Path) -> RobotConfig:
     return RobotConfig(node.text("id"), urdf_path, world_T_base, prefix, base_raw)
 
 
+def load_arm(data: Mapping[str, Any], where: str, file: Path, robot_ids: set[str]) -> ArmConfig:
+    """One `arms[]` entry validated exactly as the loader validates it, for policies changed at runtime;
+    a ConfigError reads `<file>: <where>.<key>: <problem>`."""
+    return _load_arm(_Node(data, where, file), robot_ids)
+
+
 def _load_arm(node: _Node, robot_ids: set[str]) -> ArmConfig:
     node.check_keys(("id", "robot", "ee_frame", "tip", "offset_px", "offset_m", "scale", "aspect"))
     if node.has("offset_px") and node.has("offset_m"):

@@ -206,6 +206,14 @@ class StreamEngine:
             if (refusal := self._admit(event)) is not None:
                 self._refuse(event, refusal)
 
+    def set_policy(self, rig: RigConfig) -> None:
+        """`rig`'s arm policies and sync limits (same camera, robots and arms) for every frame prepared from now on;
+        frames already prepared keep the policy they were prepared with."""
+        self.rig = rig
+        self._pipelines.values = [p.with_policy(rig) for p in self._pipelines.values if isinstance(p, RoiPipeline)]
+        if self.synchronizer is not None:
+            self.synchronizer.set_limits(rig.sync.max_skew_ms, rig.sync.max_wait_ms)
+
     def waiting_for(self) -> str | None:
         """What the engine still needs before it can process any frame, or None."""
         missing = []

@@ -9,6 +9,8 @@ agree byte for byte.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -79,6 +81,13 @@ class _ArmModel:
     ee_T_tip: Transform | None
 
 
+def _crop_offset_version(rig: RigConfig) -> str:
+    """The version of what places and shapes the crops: the arm policies, output settings and z_min."""
+    return content_hash(
+        {"arms": [rig.raw["arms"][i] for i in range(len(rig.arms))], "output": rig.raw.get("output", {}), "z_min_m": rig.camera.z_min_m}
+    )
+
+
 class RoiPipeline:
     """Process frames of one rig; construct once per URDF, call `process` per frame.
 
@@ -113,9 +122,7 @@ class RoiPipeline:
                 if limits is not None:
                     self.joint_limits[robot.joint_prefix + j] = limits
         self._fk_ver = self._fk_version()
-        self._crop_offset_ver = content_hash(
-            {"arms": [rig.raw["arms"][i] for i in range(len(rig.arms))], "output": rig.raw.get("output", {}), "z_min_m": rig.camera.z_min_m}
-        )
+        self._crop_offset_ver = _crop_offset_version(rig)
         self.camera: CameraModel | None = None
         self.lineage: Lineage | None = None
         camera = intrinsics or rig.camera.intrinsics
@@ -161,6 +168,17 @@ class RoiPipeline:
             resize_policy=self.rig.output.resize_policy,
             padding_mode=self.rig.output.padding,
         )
+
+    def with_policy(self, rig: RigConfig) -> RoiPipeline:
+        """This pipeline (same URDFs, kinematics and intrinsics) under `rig`'s arm policies and sync limits:
+        a runtime parameter change, without reloading the robots. The rig must have the same arms."""
+        other = copy.copy(self)
+        other.rig = rig
+        other._arms = tuple(dataclasses.replace(m, config=a) for m, a in zip(self._arms, rig.arms, strict=True))
+        other._crop_offset_ver = _crop_offset_version(rig)
+        if self.camera is not None:
+            other.lineage = other._lineage(self.camera)
+        return other
 
     def set_intrinsics(self, camera: CameraModel) -> None:
         """The intrinsics for the next frames; the lineage follows the content hash."""

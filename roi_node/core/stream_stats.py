@@ -47,6 +47,7 @@ class StreamStats:
         self.flagged_frames: Counter[str] = Counter()  # per arm
         self.last_error: dict[str, str] = {}
         self.residuals_ms: list[float] = []  # every released frame's, for summaries
+        self.process_ms_total = 0.0  # of every published frame, for the status line's mean
         self.in_frame_sum: dict[str, float] = {}
         self.arm_frames: Counter[str] = Counter()
         self._window = _Window()
@@ -99,6 +100,7 @@ class StreamStats:
             w.latency_ms.append(latency_ms)
             self._recent_latency.append(latency_ms)
         w.process_ms.append(process_ms)
+        self.process_ms_total += process_ms
         for arm in record.arms:
             arm_id = arm.arm_id
             w.arm_frames[arm_id] += 1

@@ -317,8 +317,7 @@ class FrameSynchronizer(Generic[P]):
         self.joints = tuple(joints)
         self.extra_joints = tuple(j for j in extra_joints if j not in self.joints)
         self.policy = policy
-        self.max_skew_ns = int(max_skew_ms * NS_PER_MS)
-        self.max_wait_ns = int(max_wait_ms * NS_PER_MS)
+        self.set_limits(max_skew_ms, max_wait_ms)
         self.max_pending = max_pending
         self._continuous = tuple(continuous_joints)
         self.buffers: dict[int, JointStateBuffer] = {}
@@ -331,6 +330,11 @@ class FrameSynchronizer(Generic[P]):
     @property
     def pending(self) -> int:
         return len(self._pending)
+
+    def set_limits(self, max_skew_ms: float, max_wait_ms: float) -> None:
+        """The skew and wait limits for every frame released from now on."""
+        self.max_skew_ns = int(max_skew_ms * NS_PER_MS)
+        self.max_wait_ns = int(max_wait_ms * NS_PER_MS)
 
     def buffer(self, epoch: int) -> JointStateBuffer:
         buf = self.buffers.get(epoch)

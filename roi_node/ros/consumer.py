@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import json
 import threading
-from collections import OrderedDict, deque
+import time
+from collections import Counter, OrderedDict, deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -59,22 +60,34 @@ class _Partial:
 
 
 class ObservationClient:
-    """Assemble observations from `roi/<arm>/image_raw`, `roi/global/image_raw` and `roi/metadata`."""
+    """Assemble observations from `roi/<arm>/image_raw`, `roi/global/image_raw` and `roi/metadata`.
+
+    `arm_ids` None: the arms the first metadata record lists; `with_global`
+    None: whether the node publishes the global view (a publisher of it on the
+    graph when the first record arrives). Image subscriptions start once both
+    are known. `waiting_for()` names what is missing while nothing completes.
+    """
 
     def __init__(
         self,
         node: Node,
-        arm_ids: Sequence[str],
+        arm_ids: Sequence[str] | None = None,
         *,
-        with_global: bool = True,
+        with_global: bool | None = None,
         max_buffer: int = 4,
         max_partial: int = 8,
         qos: QoSProfile | None = None,
     ) -> None:
-        if not arm_ids:
-            raise ConfigError("ObservationClient: arm_ids is empty; pass the arm ids of the rig (its arms[].id)")
-        self.arm_ids = tuple(arm_ids)
-        self._expected = set(self.arm_ids) | ({GLOBAL} if with_global else set())
+        if arm_ids is not None and not arm_ids:
+            raise ConfigError("ObservationClient: arm_ids is empty; pass the arm ids of the rig (its arms[].id), or None to discover them")
+        self._node = node
+        self._qos = qos or QoSProfile(depth=30, reliability=ReliabilityPolicy.RELIABLE)
+        self.arm_ids: tuple[str, ...] = tuple(arm_ids or ())
+        self.with_global = with_global
+        self.listed_arms: tuple[str, ...] | None = None  # what the first metadata record lists
+        self._expected: set[str] | None = None  # the image keys an observation needs, once subscribed
+        self._received: Counter[str] = Counter()  # messages so far, by key ("metadata", arm ids, GLOBAL)
+        self._start_s = time.monotonic()
         self._partial: OrderedDict[int, _Partial] = OrderedDict()
         self._max_partial = max_partial
         self._ready: deque[Observation] = deque(maxlen=max_buffer)
@@ -82,17 +95,52 @@ class ObservationClient:
         self._cond = threading.Condition()
         self.dropped_unconsumed = 0  # complete observations pushed out of the full buffer
         self.dropped_incomplete = 0  # stamps evicted before every part arrived
-        qos = qos or QoSProfile(depth=30, reliability=ReliabilityPolicy.RELIABLE)
+        if arm_ids is not None and with_global is not None:
+            self._subscribe_images()
+        node.create_subscription(String, topics.METADATA, self._on_metadata, self._qos)
+
+    def _subscribe_images(self) -> None:
         for arm in self.arm_ids:
-            node.create_subscription(Image, topics.roi_image(arm), self._image_callback(arm), qos)
-        if with_global:
-            node.create_subscription(Image, topics.GLOBAL_IMAGE, self._image_callback(GLOBAL), qos)
-        node.create_subscription(String, topics.METADATA, self._on_metadata, qos)
+            self._node.create_subscription(Image, topics.roi_image(arm), self._image_callback(arm), self._qos)
+        if self.with_global:
+            self._node.create_subscription(Image, topics.GLOBAL_IMAGE, self._image_callback(GLOBAL), self._qos)
+        self._expected = set(self.arm_ids) | ({GLOBAL} if self.with_global else set())
+
+    def _discover(self, record: dict[str, Any]) -> None:
+        """The first record: which arms exist, and (unless given) whether a global view is published."""
+        self.listed_arms = tuple(str(arm["arm_id"]) for arm in record.get("arms", []))
+        if self._expected is not None:
+            return
+        if not self.arm_ids:
+            self.arm_ids = self.listed_arms
+        if self.with_global is None:
+            self.with_global = self._node.count_publishers(self._node.resolve_topic_name(topics.GLOBAL_IMAGE)) > 0
+        self._subscribe_images()
+
+    def waiting_for(self) -> str | None:
+        """Why no observation has completed yet, as one line naming the topic; None once one has."""
+        with self._cond:
+            if self._latest is not None:
+                return None
+            after = f"after {time.monotonic() - self._start_s:.0f} s"
+            metadata = self._node.resolve_topic_name(topics.METADATA)
+            if not self._received["metadata"]:
+                if self._node.count_publishers(metadata) == 0:
+                    return f"no metadata on {metadata} {after}, and no publisher of it (another namespace or ROS_DOMAIN_ID?)"
+                return f"no metadata on {metadata} {after} (it has a publisher: is the node receiving images?)"
+            listed = ", ".join(self.listed_arms or ()) or "none"
+            for key in sorted(self._expected or (), key=lambda k: (k == GLOBAL, k)):
+                if not self._received[key]:
+                    topic = self._node.resolve_topic_name(topics.GLOBAL_IMAGE if key == GLOBAL else topics.roi_image(key))
+                    hint = " (without a global view: --no-global / with_global=False)" if key == GLOBAL else ""
+                    return f"no image on {topic} {after}; metadata lists arms {listed}{hint}"
+            return f"images and metadata arrive but no frame has all of them {after} ({self.dropped_incomplete} incomplete)"
 
     def _image_callback(self, key: str) -> Any:
         def callback(msg: Image) -> None:
             pixels = image_from_msg(msg, key).copy()  # own the pixels: the message buffer is reused
             with self._cond:
+                self._received[key] += 1
                 part = self._part(stamp_ns(msg.header))
                 if part is not None:
                     part.images[key] = pixels
@@ -103,6 +151,9 @@ class ObservationClient:
     def _on_metadata(self, msg: String) -> None:
         record = json.loads(msg.data)
         with self._cond:
+            self._received["metadata"] += 1
+            if self.listed_arms is None:
+                self._discover(record)
             part = self._part(int(record["stamp_ns"]))
             if part is not None:
                 part.metadata = record
@@ -121,7 +172,7 @@ class ObservationClient:
 
     def _complete(self, stamp: int) -> None:
         part = self._partial[stamp]
-        if part.metadata is None or set(part.images) != self._expected:
+        if part.metadata is None or self._expected is None or set(part.images) != self._expected:
             return
         del self._partial[stamp]
         for older in [s for s in self._partial if s < stamp]:  # a newer frame is complete: older ones are stale

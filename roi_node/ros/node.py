@@ -1,4 +1,5 @@
-"""RoiNode: the live rclpy driver of the stream engine (core/engine.py).
+"""RoiNode: the live rclpy driver of the stream engine (core/engine.py); StreamNode is its machinery,
+shared with the lifecycle node (ros/lifecycle.py).
 
 Threads: the executor thread only converts messages into engine events (a
 zero-copy view of an Image, a joint state) under one lock, so joint states
@@ -24,9 +25,12 @@ from typing import Any
 
 import cv2
 from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.subscription import Subscription
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState
 from std_msgs.msg import String
 
@@ -43,30 +47,44 @@ from ..core.engine import (
     StreamEngine,
     UrdfEvent,
 )
-from ..core.errors import ConfigError, RoiNodeError
+from ..core.errors import ConfigError, ParameterError, RoiNodeError
 from ..core.image_codec import image_from_compressed, image_from_msg
 from ..core.pipeline import FrameResult
 from ..core.resources import resolve_config_file
 from ..core.stamps import NS_PER_MS, NS_PER_S
+from ..core.status_line import StatusWindow
 from ..core.stream_stats import StreamStats
 from .conversions import camera_from_msg, camera_info_msg, image_msg, stamp_ns
 from .diagnostics import StreamHealth, diagnostics_msg
-from .params import apply_overrides, declare_and_read
+from .params import NodeParams, declare_and_read
+from .runtime_params import RuntimePolicy, declare_policy, refusal, undeclare_policy
 
 NODE_NAME = "roi_node"
 IDLE_WAIT_S = 0.1
 PENDING_POLL_S = 0.002
 
 
-class RoiNode(Node):
-    """Image + JointState in; per-arm ROI images, ROI camera_info, global view, metadata, diagnostics out."""
+class StreamNode(Node):
+    """The per-frame machinery of the live node: Image + JointState in; per-arm ROI images, ROI camera_info,
+    global view, metadata, diagnostics out.
 
-    def __init__(self, *, parameter_overrides: list[Parameter] | None = None) -> None:
-        super().__init__(NODE_NAME, parameter_overrides=parameter_overrides or [])
-        self.params = declare_and_read(self)
+    Shared by RoiNode (streams from construction to shutdown) and
+    RoiLifecycleNode (ros/lifecycle.py: streams between configure and cleanup,
+    publishes only while active); `_start_stream` reads `self.params`.
+    """
+
+    params: NodeParams
+    policy: RuntimePolicy | None = None  # the runtime parameters, while streaming
+    active = True  # False: frames are dropped and counted ("inactive") instead of processed
+    _stream_entities: tuple[Any, ...] = ()  # what `_start_stream` created, for `_stop_stream`
+
+    def _start_stream(self) -> None:
+        """Load the rig, build the engine, create the endpoints and start the worker thread."""
+        before = self._entities()
         # OpenCV's thread pool costs more than it saves on 256 px resizes (bench/live.py shows CPU per frame)
         cv2.setNumThreads(self.params.opencv_threads)
-        self.rig: RigConfig = apply_overrides(load_rig_config(resolve_config_file(self.params.config)), self.params)
+        policy = declare_policy(self, load_rig_config(resolve_config_file(self.params.config)), self.params)
+        self.rig: RigConfig = policy.rig
         self._lock = threading.Condition()
         self._stop = threading.Event()
         self.failure: str | None = None  # set when the node stops because it cannot work
@@ -76,6 +94,7 @@ class RoiNode(Node):
         start_ns = time.monotonic_ns()
         self.stats = StreamStats(tuple(a.id for a in self.rig.arms), start_ns)
         self.health = StreamHealth(start_ns, round(self.params.silence_timeout_s * NS_PER_S))
+        self._status = StatusWindow(self.stats, start_ns)
         urdf_texts = None
         if self.params.robot_description_source == "parameter":
             if not self.params.robot_description:
@@ -95,9 +114,17 @@ class RoiNode(Node):
         except Exception as exc:  # counted and logged; the real frames will show whether processing works
             self.get_logger().error(f"warm-up frame failed: {self.stats.processing_error(exc)}")
         self._create_endpoints()
-        self._worker = threading.Thread(target=self._work, name="roi_node_worker", daemon=True)
+        if self.params.status_period_s > 0:
+            self.create_timer(self.params.status_period_s, self._log_status)
+        # the worker keeps its own stop event: one that outlived its join must not run on a re-configured stream
+        self._worker = threading.Thread(target=self._work, args=(self._stop,), name="roi_node_worker", daemon=True)
         self._worker.start()
+        self._stream_entities = tuple(e for e in self._entities() if e not in before)
+        self.policy = policy  # streaming from here on
         self._log_start()
+
+    def _entities(self) -> list[Any]:
+        return [*self.subscriptions, *self.publishers, *self.timers]
 
     # -- set-up ---------------------------------------------------------------------------------
 
@@ -178,6 +205,11 @@ class RoiNode(Node):
     def _offer_frame(self, msg_header: Any, decode: Callable[[], Any]) -> None:
         arrival_ns = time.monotonic_ns()
         self.health.frame_seen(arrival_ns)
+        if not self.active:
+            with self._lock:
+                self.stats.frame_in()
+                self.stats.drop("inactive")
+            return
         try:
             pixels = decode()
             stamp = stamp_ns(msg_header)
@@ -227,9 +259,9 @@ class RoiNode(Node):
 
     # -- worker thread --------------------------------------------------------------------------
 
-    def _work(self) -> None:
+    def _work(self, stop: threading.Event) -> None:
         try:
-            while not self._stop.is_set():
+            while not stop.is_set():
                 with self._lock:
                     ready = self.engine.pop_ready(time.monotonic_ns(), limit=1)
                     if not ready:
@@ -248,6 +280,10 @@ class RoiNode(Node):
             now_ns = self.get_clock().now().nanoseconds
             latency_ms = (now_ns - prepared.ready.capture_ns) / NS_PER_MS if now_ns > 0 else None
             result = self.engine.process(prepared, latency_ms)
+            if not self.active:  # deactivated while this frame was in hand
+                with self._lock:
+                    self.stats.drop("inactive")
+                return
             self._publish(result, frame_id)
         except Exception as exc:  # any failure on one frame is counted and reported; the next frame is tried
             with self._lock:
@@ -303,10 +339,56 @@ class RoiNode(Node):
         silence = self.health.silence(now_ns, self.resolve_topic_name(self._image_topic), self.params.joint_state_topics)
         self._diagnostics_pub.publish(diagnostics_msg(self.get_clock().now().nanoseconds, snap, lineage, waiting, silence))
 
+    # -- status and runtime parameters (executor thread) ------------------------------------------
+
+    def _log_status(self) -> None:
+        with self._lock:
+            line = self._status.line(self.stats, time.monotonic_ns(), self.engine.pending)
+        self.get_logger().info(f"status: {line}")
+
+    def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        """`ros2 param set` while streaming: the runtime parameters (ros/runtime_params.py) are validated
+        and take effect for the next frame prepared; every other parameter is refused with one line."""
+        policy = self.policy
+        changes = {}
+        for param in parameters:
+            if policy is None or not self.has_parameter(param.name):
+                continue  # being declared, or not streaming (a lifecycle node before configure): read at configure
+            if param.name not in policy.names:
+                return SetParametersResult(successful=False, reason=refusal(param.name, policy))
+            changes[param.name] = param.value
+        if policy is None or not changes:
+            return SetParametersResult(successful=True)
+        try:
+            with self._lock:
+                rig = policy.update(changes)
+                self.engine.set_policy(rig)
+                self.rig = rig
+        except ParameterError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        self.get_logger().info(f"set {', '.join(f'{k} {v!r}' for k, v in changes.items())}; crop_offset_ver {self._crop_offset_ver()}")
+        return SetParametersResult(successful=True)
+
+    def set_parameters_atomically(self, parameter_list: list[Parameter]) -> SetParametersResult:
+        """The parameter services' entry: an undeclared name is refused with a line of ours (rclpy's own
+        reason lists Parameter objects), before rclpy raises for it."""
+        unknown = [p.name for p in parameter_list if not self.has_parameter(p.name)]
+        if unknown:
+            settable = f"; settable now: {', '.join(self.policy.names)}" if self.policy is not None else ""
+            return SetParametersResult(successful=False, reason=f"parameter {unknown[0]}: not a parameter of roi_node{settable}")
+        return super().set_parameters_atomically(parameter_list)
+
+    def _crop_offset_ver(self) -> str:
+        pipeline = self.engine.pipeline
+        lineage = pipeline.lineage if pipeline is not None else None
+        return lineage.crop_offset_ver if lineage is not None else "pending"
+
     # -- shutdown -----------------------------------------------------------------------------------
 
     def close(self) -> None:
         """Stop the worker (it finishes the frame in hand); pending frames are counted as dropped."""
+        if self.policy is None:
+            return  # not streaming
         self._stop.set()
         with self._lock:
             self._lock.notify_all()
@@ -318,3 +400,27 @@ class RoiNode(Node):
             summary = self.stats.summary_line()
         self.get_logger().info(f"stopped: {summary}")
 
+    def _stop_stream(self) -> None:
+        """`close`, then release the engine and everything `_start_stream` created (a lifecycle cleanup)."""
+        self.close()
+        for entity in self._stream_entities:
+            if isinstance(entity, Subscription):
+                self.destroy_subscription(entity)
+            elif isinstance(entity, Publisher):
+                self.destroy_publisher(entity)
+            else:
+                self.destroy_timer(entity)
+        self._stream_entities = ()
+        undeclare_policy(self)
+        self.policy = None
+        del self.engine
+
+
+class RoiNode(StreamNode):
+    """The live node: streams from construction until shutdown (see StreamNode)."""
+
+    def __init__(self, *, parameter_overrides: list[Parameter] | None = None) -> None:
+        super().__init__(NODE_NAME, parameter_overrides=parameter_overrides or [])
+        self.params = declare_and_read(self)
+        self._start_stream()
+        self.add_on_set_parameters_callback(self._on_set_parameters)

@@ -1,7 +1,9 @@
 """The live node's ROS parameters (config/roi_node.params.yaml documents each one).
 
-Declared with defaults and read once at start; a bad value fails the start
-with a ParameterError naming the parameter, never later.
+Declared with defaults and read once at start (or at a lifecycle node's
+configure); a bad value fails the start with a ParameterError naming the
+parameter. The few that may change while the node runs (crop policy, sync
+limits) are ros/runtime_params.py's.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ class NodeParams:
     silence_timeout_s: float  # /diagnostics turns ERROR when the camera or a joint stream is silent this long
     max_failure_s: float  # the node stops (exit non-zero) when every frame failed for this long
     opencv_threads: int
+    status_period_s: float  # a one-line status in the log this often; 0: off
 
     def subscription_qos(self) -> QoSProfile:
         return _qos(self.subscription_reliability, self.subscription_depth)
@@ -94,10 +97,12 @@ DEFAULTS: dict[str, object] = {
     "silence_timeout_s": 2.0,
     "max_failure_s": 5.0,
     "opencv_threads": 1,
+    "status_period_s": 10.0,
 }
 # declared by rclpy itself (and parameter-event and QoS-override namespaces it handles)
 RCLPY_PARAMETERS = ("use_sim_time",)
 RCLPY_PREFIXES = ("qos_overrides.",)
+POLICY_PREFIX = "arms."  # per-arm crop policy, declared once the rig is known (ros/runtime_params.py)
 
 
 def _type_name(value: object) -> str:
@@ -114,7 +119,7 @@ def _type_name(value: object) -> str:
     return type(value).__name__
 
 
-def _typed(name: str, default: object, value: object) -> object:
+def typed(name: str, default: object, value: object) -> object:
     """`value` as the type of `default`; ParameterError naming the parameter and both types otherwise."""
     expected = _type_name(default)
     if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
@@ -128,22 +133,30 @@ def _typed(name: str, default: object, value: object) -> object:
 
 
 def declare_and_read(node: Node) -> NodeParams:
-    """Declare every parameter on `node` and return their validated values.
+    """Declare every parameter on `node` and return their validated values."""
+    declare(node)
+    return read(node)
 
-    Parameters are declared with dynamic typing so that a wrong type reaches
-    this function (rclpy would raise its own exception at declaration) and is
-    refused with one line; an override that names no parameter of the node
-    (`global_veiw:=false`) is refused too instead of being silently ignored.
-    """
+
+def declare(node: Node) -> None:
+    """Declare every parameter with its default, with dynamic typing so that a wrong type reaches `read`
+    (rclpy would raise its own exception at declaration) and is refused with one line."""
     descriptor = ParameterDescriptor(dynamic_typing=True)
-    values = {}
     for name, default in DEFAULTS.items():
-        raw = node.declare_parameter(name, default, descriptor).value
-        values[name] = _typed(name, default, raw)
+        node.declare_parameter(name, default, descriptor)
+
+
+def read(node: Node) -> NodeParams:
+    """The declared parameters' validated values; an override that names no parameter of the node
+    (`global_veiw:=false`) is refused too instead of being silently ignored."""
+    values = {name: typed(name, default, node.get_parameter(name).value) for name, default in DEFAULTS.items()}
     unknown = sorted(
         name
         for name in getattr(node, "_parameter_overrides", {})
-        if name not in DEFAULTS and name not in RCLPY_PARAMETERS and not name.startswith(RCLPY_PREFIXES)
+        if name not in DEFAULTS
+        and name not in RCLPY_PARAMETERS
+        and not name.startswith(RCLPY_PREFIXES)
+        and not name.startswith(POLICY_PREFIX)
     )
     if unknown:
         raise ParameterError(
@@ -181,7 +194,7 @@ def _positive_int(values: dict[str, object], param: str) -> int:
     return value
 
 
-def _optional_ms(values: dict[str, object], param: str) -> float | None:
+def optional_ms(values: dict[str, object], param: str) -> float | None:
     """Negative means "the rig config's value"."""
     value = float(values[param])  # type: ignore[arg-type]
     if value > MAX_TIME_MS:
@@ -193,6 +206,13 @@ def _positive_seconds(values: dict[str, object], param: str) -> float:
     value = float(values[param])  # type: ignore[arg-type]
     if not 0 < value <= 3600:
         raise ParameterError(param, f"expected seconds in (0, 3600], got {value:g}")
+    return value
+
+
+def _period_or_off(values: dict[str, object], param: str) -> float:
+    value = float(values[param])  # type: ignore[arg-type]
+    if not 0 <= value <= 3600:
+        raise ParameterError(param, f"expected 0 (off) or seconds in (0, 3600], got {value:g}")
     return value
 
 
@@ -221,8 +241,8 @@ def _validate(v: dict[str, object]) -> NodeParams:
         publisher_reliability=_choice(v, "qos.publisher_reliability", RELIABILITIES),
         publisher_depth=_positive_int(v, "qos.publisher_depth"),
         sync_policy=policy,
-        max_skew_ms=_optional_ms(v, "sync.max_skew_ms"),
-        max_wait_ms=_optional_ms(v, "sync.max_wait_ms"),
+        max_skew_ms=optional_ms(v, "sync.max_skew_ms"),
+        max_wait_ms=optional_ms(v, "sync.max_wait_ms"),
         max_pending_frames=_positive_int(v, "sync.max_pending_frames"),
         output_encoding=_choice(v, "output_encoding", OUTPUT_ENCODINGS),
         global_view=bool(v["global_view"]),
@@ -230,4 +250,5 @@ def _validate(v: dict[str, object]) -> NodeParams:
         silence_timeout_s=_positive_seconds(v, "silence_timeout_s"),
         max_failure_s=_positive_seconds(v, "max_failure_s"),
         opencv_threads=_positive_int(v, "opencv_threads"),
+        status_period_s=_period_or_off(v, "status_period_s"),
     )

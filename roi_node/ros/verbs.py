@@ -13,10 +13,15 @@ from pathlib import Path
 def _cmd_run(args: argparse.Namespace) -> int:
     from rclpy.parameter import Parameter
 
-    from .node import RoiNode
     from .spin import spin_node
 
     overrides = [Parameter("config", value=str(args.config))] if args.config else []
+    if args.lifecycle:
+        from .lifecycle import RoiLifecycleNode
+
+        return spin_node(lambda: RoiLifecycleNode(parameter_overrides=overrides), args.ros_args)
+    from .node import RoiNode
+
     return spin_node(lambda: RoiNode(parameter_overrides=overrides), args.ros_args)
 
 
@@ -82,6 +87,8 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "--ros-args -p image_transport:=compressed --params-file config/roi_node.params.yaml -r image_raw:=/cam/image_raw",
     )
     run.add_argument("--config", help="rig config YAML (same as the ROS parameter config)")
+    run.add_argument("--lifecycle", action="store_true",
+                     help="a managed (lifecycle) node: starts unconfigured; configure loads the rig, activate publishes")
     run.set_defaults(func=_cmd_run)
 
     rec = verbs.add_parser("record", help="record topics to a rosbag2 MCAP bag (raw subscriptions, QoS recorded)")

@@ -1,0 +1,53 @@
+"""The live node's periodic one-line status: what happened since the previous line.
+
+Read from a StreamStats' totals, so it is independent of the /diagnostics
+window (which `StreamStats.snapshot` resets at its own period).
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+
+from .stamps import NS_PER_S
+from .stream_stats import StreamStats
+
+
+class StatusWindow:
+    """Differences of a StreamStats' totals between two status lines."""
+
+    def __init__(self, stats: StreamStats, now_ns: int) -> None:
+        self._mark(stats, now_ns)
+
+    def _mark(self, stats: StreamStats, now_ns: int) -> None:
+        self._start_ns = now_ns
+        self._frames_in = stats.frames_in
+        self._frames_out = stats.frames_out
+        self._drops = Counter(stats.drops)
+        self._errors = sum(stats.errors.values())
+        self._process_ms = stats.process_ms_total
+        self._residuals = len(stats.residuals_ms)
+
+    def line(self, stats: StreamStats, now_ns: int, pending: int) -> str:
+        """e.g. `frames in 300 (30.0 Hz), out 298 (29.8 Hz); dropped 2 (overflow 2); ...`; starts the next window."""
+        span_s = max(1e-9, (now_ns - self._start_ns) / NS_PER_S)
+        frames_in = stats.frames_in - self._frames_in
+        frames_out = stats.frames_out - self._frames_out
+        drops = Counter(stats.drops)
+        drops.subtract(self._drops)
+        dropped = {reason: n for reason, n in sorted(drops.items()) if n > 0}
+        errors = sum(stats.errors.values()) - self._errors
+        process_ms = (stats.process_ms_total - self._process_ms) / frames_out if frames_out else None
+        residuals = stats.residuals_ms[self._residuals:]
+        parts = [
+            f"frames in {frames_in} ({frames_in / span_s:.1f} Hz), out {frames_out} ({frames_out / span_s:.1f} Hz)",
+            f"dropped {sum(dropped.values())}" + (f" ({', '.join(f'{k} {v}' for k, v in dropped.items())})" if dropped else ""),
+            f"processing errors {errors}",
+            "processing " + ("-" if process_ms is None else f"{process_ms:.1f} ms mean"),
+            "sync residual "
+            + (f"p50 {np.percentile(residuals, 50):.2f} ms, max {max(residuals):.2f} ms" if residuals else "-"),
+            f"pending {pending}",
+        ]
+        self._mark(stats, now_ns)
+        return "; ".join(parts)
