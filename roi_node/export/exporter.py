@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from ..bag.replay import replay_bag
+from ..core.atomic_output import ensure_parent
 from ..core.errors import BagError
 from ..core.sync import NS_PER_MS
 from ..report.gates import GateSet, load_gates
@@ -103,6 +104,7 @@ def export_lerobot(
     if not bags:
         raise BagError("no bags given")
     state = _existing(output, options)
+    ensure_parent(output)
     provenance = _provenance(state, options)
     gates = load_gates(options.gates)
     with _staging(output, state.spec is not None) as work:
@@ -129,8 +131,6 @@ def export_lerobot(
 
 
 def _existing(output: Path, options: ExportOptions) -> DatasetState:
-    if not output.parent.is_dir():
-        raise DatasetError(f"{output}: folder {output.parent} does not exist")
     if not (output.exists() or output.is_symlink()):
         return DatasetState()
     if not options.append:
