@@ -107,6 +107,7 @@ def _row(images: list[np.ndarray | None], labels: list[str], global_width_px: in
     tiles = []
     for i, (image, label) in enumerate(zip(images, labels, strict=True)):
         width_px = global_width_px if i == 0 else TILE_PX
+        tile: np.ndarray
         if image is None:
             tile = np.zeros((TILE_PX, width_px, 3), np.uint8)
         else:
