@@ -54,6 +54,7 @@ class ExportOptions:
     max_age_ms: float = DEFAULT_MAX_AGE_MS
     command_topic: str | None = None
     gates: Path | None = None
+    progress: bool = False  # video frames encoded, rate and ETA on stderr (bag/progress.py)
 
 
 @dataclass(frozen=True)
@@ -158,7 +159,10 @@ def _provenance(state: DatasetState, options: ExportOptions) -> Provenance:
 
 def _writer(work: Path, source: RoiSource, state: DatasetState, options: ExportOptions, codec: Codec) -> DatasetWriter:
     spec = state.spec or source.spec
-    return DatasetWriter(work, fps=options.fps, codec=codec, spec=spec, robot_type=options.robot_type or source.robot_id, state=state)
+    return DatasetWriter(
+        work, fps=options.fps, codec=codec, spec=spec, robot_type=options.robot_type or source.robot_id, state=state,
+        progress=options.progress,
+    )
 
 
 def _episode(

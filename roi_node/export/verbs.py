@@ -37,6 +37,7 @@ def _cmd_lerobot(args: argparse.Namespace) -> int:
         max_age_ms=args.max_age_ms,
         command_topic=args.command_topic,
         gates=Path(args.gates) if args.gates else None,
+        progress=True,
     )
     result = export_lerobot([Path(p) for p in args.bags], Path(args.output), options, on_episode=done)
     print(
