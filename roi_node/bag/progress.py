@@ -47,7 +47,7 @@ class Progress:
         self.total = total
         self.unit = unit
         self.started = time.perf_counter()
-        self._last_draw = self.started
+        self._last_draw = -math.inf if self.on_terminal else self.started  # a terminal shows the first step at once
         self._drawn = False
         self._done = 0
         self._written_done = -1  # `done` of the last line written
