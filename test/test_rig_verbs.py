@@ -148,6 +148,20 @@ def test_check_config_on_a_broken_rig_is_one_line_naming_the_key(tmp_path: Path,
     assert len(lines) == 1 and f"{named}:" in lines[0], result.stderr
 
 
+def test_check_config_on_a_rig_with_a_malformed_urdf_is_one_line(tmp_path: Path) -> None:
+    """The URDF's structure is checked before placo loads it (placo crashes on a link with two parents)."""
+    panda = resolve_robot_reference("example-robot-data:panda", "test").read_text()
+    extra = "<joint name='extra' type='fixed'><parent link='panda_link0'/><child link='panda_hand'/></joint>"
+    twice = panda.replace("</robot>", extra + "</robot>")
+    (tmp_path / "two_parents.urdf").write_text(twice)
+    doc = yaml.safe_load((CONFIG / "rig_panda_single.yaml").read_text())
+    doc["robots"][0]["urdf"] = "two_parents.urdf"
+    result = _cli("check-config", str(write_rig(tmp_path, doc)))
+    assert result.returncode == 2 and result.stdout == ""
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and "link 'panda_hand': is the child of two joints" in lines[0], result.stderr
+
+
 def _urdfs() -> list[str]:
     references = {r["urdf"] for rig in BUNDLED_RIGS for r in yaml.safe_load(rig.read_text())["robots"]}
     return sorted(references | {"example-robot-data:so101", "example-robot-data:ur5"})
