@@ -64,6 +64,7 @@ def urdf_source(reference: str) -> Path:
 
 
 def read_frame_tree(path: Path) -> FrameTree:
+    """The tree, depth-first from the root link; UrdfStructureError/KinematicsError name the element at fault."""
     where = str(path)
     size = path.stat().st_size
     if size > MAX_URDF_BYTES:
