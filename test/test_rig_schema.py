@@ -225,7 +225,8 @@ def test_every_range_is_the_same(judge: Judge) -> None:
 
 
 def test_every_choice_and_type_is_the_same(judge: Judge) -> None:
-    """Enums: each value accepted, another refused with the loader's list equal to the enum; wrong types refused by both."""
+    """Enums: each value accepted, another refused with the loader's list equal to the enum; a constant's other value
+    refused naming it; wrong types refused by both."""
     wrong = {"number": "fast", "integer": "big", "boolean": "yes", "string": 5, "array": "x", "object": "x"}
     enums = typed = 0
     for base in BASES.values():
@@ -246,6 +247,12 @@ def test_every_choice_and_type_is_the_same(judge: Judge) -> None:
                     found = re.search(rf"{key}: expected one of (.*), got 'zz_wrong'", message)
                     assert not ok and found, message
                     assert set(found.group(1).split(", ")) == set(sub["enum"])
+                    enums += 1
+                if isinstance(sub.get("const"), str):  # `schema`, `extrinsics.parent`: that one string only
+                    doc = copy.deepcopy(base)
+                    _get(doc, site.path)[key] = "zz_wrong"
+                    ok, message = judge.agree(doc, f"{_name(path)} = 'zz_wrong'")
+                    assert not ok and f"{key}:" in message and repr(sub["const"]) in message, message
                     enums += 1
                 if sub.get("type") in wrong:
                     doc = copy.deepcopy(base)
