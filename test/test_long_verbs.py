@@ -1,7 +1,7 @@
 """The long verbs as a user runs them from a scratch folder, stderr not a terminal (a pipe, as under CI).
 
 One chain of real processes: sim --bag -> replay -o -> validate --report,
-manifest -o, export lerobot -o.
+manifest -o, inspect --check, export lerobot -o.
 - Every output sits two folders deep in folders that do not exist yet: they
   are created (`mkdir -p`), for each verb alike. (record -o goes through the
   same BagWriter check as replay and sim --bag; stress -o and demo --out
@@ -43,16 +43,19 @@ def test_outputs_into_missing_parent_folders_with_progress_off_a_terminal(tmp_pa
         ("replay", "a/b/sim", "-o", "c/d/roi", "--config", str(CONFIG / "rig_demo_bimanual.yaml")),
         ("validate", "c/d/roi", "--report", "e/f/report"),
         ("manifest", "c/d/roi", "-o", "g/h/manifest.json"),
+        ("inspect", "--check", "c/d/roi"),
         ("export", "lerobot", "c/d/roi", "-o", "i/j/dataset", "--fps", "10", "--task", "wave"),
     ]
-    labels = {"sim": ("sim sim", 5), "replay": ("replay sim", 5), "validate": ("validate roi", 5), "export": ("export roi", 15)}
+    labels = {"sim": ("sim sim", 5), "replay": ("replay sim", 5), "validate": ("validate roi", 5), "export": ("export roi", 15),
+              "inspect": ("check roi.mcap", 0)}  # 0: as many chunks as the writer made
     for args in steps:
         result = _cli(tmp_path, *args)
         assert result.returncode == 0, f"{' '.join(args)}: {result.stderr}"
         if args[0] in labels:
             label, total = labels[args[0]]
             lines = _progress(result.stderr, label)
-            assert {int(m["total"]) for m in lines} == {total}  # frames, records, or 3 videos x 5 frames
+            total = total or int(lines[0]["total"])
+            assert {int(m["total"]) for m in lines} == {total}  # frames, records, 3 videos x 5 frames, chunks
             assert [int(m["done"]) for m in lines] == list(range(1, total + 1))
             assert all(m["eta"] for m in lines[:-1]) and lines[-1]["eta"] is None  # an ETA, then the total time
     assert (tmp_path / "a/b/sim/metadata.yaml").is_file() and (tmp_path / "c/d/roi/metadata.yaml").is_file()

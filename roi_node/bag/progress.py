@@ -1,4 +1,4 @@
-"""Progress of a long verb (replay, sim --bag, play, validate, export) on stderr: done/total, rate, ETA.
+"""Progress of a long verb (replay, sim --bag, play, validate, export, inspect --check) on stderr: done/total, rate, ETA.
 
 On a terminal one line is redrawn in place a few times a second. On a pipe or
 a log file (CI, nohup, a supervisor) a new line is written every

@@ -118,7 +118,7 @@ def _check(path: Path, as_json: bool) -> int:
 
     if not path.exists():
         check_bag_path(path)
-    result = check_bag(path)
+    result = check_bag(path, progress=True)
     if as_json:
         print(json.dumps(result.as_dict(), indent=2))
     else:
