@@ -1,4 +1,4 @@
-"""Progress of a long verb (replay, sim --bag, play, validate, export, inspect --check) on stderr: done/total, rate, ETA.
+"""Progress of a long verb (replay, sim --bag, play, validate, export, inspect --check, recover) on stderr.
 
 On a terminal one line is redrawn in place a few times a second. On a pipe or
 a log file (CI, nohup, a supervisor) a new line is written every
@@ -54,7 +54,7 @@ class Progress:
 
     def update(self, done: int) -> None:
         self._done = done
-        if not self.enabled:
+        if not self.enabled or done == self._written_done:  # nothing moved since the last line
             return
         now = time.perf_counter()
         if now - self._last_draw < self.interval_s and not (self.on_terminal and done >= self.total):

@@ -130,7 +130,7 @@ def _cmd_recover(args: argparse.Namespace) -> int:
     from .recover import recover_bag
 
     summary = recover_bag(Path(args.bag), Path(args.output) if args.output else None, overwrite=args.overwrite,
-                          compression=args.compression)
+                          compression=args.compression, progress=True)
     print("\n".join(summary.lines()))
     return 0
 
