@@ -1,4 +1,4 @@
-"""Progress of a long verb (replay, sim --bag, play, validate, export, inspect --check, recover) on stderr.
+"""Progress of a long verb on stderr: done/total, rate, ETA (replay, sim --bag, play, validate, export, check, recover).
 
 On a terminal one line is redrawn in place a few times a second. On a pipe or
 a log file (CI, nohup, a supervisor) a new line is written every
