@@ -19,7 +19,10 @@ EXIT_ERROR = 2
 DEBUG_FLAG = "--debug"
 
 
-VERB_MODULES = ("roi_node.ros.verbs", "roi_node.bag.verbs", "roi_node.report.verbs", "roi_node.app.verbs", "roi_node.export.verbs")
+VERB_MODULES = (
+    "roi_node.ros.verbs", "roi_node.bag.verbs", "roi_node.report.verbs", "roi_node.app.verbs", "roi_node.export.verbs",
+    "roi_node.app.rig_verbs",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from roi_node.core.atomic_output import OutputExistsError, atomic_output, interrupted_name, keep_interrupted
+from roi_node.core.errors import BagWriteError
 
 
 class BoomError(Exception):
@@ -55,7 +56,11 @@ def test_a_folder_is_swapped_in_whole_and_interrupted_work_is_kept_aside(tmp_pat
     assert _tree(target) == {"new.txt": b"new"}
 
 
-def test_a_missing_parent_is_named(tmp_path: Path) -> None:
-    with pytest.raises(OutputExistsError, match=f"parent folder {tmp_path / 'nope'} does not exist"), \
-            atomic_output(tmp_path / "nope" / "out", overwrite=False):
+def test_missing_parents_are_created_and_a_file_in_the_way_is_named(tmp_path: Path) -> None:
+    with atomic_output(tmp_path / "new" / "deeper" / "out", overwrite=False) as partial:
+        partial.write_text("x")
+    assert (tmp_path / "new" / "deeper" / "out").read_text() == "x"
+    (tmp_path / "file").write_text("not a folder")
+    with pytest.raises(BagWriteError, match=f"cannot create its parent folder {tmp_path / 'file' / 'sub'}"), \
+            atomic_output(tmp_path / "file" / "sub" / "out", overwrite=False):
         pass

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import argparse
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+
+from roi_node.cli import build_parser
 
 
 def _roi_node(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
@@ -30,6 +34,27 @@ def test_unknown_verb_and_help() -> None:
         assert verb_help.returncode == 0 and "usage: roi-node " + verb in verb_help.stdout
     bad = subprocess.run([sys.executable, "-m", "roi_node.cli", "frobnicate"], capture_output=True, text=True)
     assert bad.returncode != 0 and "invalid choice" in bad.stderr
+
+
+def _verbs(parser: argparse.ArgumentParser, prefix: str = "") -> Iterator[tuple[str, argparse.ArgumentParser]]:
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield prefix + name, sub
+                yield from _verbs(sub, prefix + name + " ")
+
+
+def test_every_verb_has_a_description_in_its_help() -> None:
+    """Walks the parser the CLI builds, so a new verb without a description fails here."""
+    verbs = dict(_verbs(build_parser()))
+    assert {"run", "record", "play", "replay", "inspect", "sim", "demo", "export", "export lerobot", "check-config", "frames"} <= set(verbs)
+    for name, parser in verbs.items():
+        description = (parser.description or "").strip()
+        assert len(description.split()) >= 8, f"roi-node {name}: no description"
+        help_text = " ".join(parser.format_help().split())
+        assert " ".join(description.split()[:8]) in help_text, name
+    shown = subprocess.run([sys.executable, "-m", "roi_node.cli", "play", "--help"], capture_output=True, text=True)
+    assert " ".join(verbs["play"].description.split()[:6]) in " ".join(shown.stdout.split())  # type: ignore[union-attr]
 
 
 def test_record_sizes_and_bad_split_options() -> None:

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import av
 import cv2
 import pytest
 import yaml
@@ -35,9 +36,10 @@ def test_demo_runs_the_whole_job_and_live_equals_offline(tmp_path: Path) -> None
     assert (out / "report" / "REPORT.md").read_text().startswith("#")
     sheet = cv2.imread(str(out / "contact_sheet.png"))
     assert sheet is not None and sheet.shape[0] > 256
-    video = cv2.VideoCapture(str(out / "strip.mp4"))
-    ok, frame = video.read()
-    assert ok and frame.shape == (256, 3 * 256, 3)
+    with av.open(str(out / "strip.mp4")) as video:  # H.264; the 1280x720 global view at 16:9 (456 px), then two ROIs
+        stream = video.streams.video[0]
+        frame = next(video.decode(stream)).to_ndarray(format="rgb24")
+        assert stream.codec_context.name == "h264" and frame.shape == (256, 456 + 2 * 256, 3)
 
 
 def test_demo_refuses_a_folder_it_did_not_write(tmp_path: Path) -> None:

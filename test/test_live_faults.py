@@ -9,6 +9,7 @@ wrong type or name, and silent input streams.
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -227,7 +228,7 @@ def test_play_of_a_truncated_bag_and_play_interrupted_say_one_line(tmp_path: Pat
     from roi_node.core.config import load_rig_config
     from roi_node.core.pipeline import RoiPipeline
 
-    from .bagtools import small_rig, write_bag
+    from .bagtools import read_raw, small_rig, write_bag
 
     bag = tmp_path / "bag"
     write_bag(bag, RoiPipeline(load_rig_config(small_rig(tmp_path))), frames=300)
@@ -239,9 +240,11 @@ def test_play_of_a_truncated_bag_and_play_interrupted_say_one_line(tmp_path: Pat
                                text=True, timeout=60)
     assert truncated.returncode == 2 and "Traceback" not in truncated.stderr, truncated.stderr
     assert len(truncated.stderr.strip().splitlines()) == 1 and str(cut) in truncated.stderr
-    with process(["-m", "roi_node.cli", "play", str(bag)], env, tmp_path / "play.log") as player:
+    with process(["-m", "roi_node.cli", "play", str(bag)], {**env, "ROI_NODE_PROGRESS_S": "1"}, tmp_path / "play.log") as player:
         time.sleep(6.0)  # discovery wait, then playing a 10 s bag
         player.send_signal(signal.SIGINT)
         player.wait(timeout=20)
     log = (tmp_path / "play.log").read_text()
     assert player.returncode == 130 and "interrupted" in log and "Traceback" not in log and "RCLError" not in log, log
+    total = sum(1 for _ in read_raw(bag))
+    assert re.search(rf"^play bag: \d+/{total} messages, [\d.]+ messages/s, ETA \d+:\d\d$", log, re.M), log  # progress in a log file

@@ -49,3 +49,30 @@ def test_offset_px_and_offset_m_together_is_an_error(tmp_path: Path) -> None:
         load_rig_config(_rig(tmp_path, offset_m=0.05, offset_px=20))
     with pytest.raises(ConfigError, match=r"arms\[0\]\.offset_m: expected a finite number"):
         load_rig_config(_rig(tmp_path, offset_m="far"))
+
+
+@pytest.mark.parametrize("offset", [{"offset_px": 30}, {"offset_m": 0.04}])
+def test_the_tips_distance_is_never_used_only_its_direction(tmp_path: Path, offset: dict[str, float]) -> None:
+    """0.15 m and 0.45 m tips along the same ee axis give identical crops (README: the centre and the offset).
+
+    offset_px follows the image direction wrist -> tip, which a pinhole maps to
+    the same line for any point on the 3D axis; lens distortion bends that line,
+    so offset_px is compared on the rectified (distortion-free) model. offset_m
+    uses the 3D direction only, so it is identical under distortion too.
+    """
+    results = []
+    for tip_z_m in (0.15, 0.45):
+        doc = base_rig()
+        doc["camera"]["rectified"] = "offset_px" in offset
+        for entry in doc["arms"]:
+            entry.pop("offset_px")
+            entry.update(offset, tip={"offset_m": [0.0, 0.0, tip_z_m]})
+        rig = load_rig_config(write_rig(tmp_path, doc))
+        camera = rig.camera.intrinsics
+        assert camera is not None
+        image = np.zeros((camera.height_px, camera.width_px, 3), np.uint8)
+        arms = RoiPipeline(rig).process(image, 0, 0, ok_sync(bimanual_positions())).record.as_dict()["arms"]
+        assert all(a["projection_valid"] for a in arms)
+        results.append([(a["crop_box"], a["offset_center"], a["scale_px"]) for a in arms])
+        assert all(a["offset_center"] != a["projected_center"] for a in arms)  # the offset moved the centre
+    assert results[0] == results[1]

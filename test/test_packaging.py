@@ -48,7 +48,7 @@ def test_colcon_build_installs_executables_index_marker_and_config(tmp_path: Pat
     assert (install / "share" / "ament_index" / "resource_index" / "packages" / "roi_node").is_file()
     assert (install / "share" / "roi_node" / "package.xml").is_file()
     for name in ("rig_demo_bimanual.yaml", "front_intrinsics.yaml", "metadata.schema.json", "roi_node.params.yaml", "fastdds_shm.xml",
-                 "gates.yaml", "manifest.schema.json"):
+                 "gates.yaml", "manifest.schema.json", "rig.schema.json"):
         assert (install / "share" / "roi_node" / "config" / name).is_file()
     # the installed executable runs from the install space and finds its config through the ament prefix
     site = next(install.glob("lib/python3*/site-packages"))

@@ -26,7 +26,7 @@ from mcap_ros2.reader import read_ros2_messages
 
 from roi_node.bag.inspection import inspect_bag
 from roi_node.bag.messages import MessageFactory
-from roi_node.bag.progress import Progress
+from roi_node.bag.progress import INTERVAL_ENV, Progress
 from roi_node.bag.replay import replay_bag
 from roi_node.bag.summary import ReplaySummary
 from roi_node.bag.writer import STATUS_KEY, BagWriter, typestore
@@ -287,19 +287,25 @@ def test_ctrl_c_leaves_a_finalized_readable_bag_holding_what_was_done(tmp_path: 
     assert [r["frame_index"] for r in _records(out)] == list(range(done))
 
 
-def test_progress_line_is_drawn_on_terminals_only() -> None:
+def test_progress_is_redrawn_on_terminals_and_a_line_every_few_seconds_elsewhere(monkeypatch: pytest.MonkeyPatch) -> None:
     class Terminal(io.StringIO):
         def isatty(self) -> bool:
             return True
 
-    terminal, pipe = Terminal(), io.StringIO()
-    for stream in (terminal, pipe):
+    def run(stream: io.StringIO) -> str:
         progress = Progress("bag", 4, True, stream)
         for done in range(1, 5):
             progress.update(done)
         progress.finish()
-    assert re.fullmatch(r"\rbag: 1/4 frames, [\d.]+ frames/s \rbag: 4/4 frames, [\d.]+ frames/s \n", terminal.getvalue())
-    assert pipe.getvalue() == ""
+        return stream.getvalue()
+
+    rate = r"[\d.]+ frames/s"
+    assert re.fullmatch(rf"\rbag: 1/4 frames, {rate}, ETA \d+:\d\d \rbag: 4/4 frames, {rate}, done in 0:00 \n", run(Terminal()))
+    assert run(io.StringIO()) == ""  # off a terminal: nothing before the first 5 s
+    monkeypatch.setenv(INTERVAL_ENV, "0")
+    lines = run(io.StringIO()).splitlines()
+    assert [line.split(",")[0] for line in lines] == [f"bag: {n}/4 frames" for n in range(1, 5)]
+    assert all(re.search(r", ETA \d+:\d\d$", line) for line in lines[:3]) and lines[3].endswith("done in 0:00")
 
 
 # --- bad input: one clear line naming the path/topic/field, exit 2, nothing left behind ---------------

@@ -65,8 +65,10 @@ def _cli(*args: str) -> list[str]:
 
 
 def _start(args: list[str], env: dict[str, str], log: Path) -> subprocess.Popen[bytes]:
+    """A child in the logs folder: `python -m` puts the working folder first on sys.path, so a `roi_node/` checkout
+    in the user's folder would shadow the installed package (the logs folder holds only logs; paths are absolute)."""
     with log.open("wb") as out:
-        return subprocess.Popen(args, env=env, stdout=out, stderr=subprocess.STDOUT)
+        return subprocess.Popen(args, env=env, stdout=out, stderr=subprocess.STDOUT, cwd=log.parent)
 
 
 def _stop(proc: subprocess.Popen[bytes], name: str, log: Path) -> None:
@@ -82,7 +84,7 @@ def _stop(proc: subprocess.Popen[bytes], name: str, log: Path) -> None:
 
 
 def _run_step(args: list[str], env: dict[str, str], log: Path, name: str) -> str:
-    result = subprocess.run(args, env=env, capture_output=True, text=True)
+    result = subprocess.run(args, env=env, capture_output=True, text=True, cwd=log.parent)  # see _start
     log.write_text(result.stdout + result.stderr)
     if result.returncode not in (0, 1):  # validate exits 1 when a gate fails: reported, not fatal here
         raise RoiNodeError(f"demo: {name} failed with exit {result.returncode}; see {log}")
@@ -95,6 +97,7 @@ RECORDING_JOINT_DEPTH = 2000
 
 
 def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed: int) -> int:
+    out, config = out.absolute(), config.absolute()  # the children run in out/logs
     rig = load_rig_config(config)  # a bad config fails here, before anything starts
     arms = [a.id for a in rig.arms]
     _prepare_out(out)

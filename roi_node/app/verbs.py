@@ -29,6 +29,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
         summary = write_sim_bag(
             config, Path(args.bag), duration_s=args.duration, rate_hz=args.rate_hz, joint_rate_hz=args.joint_rate_hz,
             seed=args.seed, overwrite=args.overwrite, compressed=args.compressed or False, chunk_compression=args.compression,
+            progress=True,
         )
         print(f"roi-node sim: wrote {summary.path}: {summary.frames} frames on {summary.image_topic}, {summary.joint_states} joint states")
         return 0
@@ -66,7 +67,13 @@ def _cmd_stress(args: argparse.Namespace) -> int:
 
 
 def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    sim = verbs.add_parser("sim", help="a simulated rig: rendered camera + joint states, live on DDS or into a bag")
+    sim = verbs.add_parser(
+        "sim",
+        help="a simulated rig: rendered camera + joint states, live on DDS or into a bag",
+        description="Simulate the rig of a rig config: its robots follow a seeded trajectory, a camera with the rig's "
+        "calibration renders them, and images, camera info and joint states are published live on DDS (the default) or "
+        "written into a rosbag2 MCAP bag with --bag, whose parent folders are created.",
+    )
     sim.add_argument("target", nargs="?", choices=["live"], help="publish live (the default without --bag)")
     sim.add_argument("--config", help="rig config (default: the bundled demo_bimanual rig)")
     sim.add_argument("--bag", help="write a rosbag2 MCAP bag here instead of publishing")
@@ -81,7 +88,13 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     sim.add_argument("--min-subscribers", type=int, default=1, help="live: wait for this many subscribers first (default: 1)")
     sim.set_defaults(func=_cmd_sim)
 
-    demo = verbs.add_parser("demo", help="the whole job on the default rig: sim -> live node -> recorder; then validate, replay, compare")
+    demo = verbs.add_parser(
+        "demo",
+        help="the whole job on the default rig: sim -> live node -> recorder; then validate, replay, compare",
+        description="Start a simulated rig, the live node and the recorder as separate processes on loopback DDS, record "
+        "the session, then validate the bag against the quality gates, replay its inputs offline and compare the offline "
+        "ROIs with the live ones, write a contact sheet and a video strip, and print a summary. Everything goes to --out.",
+    )
     demo.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
     demo.add_argument("--config", help="rig config (default: the bundled demo_bimanual rig)")
     demo.add_argument("--duration", type=float, default=20.0, help="seconds of simulated time (default: 20)")

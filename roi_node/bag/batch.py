@@ -19,6 +19,7 @@ from typing import Any
 
 import cv2
 
+from ..core.atomic_output import ensure_parent
 from ..core.errors import BagError, RoiNodeError
 from .memory import tune_malloc_for_large_frames
 from .reader import BAG_FILE_SUFFIXES
@@ -105,8 +106,7 @@ def replay_bags(
     targets = output_paths(inputs, out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise BagError(f"{out_dir}: exists and is not a folder; with several inputs the output is a folder")
-    if not out_dir.parent.is_dir():
-        raise BagError(f"{out_dir}: parent folder {out_dir.parent} does not exist")
+    ensure_parent(out_dir)
     out_dir.mkdir(exist_ok=True)
     jobs = [(Path(src), dst, Path(config_path)) for src, dst in zip(inputs, targets, strict=True)]
     if workers == 1 or len(jobs) == 1:

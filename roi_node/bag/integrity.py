@@ -26,6 +26,7 @@ from mcap.records import Chunk, ChunkIndex, Message, MessageIndex
 from mcap.stream_reader import breakup_chunk
 
 from ..core.errors import BagError
+from .progress import Progress
 from .writer import RECORDING, STATUS_KEY
 
 _CHUNK_ERRORS: tuple[type[BaseException], ...] = (McapError, ValueError, struct.error, EOFError, OSError, RuntimeError, IndexError)
@@ -137,7 +138,8 @@ def _indexed_counts(stream: Any, index: ChunkIndex) -> Counter[int]:
     return out
 
 
-def check_file(path: Path) -> FileCheck:
+def check_file(path: Path, progress: bool = False) -> FileCheck:
+    """CRCs, message indexes and counts of one MCAP file; `progress`: chunks checked, rate and ETA on stderr."""
     result = FileCheck(path)
     try:
         stream = path.open("rb")
@@ -155,7 +157,10 @@ def check_file(path: Path) -> FileCheck:
             result.problems.append(f"{path}: the file has no summary (no index to check)")
             return result
         topics = {cid: channel.topic for cid, channel in summary.channels.items()}
-        for index in summary.chunk_indexes:
+        shown = Progress(f"check {path.name}", len(summary.chunk_indexes), progress, unit="chunks")
+        for checked, index in enumerate(summary.chunk_indexes):
+            if checked:
+                shown.update(checked)
             affected = tuple(sorted({topics.get(cid, f"channel {cid}") for cid in index.message_index_offsets}))
             try:
                 records = breakup_chunk(_read_chunk(stream, index), validate_crc=True)
@@ -174,6 +179,8 @@ def check_file(path: Path) -> FileCheck:
             if indexed != in_chunk:
                 result.problems.append(f"{path}: chunk at byte {index.chunk_start_offset}: its message index lists "
                                        f"{sum(indexed.values())} messages, the chunk holds {sum(in_chunk.values())}")
+        shown.update(len(summary.chunk_indexes))
+        shown.finish()
         if summary.statistics is not None and not result.damage:
             expected = Counter({topics.get(c, str(c)): n for c, n in summary.statistics.channel_message_counts.items() if n})
             if expected != +result.counts:
@@ -181,14 +188,14 @@ def check_file(path: Path) -> FileCheck:
     return result
 
 
-def check_bag(path: Path) -> BagCheck:
+def check_bag(path: Path, progress: bool = False) -> BagCheck:
     """Check every storage file of a bag; counts are compared with metadata.yaml when there is one."""
     paths = storage_files(path)
     if not paths:
         raise BagError(f"{path}: no storage files to check")
     if other := [p.name for p in paths if p.suffix != ".mcap"]:
         raise BagError(f"{path}: only MCAP storage can be checked; {', '.join(other)} is not MCAP")
-    files = tuple(check_file(p) for p in paths)
+    files = tuple(check_file(p, progress) for p in paths)
     problems: list[str] = []
     info = _metadata(path) if path.is_dir() else {}
     if info:

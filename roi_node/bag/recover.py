@@ -14,10 +14,11 @@ only read.
 
 from __future__ import annotations
 
+import math
 import re
 import struct
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -33,6 +34,7 @@ from rosbags.rosbag2.metadata import parse_qos
 from ..core.errors import BagError
 from .integrity import storage_files
 from .mcap_file import Compression, TopicSpec
+from .progress import Progress
 from .writer import BagWriter, qos_profile
 
 RECOVERED = "recovered"
@@ -177,12 +179,18 @@ class _Copier:
             return [qos_profile(reliable=True)]
 
 
-def _copy_file(writer: BagWriter, path: Path) -> FileRecovery:
+MIB = 1 << 20
+
+
+def _copy_file(writer: BagWriter, path: Path, progress: bool) -> FileRecovery:
     copier = _Copier(writer, path)
     size = path.stat().st_size
     skipped: list[int] = []
+    shown = Progress(f"recover {path.name}", max(1, math.ceil(size / MIB)), progress, unit="MiB")
     with path.open("rb") as stream:
-        finished, stopped, reason = _copy_records(stream, copier, skipped)
+        finished, stopped, reason = _copy_records(stream, copier, skipped, lambda read_bytes: shown.update(read_bytes // MIB))
+        shown.update(shown.total)
+        shown.finish()
         span = None if stopped is None else _chunk_span(stream, stopped)
     return FileRecovery(path, size, dict(copier.counts), copier.start_ns, copier.end_ns, finished, stopped, reason, span,
                         tuple(skipped))
@@ -198,12 +206,15 @@ def _chunk_span(stream: BinaryIO, offset: int) -> tuple[int, int] | None:
     return (start, end) if start <= end else None
 
 
-def _copy_records(stream: BinaryIO, copier: _Copier, skipped: list[int]) -> tuple[bool, int | None, str | None]:
+def _copy_records(
+    stream: BinaryIO, copier: _Copier, skipped: list[int], on_read: Callable[[int], None]
+) -> tuple[bool, int | None, str | None]:
     """(finished, byte where reading stopped, why) for one file.
 
     A whole chunk that fails its CRC or decompression is skipped (its offset
     goes to `skipped`): its record length was intact, so the next record is
     where it should be. A torn or unparseable record stops the file.
+    `on_read` gets the bytes read so far after each whole record (progress).
     """
     reader = StreamReader(stream, emit_chunks=True)
     records = reader.records
@@ -236,6 +247,7 @@ def _copy_records(stream: BinaryIO, copier: _Copier, skipped: list[int]) -> tupl
         except McapError as exc:  # a message whose channel or schema never appeared before it
             return False, boundary, str(exc)
         boundary = stream.tell()
+        on_read(boundary)
 
 
 def _size(stream: BinaryIO) -> int:
@@ -246,8 +258,10 @@ def _size(stream: BinaryIO) -> int:
 
 
 def recover_bag(source: Path, output: Path | None = None, *, overwrite: bool = False,
-                compression: Compression | str = Compression.NONE) -> RecoverySummary:
-    """Copy everything readable of `source` into a new finalized bag at `output` (default `<name>_recovered`)."""
+                compression: Compression | str = Compression.NONE, progress: bool = False) -> RecoverySummary:
+    """Copy everything readable of `source` into a new finalized bag at `output` (default `<name>_recovered`).
+
+    `progress`: MiB read per storage file, rate and ETA on stderr."""
     source = Path(source)
     inputs = recovery_inputs(source)
     target = Path(output) if output is not None else default_output(source)
@@ -258,7 +272,7 @@ def recover_bag(source: Path, output: Path | None = None, *, overwrite: bool = F
         for i, path in enumerate(inputs):
             if i:
                 writer.split()
-            results.append(_copy_file(writer, path))
+            results.append(_copy_file(writer, path, progress))
         if not any(r.counts for r in results):
             raise BagError(f"{source}: no whole message could be read; nothing to recover")
         writer.close(RECOVERED)

@@ -140,7 +140,7 @@ class _Replay:
             self._feed(JointStateEvent(sample.stamp_ns, sample.names, sample.positions, sample.where))
         for sample in streams.commands:
             self._feed(CommandEvent(sample.stamp_ns, sample.names, sample.positions, sample.where))
-        self.progress = Progress(source.name, selection.frame_count, progress)
+        self.progress = Progress(f"replay {source.name}", selection.frame_count, progress)
         self.frame_where = f"{source}: {selection.image_topic}"
         self._stream_checked = False
         self._size_checked = False

@@ -118,7 +118,7 @@ def _check(path: Path, as_json: bool) -> int:
 
     if not path.exists():
         check_bag_path(path)
-    result = check_bag(path)
+    result = check_bag(path, progress=True)
     if as_json:
         print(json.dumps(result.as_dict(), indent=2))
     else:
@@ -130,7 +130,7 @@ def _cmd_recover(args: argparse.Namespace) -> int:
     from .recover import recover_bag
 
     summary = recover_bag(Path(args.bag), Path(args.output) if args.output else None, overwrite=args.overwrite,
-                          compression=args.compression)
+                          compression=args.compression, progress=True)
     print("\n".join(summary.lines()))
     return 0
 
@@ -165,7 +165,13 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     replay.set_defaults(func=_cmd_replay)
 
-    inspect = verbs.add_parser("inspect", help="topics, counts and duration of a bag; rig, arms and lineage of an ROI bag")
+    inspect = verbs.add_parser(
+        "inspect",
+        help="topics, counts and duration of a bag; rig, arms and lineage of an ROI bag",
+        description="Print a bag's topics with types and message counts, its duration and storage; for an ROI bag also the "
+        "rig, the arms and the lineage tuples of its records. --check reads the whole bag and verifies every chunk's CRC and "
+        "counts against the index and metadata.yaml (exit 1 on damage).",
+    )
     inspect.add_argument("bag", metavar="BAG", help="bag folder or .mcap/.db3 file")
     inspect.add_argument("--json", action="store_true", help="machine-readable output")
     inspect.add_argument("--check", action="store_true",

@@ -1,7 +1,9 @@
 """Atomic outputs: write into a temporary sibling, rename it into place only on success.
 
 Every writer of a file or folder output (replay, sim --bag, manifest,
-validate --report, recover) goes through `atomic_output`, so a failed or
+validate --report, recover) goes through `atomic_output`, and every output's
+missing parent folders are created (`ensure_parent`, like `mkdir -p`: they stay
+when the run fails), so a failed or
 interrupted run never leaves a partial output under the real name, and with
 `overwrite` the old output stays untouched until the new one is complete:
 a file is replaced by one `os.replace`; a folder is renamed aside, the new
@@ -30,11 +32,21 @@ class OutputExistsError(BagWriteError):
 
 
 def check_target(target: Path, overwrite: bool) -> None:
-    """Refuse an existing output unless `overwrite`; its parent folder must exist."""
+    """Refuse an existing output unless `overwrite`; create its missing parent folders."""
     if (target.exists() or target.is_symlink()) and not overwrite:
         raise OutputExistsError(f"{target}: output exists; choose another path or pass --overwrite")
-    if not target.parent.is_dir():
-        raise OutputExistsError(f"{target}: parent folder {target.parent} does not exist")
+    ensure_parent(target)
+
+
+def ensure_parent(target: Path) -> None:
+    """Create the missing parent folders of an output, as every verb does for its output (`mkdir -p`)."""
+    parent = target.parent
+    if parent.is_dir():
+        return
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BagWriteError(f"{target}: cannot create its parent folder {parent} ({exc.strerror or exc})") from exc
 
 
 def temporary_sibling(target: Path) -> Path:

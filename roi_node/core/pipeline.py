@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .area_resample import warm_up as warm_up_resampling
+from .arm_joints import arm_joints
 from .camera import CameraModel
 from .config import ArmConfig, RigConfig
 from .errors import ImageError
@@ -131,22 +132,15 @@ class RoiPipeline:
         warm_up_resampling()  # compiled (or loaded from the disk cache) now, not on the first frame
 
     def _arm_model(self, arm: ArmConfig, kin: RobotKinematics) -> _ArmModel:
-        where = f"{self.rig.path}: arms[{arm.id}]"
-        kin.check_frame(arm.ee_frame, f"{where}.ee_frame")
-        chain_frames = [arm.ee_frame]
+        joints = arm_joints(kin, arm, f"{self.rig.path}: arms[{arm.id}]")
         ee_T_tip = None
-        if arm.tip.frame is not None:
-            kin.check_frame(arm.tip.frame, f"{where}.tip.frame")
-            chain_frames.append(arm.tip.frame)
-        else:
+        if arm.tip.frame is None:
             assert arm.tip.offset_m is not None
             ee_T_tip = Transform(np.eye(3), np.asarray(arm.tip.offset_m, dtype=np.float64))
-        chain = unique_in_order(j for f in chain_frames for j in kin.chain_joints(f))
         robot = self.rig.robot(arm.robot)
         cam_T_base = self.cam_T_world @ robot.world_T_base
-        wrist_chain = kin.chain_joints(arm.ee_frame)
-        gripper = tuple(robot.joint_prefix + j for j in kin.joints_below(wrist_chain[-1]) if j not in chain) if wrist_chain else ()
-        return _ArmModel(arm, kin, robot.world_T_base, cam_T_base, robot.joint_prefix, chain, gripper, arm.tip.frame, ee_T_tip)
+        gripper = tuple(robot.joint_prefix + j for j in joints.gripper)
+        return _ArmModel(arm, kin, robot.world_T_base, cam_T_base, robot.joint_prefix, joints.chain, gripper, arm.tip.frame, ee_T_tip)
 
     def _fk_version(self) -> str:
         shas = {r.id: self._kinematics[r.id].urdf_sha256 for r in self.rig.robots}

@@ -21,6 +21,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from ..bag.progress import Progress
 from .actions import Actions
 from .errors import DatasetError
 from .features import SOURCE_STAMP_KEY, EpisodeSpec
@@ -132,8 +133,11 @@ class _VideoSeries:
 class DatasetWriter:
     """Append episodes to a dataset folder (a temporary one: the caller moves it into place)."""
 
-    def __init__(self, root: Path, *, fps: int, codec: Codec, spec: EpisodeSpec, robot_type: str | None, state: DatasetState) -> None:
+    def __init__(
+        self, root: Path, *, fps: int, codec: Codec, spec: EpisodeSpec, robot_type: str | None, state: DatasetState, progress: bool = False
+    ) -> None:
         self.root = root
+        self.progress = progress
         self.fps = fps
         self.codec = codec
         self.spec = spec
@@ -218,11 +222,16 @@ class DatasetWriter:
         feeders = {key: _GridFeeder(grid_stamps) for key in writers}
         samples: dict[str, list[np.ndarray]] = {key: [] for key in writers}
         wanted = {key: {int(s) for s in grid_stamps} for key in writers}
+        progress = Progress(f"export {source.path.name}", count * len(writers), self.progress, unit="video frames")
+        encoded = 0
         for key, stamp, pixels in frames(source.path, source.video_topics, wanted):
             for position, image in feeders[key].offer(stamp, pixels):
                 writers[key].write(image)
+                encoded += 1
+                progress.update(encoded)
                 if position in sampled:
                     samples[key].append(image)
+        progress.finish()
         rows: dict[str, Any] = {}
         for key, feeder in feeders.items():
             if not feeder.done:

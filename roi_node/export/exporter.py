@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from ..bag.replay import replay_bag
+from ..core.atomic_output import ensure_parent
 from ..core.errors import BagError
 from ..core.sync import NS_PER_MS
 from ..report.gates import GateSet, load_gates
@@ -53,6 +54,7 @@ class ExportOptions:
     max_age_ms: float = DEFAULT_MAX_AGE_MS
     command_topic: str | None = None
     gates: Path | None = None
+    progress: bool = False  # video frames encoded, rate and ETA on stderr (bag/progress.py)
 
 
 @dataclass(frozen=True)
@@ -103,6 +105,7 @@ def export_lerobot(
     if not bags:
         raise BagError("no bags given")
     state = _existing(output, options)
+    ensure_parent(output)
     provenance = _provenance(state, options)
     gates = load_gates(options.gates)
     with _staging(output, state.spec is not None) as work:
@@ -129,8 +132,6 @@ def export_lerobot(
 
 
 def _existing(output: Path, options: ExportOptions) -> DatasetState:
-    if not output.parent.is_dir():
-        raise DatasetError(f"{output}: folder {output.parent} does not exist")
     if not (output.exists() or output.is_symlink()):
         return DatasetState()
     if not options.append:
@@ -158,7 +159,10 @@ def _provenance(state: DatasetState, options: ExportOptions) -> Provenance:
 
 def _writer(work: Path, source: RoiSource, state: DatasetState, options: ExportOptions, codec: Codec) -> DatasetWriter:
     spec = state.spec or source.spec
-    return DatasetWriter(work, fps=options.fps, codec=codec, spec=spec, robot_type=options.robot_type or source.robot_id, state=state)
+    return DatasetWriter(
+        work, fps=options.fps, codec=codec, spec=spec, robot_type=options.robot_type or source.robot_id, state=state,
+        progress=options.progress,
+    )
 
 
 def _episode(

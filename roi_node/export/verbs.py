@@ -37,6 +37,7 @@ def _cmd_lerobot(args: argparse.Namespace) -> int:
         max_age_ms=args.max_age_ms,
         command_topic=args.command_topic,
         gates=Path(args.gates) if args.gates else None,
+        progress=True,
     )
     result = export_lerobot([Path(p) for p in args.bags], Path(args.output), options, on_episode=done)
     print(
@@ -50,7 +51,10 @@ def _cmd_lerobot(args: argparse.Namespace) -> int:
 def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from .limits import DEFAULT_MAX_AGE_MS
 
-    export = verbs.add_parser("export", help="export ROI bags to training datasets (LeRobot v3.0)")
+    export = verbs.add_parser(
+        "export", help="export ROI bags to training datasets (LeRobot v3.0)",
+        description="Export ROI bags to a training dataset format; `roi-node export lerobot --help` for the one there is.",
+    )
     formats = export.add_subparsers(dest="format", required=True, metavar="<format>")
     lerobot = formats.add_parser(
         "lerobot",

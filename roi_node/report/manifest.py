@@ -25,7 +25,7 @@ from jsonschema.exceptions import best_match
 from .. import __version__
 from ..bag.reader import check_bag_path
 from ..bag.writer import ROSBAG2_VERSION
-from ..core.atomic_output import atomic_output
+from ..core.atomic_output import atomic_output, ensure_parent
 from ..core.config import load_rig_config
 from ..core.errors import BagError, ConfigError
 from ..core.metadata import METADATA_SCHEMA
@@ -218,8 +218,7 @@ def build_manifest(
     gate_set = load_gates(gates) if validate or gates is not None else None
     loaded = (load_validation(validation), validation) if validation is not None else None
     rig = (rig_config, rig_config_entry(rig_config)) if rig_config is not None else None
-    if not output.parent.is_dir():
-        raise BagError(f"{output}: folder {output.parent} does not exist")
+    ensure_parent(output)
     entries = [
         bag_entry(bag, name, output.parent, gates=gate_set, validation=loaded, rig=rig)
         for bag, name in zip(bags, unique_names(bags), strict=True)

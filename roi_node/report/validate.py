@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from ..bag.progress import Progress
 from ..core.atomic_output import atomic_output
 from ..core.config import RigConfig
 from ..core.errors import BagError
@@ -24,15 +25,18 @@ from .samples import SampleChooser
 from .stats import BagStats
 
 
-def scan_bag(path: Path, params: GateParams, *, with_samples: bool = False) -> BagScan:
-    """Read every metadata record of an ROI bag once (BagError on unusable input)."""
+def scan_bag(path: Path, params: GateParams, *, with_samples: bool = False, progress: bool = False) -> BagScan:
+    """Read every metadata record of an ROI bag once (BagError on unusable input); `progress` on stderr."""
     with RoiBag(path) as bag:
         stats = BagStats(stamp_gap_factor=params.stamp_gap_factor)
         chooser = SampleChooser(bag.metadata_count) if with_samples else None
-        for message in bag.records():
+        shown = Progress(f"validate {path.name}", bag.metadata_count, progress, unit="records")
+        for count, message in enumerate(bag.records(), 1):
             stats.add(message.record, message.position)
             if chooser is not None:
                 chooser.offer(message)
+            shown.update(count)
+        shown.finish()
         return BagScan.of(path, bag, stats, chooser.samples() if chooser is not None else [])
 
 
@@ -94,7 +98,13 @@ def unique_names(paths: list[Path]) -> list[str]:
 
 
 def validate_bags(
-    paths: list[Path], gates: GateSet, *, baseline: Path | None = None, report_dir: Path | None = None, rig: RigConfig | None = None
+    paths: list[Path],
+    gates: GateSet,
+    *,
+    baseline: Path | None = None,
+    report_dir: Path | None = None,
+    rig: RigConfig | None = None,
+    progress: bool = False,
 ) -> ValidationRun:
     """Validate every bag (in order); with `report_dir`, also draw figures and write REPORT.md + validation.json.
 
@@ -102,10 +112,10 @@ def validate_bags(
     The report folder is built in a temporary sibling and replaces `report_dir` only when complete.
     """
     if report_dir is None:
-        return _validate(paths, gates, baseline, None, rig)
+        return _validate(paths, gates, baseline, None, rig, progress)
     check_report_target(report_dir)
     with atomic_output(report_dir, overwrite=True) as partial:
-        return _validate(paths, gates, baseline, partial, rig)
+        return _validate(paths, gates, baseline, partial, rig, progress)
 
 
 def check_report_target(report_dir: Path) -> None:
@@ -117,14 +127,14 @@ def check_report_target(report_dir: Path) -> None:
 
 
 def _validate(
-    paths: list[Path], gates: GateSet, baseline: Path | None, report_dir: Path | None, rig: RigConfig | None
+    paths: list[Path], gates: GateSet, baseline: Path | None, report_dir: Path | None, rig: RigConfig | None, progress: bool
 ) -> ValidationRun:
     if report_dir is not None:
         prepare_report_dir(report_dir)
     base = scan_bag(baseline, gates.params) if baseline is not None else None
     run = ValidationRun(gates, baseline, [])
     for path, name in zip(paths, unique_names(paths), strict=True):
-        scan = scan_bag(path, gates.params, with_samples=report_dir is not None)
+        scan = scan_bag(path, gates.params, with_samples=report_dir is not None, progress=progress)
         calibration = None
         if rig is not None and carries_inputs(scan.topics):
             calibration = check_calibration(path, rig, Tolerances.from_gates(gates))

@@ -23,7 +23,8 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     report_dir = Path(args.report) if args.report else None
     rig = _rig(args.config) if args.config else None
     run = validate_bags(
-        [Path(p) for p in args.bags], gates, baseline=Path(args.baseline) if args.baseline else None, report_dir=report_dir, rig=rig
+        [Path(p) for p in args.bags], gates, baseline=Path(args.baseline) if args.baseline else None, report_dir=report_dir, rig=rig,
+        progress=True,
     )
     out = sys.stderr if args.json else sys.stdout  # with --json, stdout is the JSON document only
     for bag in run.bags:

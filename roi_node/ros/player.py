@@ -21,6 +21,7 @@ from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
+from ..bag.progress import Progress
 from ..bag.reader import open_bag, read_messages
 from ..core.errors import BagError
 from .conversions import time_msg
@@ -60,11 +61,15 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
         clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)) if clock else None
         _wait_for_subscribers(list(publishers.values()))
         sent = 0
+        total = sum(int(c.msgcount) for c in connections)
+        passes = 0
         while True:
+            passes += 1
             start_wall = time.monotonic_ns()
             first: int | None = None
             last_clock = -CLOCK_PERIOD_NS
-            for connection, log_ns, raw in read_messages(reader, connections, bag):
+            progress = Progress(f"play {bag.name}" + (f" (pass {passes})" if loop else ""), total, True, unit="messages")
+            for count, (connection, log_ns, raw) in enumerate(read_messages(reader, connections, bag), 1):
                 if not rclpy.ok(context=node.context):  # SIGINT/SIGTERM: rclpy shut the context down
                     raise KeyboardInterrupt
                 first = log_ns if first is None else first
@@ -81,6 +86,8 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
                         raise
                     raise KeyboardInterrupt from None  # the signal arrived while publishing
                 sent += 1
+                progress.update(count)
+            progress.finish()
             if not loop or not rclpy.ok(context=node.context):
                 break
         time.sleep(0.5)  # reliable subscribers fetch the tail

@@ -91,7 +91,14 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
                      help="a managed (lifecycle) node: starts unconfigured; configure loads the rig, activate publishes")
     run.set_defaults(func=_cmd_run)
 
-    rec = verbs.add_parser("record", help="record topics to a rosbag2 MCAP bag (raw subscriptions, QoS recorded)")
+    rec = verbs.add_parser(
+        "record",
+        help="record topics to a rosbag2 MCAP bag (raw subscriptions, QoS recorded)",
+        description="Record live topics into a rosbag2 MCAP bag with raw subscriptions: message types and offered QoS are "
+        "taken from the graph, a writer thread writes chunks with CRCs, and per topic the messages written and dropped are "
+        "reported. Stops on SIGINT/SIGTERM or after --duration-s and finalizes the bag; --max-duration/--max-size split it "
+        "into numbered files. A bag left unfinished by a crash is finished by `roi-node recover`.",
+    )
     rec.add_argument("-o", "--out", required=True, help="output bag directory (must not exist unless --overwrite)")
     group = rec.add_mutually_exclusive_group(required=True)
     group.add_argument("--topics", nargs="+", help="topics to record (e.g. image_raw joint_states roi/metadata)")
@@ -110,7 +117,12 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     rec.add_argument("--jpeg-quality", type=_quality, default=90, metavar="N", help="JPEG quality 1..100 (default: 90)")
     rec.set_defaults(func=_cmd_record)
 
-    play = verbs.add_parser("play", help="publish a bag's messages live at their recorded timing")
+    play = verbs.add_parser(
+        "play",
+        help="publish a bag's messages live at their recorded timing",
+        description="Publish a bag's messages (MCAP or sqlite3) on their recorded topics at their recorded timing, scaled "
+        "by --rate, e.g. to drive a live node from a recording; optionally in a loop and with /clock for use_sim_time.",
+    )
     play.add_argument("bag", help="rosbag2 bag directory or .mcap file")
     play.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default: 1)")
     play.add_argument("--loop", action="store_true", help="start over at the end")

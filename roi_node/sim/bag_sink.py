@@ -14,6 +14,7 @@ from pathlib import Path
 
 from ..bag.mcap_file import Compression
 from ..bag.messages import MessageFactory
+from ..bag.progress import Progress
 from ..bag.writer import BagWriter
 from ..core import topics
 from ..core.config import RigConfig
@@ -51,19 +52,21 @@ def write_sim_bag(
     start_ns: int = 0,
     chunk_compression: Compression | str = Compression.NONE,
     look: Look | None = None,
+    progress: bool = False,
 ) -> SimBagSummary:
     """Simulate `duration_s` seconds of the rig into an MCAP bag at `out_path` (a bag directory).
 
     `compressed`: False for raw rgb8 images; True or "png" for lossless PNG,
     "jpeg" for JPEG (quality 90) on `/image_raw/compressed`. `chunk_compression`:
     none, lz4 or zstd chunks. The bag appears only once finalized (atomic).
+    `progress`: frames rendered, rate and ETA on stderr (bag/progress.py).
     """
     fmt = _compression(compressed)
     bag = BagWriter(Path(out_path), overwrite=overwrite, compression=chunk_compression)  # refuses an existing output before the slow setup
     sim = SimRig(
         rig_config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms, start_ns=start_ns, look=look
     )
-    return _drain(sim, bag, duration_s, fmt)
+    return _drain(sim, bag, duration_s, fmt, Progress(f"sim {bag.path.name}", sim.frame_count(duration_s), progress))
 
 
 def write_events(
@@ -74,7 +77,7 @@ def write_events(
     return _drain(sim, BagWriter(Path(out_path), overwrite=overwrite), duration_s, fmt)
 
 
-def _drain(sim: SimRig, bag: BagWriter, duration_s: float, fmt: str | None) -> SimBagSummary:
+def _drain(sim: SimRig, bag: BagWriter, duration_s: float, fmt: str | None, progress: Progress | None = None) -> SimBagSummary:
     """Every event into the bag; log time = header stamp."""
     image_topic = topics.absolute(topics.COMPRESSED_IMAGE if fmt else topics.IMAGE)
     info_topic = topics.absolute(topics.CAMERA_INFO)
@@ -101,9 +104,13 @@ def _drain(sim: SimRig, bag: BagWriter, duration_s: float, fmt: str | None) -> S
                     msg = factory.image(event.stamp_ns, event.frame_id, event.image)
                 bag.write(image_topic, event.stamp_ns, msg)
                 frames += 1
+                if progress is not None:
+                    progress.update(frames)
             first = event.stamp_ns if first is None else first
             last = event.stamp_ns
         counts = dict(bag.counts)
+    if progress is not None:
+        progress.finish()
     assert first is not None and last is not None  # a positive duration always yields joint states
     return SimBagSummary(bag.path, counts, frames, joint_states, first, last, image_topic)
 
