@@ -22,12 +22,13 @@ from typing import Any
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CompressedImage, Image
 from std_msgs.msg import String
 
 from ..core import topics
+from ..core.compressed_outputs import OutputTransport, compressed_topic
 from ..core.errors import ConfigError
-from ..core.image_codec import image_from_msg
+from ..core.image_codec import image_from_compressed, image_from_msg
 from .conversions import stamp_ns
 
 GLOBAL = "global"
@@ -59,7 +60,7 @@ class _Partial:
 
 
 class ObservationClient:
-    """Assemble observations from `roi/<arm>/image_raw`, `roi/global/image_raw` and `roi/metadata`."""
+    """Assemble observations from `roi/<arm>/image_raw`, `roi/global/image_raw` (or their `/compressed`) and `roi/metadata`."""
 
     def __init__(
         self,
@@ -70,9 +71,14 @@ class ObservationClient:
         max_buffer: int = 4,
         max_partial: int = 8,
         qos: QoSProfile | None = None,
+        transport: str = OutputTransport.RAW,
     ) -> None:
+        """`transport` "compressed" reads the `.../image_raw/compressed` JPEG outputs (node: output_transport)."""
         if not arm_ids:
             raise ConfigError("ObservationClient: arm_ids is empty; pass the arm ids of the rig (its arms[].id)")
+        if transport not in (OutputTransport.RAW, OutputTransport.COMPRESSED):
+            raise ConfigError(f"ObservationClient: transport {transport!r} is not one of raw, compressed")
+        compressed = transport == OutputTransport.COMPRESSED
         self.arm_ids = tuple(arm_ids)
         self._expected = set(self.arm_ids) | ({GLOBAL} if with_global else set())
         self._partial: OrderedDict[int, _Partial] = OrderedDict()
@@ -83,15 +89,18 @@ class ObservationClient:
         self.dropped_unconsumed = 0  # complete observations pushed out of the full buffer
         self.dropped_incomplete = 0  # stamps evicted before every part arrived
         qos = qos or QoSProfile(depth=30, reliability=ReliabilityPolicy.RELIABLE)
-        for arm in self.arm_ids:
-            node.create_subscription(Image, topics.roi_image(arm), self._image_callback(arm), qos)
-        if with_global:
-            node.create_subscription(Image, topics.GLOBAL_IMAGE, self._image_callback(GLOBAL), qos)
+        sources = {arm: topics.roi_image(arm) for arm in self.arm_ids} | ({GLOBAL: topics.GLOBAL_IMAGE} if with_global else {})
+        for key, topic in sources.items():
+            if compressed:
+                node.create_subscription(CompressedImage, compressed_topic(topic), self._image_callback(key, compressed), qos)
+            else:
+                node.create_subscription(Image, topic, self._image_callback(key, compressed), qos)
         node.create_subscription(String, topics.METADATA, self._on_metadata, qos)
 
-    def _image_callback(self, key: str) -> Any:
-        def callback(msg: Image) -> None:
-            pixels = image_from_msg(msg, key).copy()  # own the pixels: the message buffer is reused
+    def _image_callback(self, key: str, compressed: bool) -> Any:
+        def callback(msg: Any) -> None:
+            # own the pixels: the message buffer is reused (a decoded JPEG is a new array already)
+            pixels = image_from_compressed(msg.format, msg.data, key) if compressed else image_from_msg(msg, key).copy()
             with self._cond:
                 part = self._part(stamp_ns(msg.header))
                 if part is not None:
