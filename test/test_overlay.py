@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +11,7 @@ from rclpy.serialization import deserialize_message
 from visualization_msgs.msg import ImageMarker
 
 from roi_node.bag.writer import typestore
+from roi_node.core import topics
 from roi_node.core.config import load_rig_config
 from roi_node.core.overlay import STATUS_RGBA, OverlayStatus
 from roi_node.core.overlay_cdr import overlay_cdr
@@ -17,6 +19,7 @@ from roi_node.core.pipeline import RoiPipeline
 from roi_node.core.records import FrameRecord
 from roi_node.core.sync import SyncResult
 
+from .conftest import CONFIG
 from .roibags import Q1_IN, Q1_OUT, pose, small_rig
 
 STAMP_NS = 1_700_000_123_456_789_012  # past 2^53: must survive as sec + nanosec
@@ -110,3 +113,23 @@ def test_a_frame_without_any_projection_gives_an_empty_marker(tmp_path: Path) ->
     marker = deserialize_message(overlay_cdr(record, FRAME_ID), ImageMarker)
     assert list(marker.points) == [] and list(marker.outline_colors) == []
     assert marker.header.frame_id == FRAME_ID
+
+
+def _panel_ids(node: object) -> list[str]:
+    if isinstance(node, str):
+        return [node]
+    assert isinstance(node, dict)
+    return _panel_ids(node["first"]) + _panel_ids(node["second"])
+
+
+def test_the_sample_foxglove_layout_shows_topics_the_node_publishes_for_the_bundled_rig() -> None:
+    layout = json.loads((CONFIG / "foxglove_layout.json").read_text())
+    assert sorted(_panel_ids(layout["layout"])) == sorted(layout["configById"])
+    rig = load_rig_config(CONFIG / "rig_demo_bimanual.yaml")
+    published = {topics.absolute(t) for t in topics.output_topics([a.id for a in rig.arms], True, overlay=True)}
+    camera = layout["configById"]["Image!camera"]["imageMode"]
+    assert camera["imageTopic"] == topics.absolute(topics.IMAGE) and camera["synchronize"] is True
+    assert set(camera["annotations"]) == {topics.absolute(topics.OVERLAY)} <= published
+    shown = {c["imageMode"]["imageTopic"] for k, c in layout["configById"].items() if k.startswith("Image!") and k != "Image!camera"}
+    assert shown == {"/roi/left/image_raw", "/roi/right/image_raw", "/roi/global/image_raw"} and shown <= published
+    assert layout["configById"]["RawMessages!metadata"]["topicPath"].split(".")[0] in published
