@@ -135,8 +135,8 @@ class RoiNode(Node):
             CompressedPublishers(self, [a.id for a in self.rig.arms], global_view, pub_qos, p.jpeg_quality, p.output_encoding)
             if p.output_transport.compressed else None
         )
-        self._metadata_pub = self.create_publisher(String, topics.METADATA, pub_qos)
         self._overlay_pub = self.create_publisher(ImageMarker, topics.OVERLAY, pub_qos) if p.overlay else None
+        self._metadata_pub = self.create_publisher(String, topics.METADATA, pub_qos)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
 
