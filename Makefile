@@ -63,6 +63,8 @@ bench: $(STAMP)
 	$(PY) bench/export.py
 	$(PY) bench/calibration.py
 	$(PY) bench/offset.py
+	$(PY) bench/jpeg.py
+	$(PY) bench/overlay.py
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-73} $(PY) bench/live.py
 
 lint: $(STAMP)

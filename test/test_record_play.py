@@ -27,7 +27,7 @@ pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makef
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 INPUTS = ["/image_raw", "/joint_states"]
 OUTPUTS = ["/roi/left/image_raw", "/roi/right/image_raw", "/roi/global/image_raw", "/roi/left/camera_info", "/roi/right/camera_info",
-           "/roi/metadata"]
+           "/roi/metadata", "/roi/overlay"]
 LIVE_ONLY = ("latency_ms",)
 
 
@@ -109,7 +109,7 @@ def test_recorded_live_session_equals_offline_replay_and_both_readers_agree(tmp_
 
     # offline replay of the recorded inputs reproduces the live outputs (DESIGN.md "Determinism")
     offline_bag = tmp_path / "offline"
-    replay_bag(bag, offline_bag, BIMANUAL, image_topic="/image_raw", joint_topics=["/joint_states"])
+    replay_bag(bag, offline_bag, BIMANUAL, image_topic="/image_raw", joint_topics=["/joint_states"], overlay=True)
     offline = read_rosbags(offline_bag)
     live_records = [comparable(m.data) for _, m in live["/roi/metadata"]]
     offline_records = [comparable(m.data) for _, m in offline["/roi/metadata"]]
@@ -124,6 +124,13 @@ def test_recorded_live_session_equals_offline_replay_and_both_readers_agree(tmp_
         a, b = by_stamp(live[topic]), by_stamp(offline[topic])
         assert all(np.array_equal(a[s].k, b[s].k) and np.array_equal(a[s].p, b[s].p) for s in a)
     assert sorted(by_stamp(live["/roi/left/image_raw"])) == sorted(f["stamp_ns"] for f in truth["frames"])
+    # the overlay too: live and offline draw the same boxes, stamped and framed like the source image
+    a, b = by_stamp(live["/roi/overlay"]), by_stamp(offline["/roi/overlay"])
+    assert a.keys() == b.keys() == by_stamp(live["/roi/left/image_raw"]).keys()
+    for stamp in a:
+        assert a[stamp].header.frame_id == b[stamp].header.frame_id == by_stamp(live["/image_raw"])[stamp].header.frame_id
+        assert [(p.x, p.y) for p in a[stamp].points] == [(p.x, p.y) for p in b[stamp].points] != []
+        assert [(c.r, c.g, c.b, c.a) for c in a[stamp].outline_colors] == [(c.r, c.g, c.b, c.a) for c in b[stamp].outline_colors]
 
 
 def test_live_equals_offline_when_the_calibration_changes_and_the_stamps_loop(tmp_path: Path) -> None:

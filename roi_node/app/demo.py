@@ -104,7 +104,8 @@ def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed
     env = _env()
     os.environ.update({k: env[k] for k in (*CHILD_ENV, "ROS_DOMAIN_ID", "FASTRTPS_DEFAULT_PROFILES_FILE")})
     logs, session = out / "logs", out / "session"
-    record_topics = [topics.IMAGE, topics.CAMERA_INFO, topics.JOINT_STATES, *topics.output_topics(arms, rig.output.global_enabled)]
+    outputs = topics.output_topics(arms, rig.output.global_enabled, overlay=True)  # the node's default outputs
+    record_topics = [topics.IMAGE, topics.CAMERA_INFO, topics.JOINT_STATES, *outputs]
     print(f"roi-node demo: rig {rig.rig_id} ({config}), arms {', '.join(arms)}; {duration_s:g} s at {rate_hz:g} Hz; "
           f"ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']} (loopback only) -> {out}/", flush=True)
     started = time.monotonic()
@@ -151,7 +152,7 @@ def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed
     validation = json.loads(validation_out)
     print("replaying the recorded inputs offline through the same pipeline ...", flush=True)
     _run_step(_cli("replay", str(session), "-o", str(out / "offline"), "--config", str(config), "--image-topic", "/image_raw",
-                   "--joint-topics", "/joint_states"), env, logs / "replay.log", "replay")
+                   "--joint-topics", "/joint_states", "--overlay"), env, logs / "replay.log", "replay")
     comparison = compare_live_offline(session, out / "offline")
     strip = write_strip(session, arms, out / "strip.mp4")
     sheet = out / "report" / "contact_sheet.png"

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -26,9 +27,18 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
 
 from ..core import topics
+from ..core.compressed_outputs import (
+    DEFAULT_JPEG_QUALITY,
+    JPEG_QUALITY_RANGE,
+    OutputTransport,
+    compressed_format,
+    compressed_topic,
+    encode_jpeg,
+)
 from ..core.config import RigConfig, load_rig_config
 from ..core.engine import CameraInfoEvent, CommandEvent, Event, FrameEvent, JointStateEvent, StreamEngine
 from ..core.errors import BagError, BagWriteError, CalibrationError, ConfigError, ImageError, UsageError
+from ..core.overlay_cdr import overlay_cdr
 from ..core.pipeline import FrameResult
 from .inputs import InputSelection, check_frame_stream, decode_frame, select_inputs
 from .interrupt import DeferredInterrupt
@@ -79,17 +89,23 @@ def replay_bag(
     command_topic: str | None = None,
     intrinsics_from_bag: bool = False,
     compression: Compression | str = Compression.NONE,
+    output_transport: OutputTransport | str = OutputTransport.RAW,
+    jpeg_quality: int = DEFAULT_JPEG_QUALITY,
+    overlay: bool = False,
 ) -> ReplaySummary:
     """Replay one rosbag2 bag (folder, .mcap or .db3) through the rig's pipeline into an MCAP bag.
 
     The bag's CameraInfo supplies the intrinsics when the rig has none, when
-    `intrinsics_from_bag` is set or when `camera_info_topic` is given.
+    `intrinsics_from_bag` is set or when `camera_info_topic` is given. The
+    image outputs are raw, `/compressed` (JPEG at `jpeg_quality`) or both, as
+    the node's `output_transport`; `overlay` adds the node's `roi/overlay`.
     Raises BagError / ConfigError / ImageError naming what is wrong (no output
     is left behind), or ReplayInterrupted after finalizing a partial output.
     """
     source, target = Path(input_path), Path(output_path)
     check_bag_path(source)
     check_output_path(source, target, overwrite)
+    outputs = _output_options(output_transport, jpeg_quality, overlay)
     rig = load_rig_config(config_path)
     from_bag = rig.camera.intrinsics is None or intrinsics_from_bag or camera_info_topic is not None
     started = time.perf_counter()
@@ -108,7 +124,7 @@ def replay_bag(
         streams = read_streams(reader, selection, source, rig.camera.rectified)
         replay = _Replay(rig, source, selection, streams, from_bag, progress)
         return replay.run(reader, target, overwrite=overwrite, include_inputs=include_inputs, started=started,
-                          compression=Compression(compression))
+                          compression=Compression(compression), outputs=outputs)
 
 
 class _Replay:
@@ -173,7 +189,7 @@ class _Replay:
                 )
 
     def run(self, reader: AnyReader, target: Path, *, overwrite: bool, include_inputs: bool, started: float,
-            compression: Compression = Compression.NONE) -> ReplaySummary:
+            compression: Compression, outputs: OutputOptions) -> ReplaySummary:
         wanted = {self.selection.image_topic, *(self.selection.stream_topics if include_inputs else ())}
         connections = [c for c in reader.connections if c.topic in wanted]
         with DeferredInterrupt() as interrupt:
@@ -181,15 +197,15 @@ class _Replay:
                 # atomic: the output appears only finalized; interrupted, it is kept as <out>.interrupted
                 writer = BagWriter(target, overwrite=overwrite, compression=compression)
                 with writer:
-                    outputs = _OutputTopics(writer, self.rig, self.engine.pipeline.arm_ids() if self.engine.pipeline else ())
+                    out = _OutputTopics(writer, self.rig, self.engine.pipeline.arm_ids() if self.engine.pipeline else (), outputs)
                     if include_inputs:
-                        _add_input_topics(writer, connections, outputs.names, self.source)
+                        _add_input_topics(writer, connections, out.names, self.source)
                     for connection, log_ns, raw in read_messages(reader, connections, self.source):
                         interrupt.check()
                         if include_inputs:
                             writer.write_cdr(connection.topic, log_ns, raw)
                         if connection.topic == self.selection.image_topic:
-                            self._frame(reader, raw, outputs)
+                            self._frame(reader, raw, out)
                     self.engine.finish()  # frames still held behind an unconfirmed stamp jump are refused
                     if self.stats.frames_out == 0:
                         first = self.bad.examples[0] if self.bad.examples else "no frame was released"
@@ -274,20 +290,40 @@ class _Replay:
         )
 
 
+@dataclass(frozen=True)
+class OutputOptions:
+    transport: OutputTransport
+    jpeg_quality: int
+    overlay: bool
+
+
+def _output_options(transport: OutputTransport | str, jpeg_quality: int, overlay: bool) -> OutputOptions:
+    if transport not in tuple(OutputTransport):
+        raise UsageError(f"output transport {transport!r} is not one of {', '.join(OutputTransport)}")
+    low, high = JPEG_QUALITY_RANGE
+    if not low <= jpeg_quality <= high:
+        raise UsageError(f"JPEG quality must be in {low}..{high}, got {jpeg_quality}")
+    return OutputOptions(OutputTransport(transport), jpeg_quality, overlay)
+
+
 class _OutputTopics:
     """The live node's output topics in one bag; every message logged at the source frame's stamp."""
 
-    def __init__(self, writer: BagWriter, rig: RigConfig, arm_ids: Sequence[str]) -> None:
+    def __init__(self, writer: BagWriter, rig: RigConfig, arm_ids: Sequence[str], options: OutputOptions) -> None:
         self.writer = writer
         self.factory = MessageFactory(writer.typestore)
         self.size = rig.output.size_px
+        self.options = options
         self.arm_topics = {
             arm: (topics.absolute(topics.roi_image(arm)), topics.absolute(topics.roi_camera_info(arm))) for arm in arm_ids
         }
         self.global_topic = topics.absolute(topics.GLOBAL_IMAGE)
         self.metadata_topic = topics.absolute(topics.METADATA)
+        self.overlay_topic = topics.absolute(topics.OVERLAY)
         self.names: set[str] = set()
-        for name, msgtype in topics.output_topics(list(self.arm_topics), rig.output.global_enabled).items():
+        outputs = topics.output_topics(list(self.arm_topics), rig.output.global_enabled, transport=options.transport,
+                                       overlay=options.overlay)
+        for name, msgtype in outputs.items():
             writer.add_topic(topics.absolute(name), msgtype)
             self.names.add(topics.absolute(name))
 
@@ -297,11 +333,22 @@ class _OutputTopics:
         out_w, out_h = self.size
         for roi in result.rois:
             image_topic, info_topic = self.arm_topics[roi.arm_id]
-            writer.write(image_topic, stamp, factory.image(stamp, frame_id, roi.image))
+            self._image(image_topic, stamp, frame_id, roi.image)
             writer.write(info_topic, stamp, factory.camera_info(stamp, frame_id, roi.camera, out_w, out_h))
         if result.global_view is not None:
-            writer.write(self.global_topic, stamp, factory.image(stamp, frame_id, result.global_view))
+            self._image(self.global_topic, stamp, frame_id, result.global_view)
         writer.write(self.metadata_topic, stamp, factory.string(result.record_json))
+        if self.options.overlay:
+            writer.write_cdr(self.overlay_topic, stamp, overlay_cdr(result.record, frame_id))
+
+    def _image(self, topic: str, stamp: int, frame_id: str, pixels: Any) -> None:
+        transport = self.options.transport
+        if transport.raw:
+            self.writer.write(topic, stamp, self.factory.image(stamp, frame_id, pixels))
+        if transport.compressed:
+            data = encode_jpeg(pixels, self.options.jpeg_quality)
+            message = self.factory.compressed(stamp, frame_id, compressed_format(pixels, "rgb8"), data)
+            self.writer.write(compressed_topic(topic), stamp, message)
 
 
 def _add_input_topics(writer: BagWriter, connections: list[Connection], output_names: set[str], source: Path) -> None:

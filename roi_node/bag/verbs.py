@@ -32,6 +32,9 @@ def _replay_options(args: argparse.Namespace) -> dict[str, Any]:
         "command_topic": args.command_topic,
         "intrinsics_from_bag": args.intrinsics_from_bag,
         "compression": args.compression,
+        "output_transport": args.output_transport,
+        "jpeg_quality": args.jpeg_quality,
+        "overlay": args.overlay,
     }
 
 
@@ -155,6 +158,11 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     replay.add_argument("--overwrite", action="store_true", help="replace existing outputs (only once the new one is complete)")
     compression_option(replay)
     replay.add_argument("--include-inputs", action="store_true", help="also copy the input topics used into the output bag")
+    replay.add_argument("--output-transport", choices=("raw", "compressed", "both"), default="raw",
+                        help="image outputs as raw Image, .../compressed JPEG, or both, like the node (default: raw)")
+    replay.add_argument("--jpeg-quality", type=int, default=90, metavar="Q",
+                        help="JPEG quality 1..100 of the compressed outputs (default: 90)")
+    replay.add_argument("--overlay", action="store_true", help="also write the node's roi/overlay ImageMarker per frame")
     replay.add_argument("--workers", type=_positive_int, default=1, metavar="N", help="bags replayed in parallel processes (default: 1)")
     replay.add_argument("--image-topic", metavar="T", help="camera topic (default: the one Image/CompressedImage topic)")
     replay.add_argument("--joint-topics", nargs="+", metavar="T", help="JointState topics (default: all, merged by joint name)")

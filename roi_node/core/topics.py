@@ -6,6 +6,8 @@ namespaces work); bags store them fully qualified in the root namespace.
 
 from __future__ import annotations
 
+from .compressed_outputs import OutputTransport, compressed_topic
+
 IMAGE = "image_raw"
 COMPRESSED_IMAGE = "image_raw/compressed"
 CAMERA_INFO = "camera_info"
@@ -15,6 +17,7 @@ OUTPUT_NAMESPACE = "roi/"  # every output of the node is under it (relative: the
 BAG_OUTPUT_PREFIX = "/" + OUTPUT_NAMESPACE  # ... and how a bag names them
 METADATA = OUTPUT_NAMESPACE + "metadata"
 GLOBAL_IMAGE = OUTPUT_NAMESPACE + "global/image_raw"
+OVERLAY = OUTPUT_NAMESPACE + "overlay"  # the crop boxes and centres to draw on image_raw
 DIAGNOSTICS = "/diagnostics"
 
 IMAGE_TYPE = "sensor_msgs/msg/Image"
@@ -22,6 +25,7 @@ COMPRESSED_IMAGE_TYPE = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 STRING_TYPE = "std_msgs/msg/String"
+IMAGE_MARKER_TYPE = "visualization_msgs/msg/ImageMarker"
 
 
 def roi_image(arm_id: str) -> str:
@@ -37,13 +41,28 @@ def absolute(name: str) -> str:
     return name if name.startswith("/") else "/" + name
 
 
-def output_topics(arm_ids: tuple[str, ...] | list[str], global_view: bool) -> dict[str, str]:
+def output_topics(
+    arm_ids: tuple[str, ...] | list[str],
+    global_view: bool,
+    *,
+    transport: OutputTransport = OutputTransport.RAW,
+    overlay: bool = False,
+) -> dict[str, str]:
     """Every output topic (relative name -> message type) of a node for these arms."""
     topics: dict[str, str] = {}
+
+    def image(name: str) -> None:
+        if transport.raw:
+            topics[name] = IMAGE_TYPE
+        if transport.compressed:
+            topics[compressed_topic(name)] = COMPRESSED_IMAGE_TYPE
+
     for arm in arm_ids:
-        topics[roi_image(arm)] = IMAGE_TYPE
+        image(roi_image(arm))
         topics[roi_camera_info(arm)] = CAMERA_INFO_TYPE
     if global_view:
-        topics[GLOBAL_IMAGE] = IMAGE_TYPE
+        image(GLOBAL_IMAGE)
     topics[METADATA] = STRING_TYPE
+    if overlay:
+        topics[OVERLAY] = IMAGE_MARKER_TYPE
     return topics

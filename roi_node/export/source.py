@@ -20,13 +20,13 @@ from typing import Any
 
 import numpy as np
 
+from ..bag.inputs import decode_frame
 from ..bag.reader import DESERIALIZE_ERRORS, open_bag, read_messages, stamp_ns, topic_stats
 from ..core import topics
 from ..core.errors import BagError, ImageError
-from ..core.image_codec import image_from_msg
 from ..report.gates import GateParams
 from ..report.results import BagScan
-from ..report.roibag import GLOBAL_TOPIC, METADATA_TOPIC, RoiBag, roi_image_topic
+from ..report.roibag import GLOBAL_TOPIC, METADATA_TOPIC, RoiBag, image_topic_in, roi_image_topic
 from ..report.stats import BagStats
 from .features import GLOBAL_KEY, EpisodeSpec, FrameColumns, ImageSize, check_arm_ids, roi_image_key
 from .video import as_rgb
@@ -99,15 +99,17 @@ def read_source(path: Path, params: GateParams) -> RoiSource:
 
 
 def _video_topics(bag: RoiBag, arms: tuple[str, ...]) -> dict[str, str]:
-    wanted = {GLOBAL_KEY: GLOBAL_TOPIC} if GLOBAL_TOPIC in bag.topics else {}
+    """Video key -> the topic holding its images: the raw output, else its `/compressed` (replay/node output_transport)."""
+    wanted: dict[str, str] = {}
+    global_topic = image_topic_in(bag.topics, GLOBAL_TOPIC)
+    if global_topic is not None:
+        wanted[GLOBAL_KEY] = global_topic
     for arm in arms:
-        topic = roi_image_topic(arm)
-        if topic not in bag.topics or bag.topics[topic].count == 0:
-            raise BagError(f"{bag.path}: no images on {topic} for arm {arm}: the bag has the metadata but not the ROI crops")
+        topic = image_topic_in(bag.topics, roi_image_topic(arm))
+        if topic is None or bag.topics[topic].count == 0:
+            expected = f"{roi_image_topic(arm)} ({topics.IMAGE_TYPE}) or its /compressed ({topics.COMPRESSED_IMAGE_TYPE})"
+            raise BagError(f"{bag.path}: no images on {expected} for arm {arm}: the bag has the metadata but not the ROI crops")
         wanted[roi_image_key(arm)] = topic
-    for key, topic in wanted.items():
-        if bag.topics[topic].msgtype != topics.IMAGE_TYPE:
-            raise BagError(f"{bag.path}: {topic} has type {bag.topics[topic].msgtype}, expected {topics.IMAGE_TYPE} (for {key})")
     return wanted
 
 
@@ -121,9 +123,20 @@ def _image_stamps(bag: RoiBag, video_topics: dict[str, str]) -> tuple[dict[str, 
         key = key_of[connection.topic]
         if key not in sizes:
             msg = _deserialize(bag, connection.msgtype, raw, connection.topic)
-            sizes[key] = ImageSize(int(msg.height), int(msg.width))
+            if connection.msgtype == topics.IMAGE_TYPE:
+                sizes[key] = ImageSize(int(msg.height), int(msg.width))
+            else:  # a CompressedImage says its size only once decoded
+                pixels = _decoded(msg, connection.msgtype, f"{bag.path}: {connection.topic}")
+                sizes[key] = ImageSize(int(pixels.shape[0]), int(pixels.shape[1]))
         stamps[key].add(header_stamp_ns(raw))
     return sizes, stamps
+
+
+def _decoded(msg: Any, msgtype: str, where: str) -> np.ndarray:
+    try:
+        return decode_frame(msg, msgtype, where)
+    except ImageError as exc:
+        raise BagError(str(exc)) from exc
 
 
 def _usable(columns: FrameColumns, stamps: dict[str, set[int]]) -> tuple[int, ...]:
@@ -158,9 +171,7 @@ def frames(path: Path, video_topics: dict[str, str], wanted: dict[str, set[int]]
             wanted[key].discard(stamp)  # a repeated message of the frame is skipped, as in pass 1
             try:
                 msg: Any = reader.deserialize(raw, connection.msgtype)
-                pixels = image_from_msg(msg, f"{path}: {connection.topic} (stamp {stamp_ns(msg.header)})")
             except DESERIALIZE_ERRORS as exc:
                 raise BagError(f"{path}: {connection.topic}: the image at stamp {stamp} cannot be deserialized ({exc})") from exc
-            except ImageError as exc:
-                raise BagError(str(exc)) from exc
+            pixels = _decoded(msg, connection.msgtype, f"{path}: {connection.topic} (stamp {stamp_ns(msg.header)})")
             yield key, stamp, as_rgb(pixels)

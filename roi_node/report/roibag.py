@@ -18,10 +18,11 @@ from typing import Any
 import numpy as np
 from rosbags.highlevel import AnyReader
 
+from ..bag.inputs import IMAGE_TYPES, decode_frame
 from ..bag.reader import DESERIALIZE_ERRORS, TopicStats, bag_information, open_bag, read_messages, stamp_ns, topic_stats
 from ..core import topics
+from ..core.compressed_outputs import compressed_topic
 from ..core.errors import BagError, ImageError
-from ..core.image_codec import image_from_msg
 from ..core.metadata import METADATA_SCHEMA, metadata_schema
 from .schema_check import RecordChecker
 
@@ -34,6 +35,14 @@ IMAGE_SEARCH_NS = (1, 100_000_000, 2_000_000_000)
 
 def roi_image_topic(arm_id: str) -> str:
     return topics.absolute(topics.roi_image(arm_id))
+
+
+def image_topic_in(bag_topics: dict[str, TopicStats], topic: str) -> str | None:
+    """Where a bag holds the images of output `topic`: the raw topic, else its `/compressed`, else None."""
+    for name, msgtype in ((topic, topics.IMAGE_TYPE), (compressed_topic(topic), topics.COMPRESSED_IMAGE_TYPE)):
+        if name in bag_topics and bag_topics[name].msgtype == msgtype:
+            return name
+    return None
 
 
 @dataclass(frozen=True)
@@ -132,31 +141,31 @@ class RoiBag:
             yield MetadataMessage(log_ns, position, record)
 
     def image(self, topic: str, log_ns: int, frame_stamp_ns: int) -> np.ndarray | None:
-        """The image on `topic` whose header stamp is the frame's, or None when the bag has none.
+        """The image on `topic` (or, without it, on its `/compressed`) whose header stamp is the frame's, or None.
 
         Outputs of a frame are logged at (or near) its metadata's log time, so
         only the chunks around it are read.
         """
-        connections = [c for c in self.reader.connections if c.topic == topic]
+        found = image_topic_in(self.topics, topic)
+        connections = [c for c in self.reader.connections if c.topic == found]
         if not connections:
             return None
         for window in IMAGE_SEARCH_NS:
             start, stop = log_ns - (window - 1), log_ns + window
             # the metadata pass has read every chunk already, so storage errors surfaced there
             for connection, _, raw in self.reader.messages(connections=connections, start=start, stop=stop):
-                msg = self._image_msg(connection.msgtype, raw, topic)
+                msg = self._image_msg(connection.msgtype, raw, connection.topic)
                 if msg is not None and stamp_ns(msg.header) == frame_stamp_ns:
                     try:
-                        return image_from_msg(msg, f"{self.path}: {topic}")
+                        return decode_frame(msg, connection.msgtype, f"{self.path}: {connection.topic}")
                     except ImageError:
                         return None
         return None
 
     def _image_msg(self, msgtype: str, raw: bytes, topic: str) -> Any:
-        if msgtype != topics.IMAGE_TYPE:
+        if msgtype not in IMAGE_TYPES:
             return None
         try:
             return self.reader.deserialize(raw, msgtype)
         except DESERIALIZE_ERRORS as exc:
             raise BagError(f"{self.path}: {topic}: an image message cannot be deserialized ({exc})") from exc
-

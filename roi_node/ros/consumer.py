@@ -23,12 +23,13 @@ from typing import Any
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CompressedImage, Image
 from std_msgs.msg import String
 
 from ..core import topics
+from ..core.compressed_outputs import OutputTransport, compressed_topic
 from ..core.errors import ConfigError
-from ..core.image_codec import image_from_msg
+from ..core.image_codec import image_from_compressed, image_from_msg
 from .conversions import stamp_ns
 
 GLOBAL = "global"
@@ -60,7 +61,8 @@ class _Partial:
 
 
 class ObservationClient:
-    """Assemble observations from `roi/<arm>/image_raw`, `roi/global/image_raw` and `roi/metadata`.
+    """Assemble observations from `roi/<arm>/image_raw`, `roi/global/image_raw` (or their `/compressed`)
+    and `roi/metadata`.
 
     `arm_ids` None: the arms the first metadata record lists; `with_global`
     None: whether the node publishes the global view (a publisher of it on the
@@ -77,9 +79,14 @@ class ObservationClient:
         max_buffer: int = 4,
         max_partial: int = 8,
         qos: QoSProfile | None = None,
+        transport: str = OutputTransport.RAW,
     ) -> None:
+        """`transport` "compressed" reads the `.../image_raw/compressed` JPEG outputs (node: output_transport)."""
         if arm_ids is not None and not arm_ids:
             raise ConfigError("ObservationClient: arm_ids is empty; pass the arm ids of the rig (its arms[].id), or None to discover them")
+        if transport not in (OutputTransport.RAW, OutputTransport.COMPRESSED):
+            raise ConfigError(f"ObservationClient: transport {transport!r} is not one of raw, compressed")
+        self._compressed = transport == OutputTransport.COMPRESSED
         self._node = node
         self._qos = qos or QoSProfile(depth=30, reliability=ReliabilityPolicy.RELIABLE)
         self.arm_ids: tuple[str, ...] = tuple(arm_ids or ())
@@ -100,10 +107,12 @@ class ObservationClient:
         node.create_subscription(String, topics.METADATA, self._on_metadata, self._qos)
 
     def _subscribe_images(self) -> None:
-        for arm in self.arm_ids:
-            self._node.create_subscription(Image, topics.roi_image(arm), self._image_callback(arm), self._qos)
-        if self.with_global:
-            self._node.create_subscription(Image, topics.GLOBAL_IMAGE, self._image_callback(GLOBAL), self._qos)
+        sources = {arm: topics.roi_image(arm) for arm in self.arm_ids} | ({GLOBAL: topics.GLOBAL_IMAGE} if self.with_global else {})
+        for key, topic in sources.items():
+            if self._compressed:
+                self._node.create_subscription(CompressedImage, compressed_topic(topic), self._image_callback(key), self._qos)
+            else:
+                self._node.create_subscription(Image, topic, self._image_callback(key), self._qos)
         self._expected = set(self.arm_ids) | ({GLOBAL} if self.with_global else set())
 
     def _discover(self, record: dict[str, Any]) -> None:
@@ -114,7 +123,7 @@ class ObservationClient:
         if not self.arm_ids:
             self.arm_ids = self.listed_arms
         if self.with_global is None:
-            self.with_global = self._node.count_publishers(self._node.resolve_topic_name(topics.GLOBAL_IMAGE)) > 0
+            self.with_global = self._node.count_publishers(self._node.resolve_topic_name(self._image_topic(GLOBAL))) > 0
         self._subscribe_images()
 
     def waiting_for(self) -> str | None:
@@ -131,14 +140,19 @@ class ObservationClient:
             listed = ", ".join(self.listed_arms or ()) or "none"
             for key in sorted(self._expected or (), key=lambda k: (k == GLOBAL, k)):
                 if not self._received[key]:
-                    topic = self._node.resolve_topic_name(topics.GLOBAL_IMAGE if key == GLOBAL else topics.roi_image(key))
+                    topic = self._node.resolve_topic_name(self._image_topic(key))
                     hint = " (without a global view: --no-global / with_global=False)" if key == GLOBAL else ""
                     return f"no image on {topic} {after}; metadata lists arms {listed}{hint}"
             return f"images and metadata arrive but no frame has all of them {after} ({self.dropped_incomplete} incomplete)"
 
+    def _image_topic(self, key: str) -> str:
+        topic = topics.GLOBAL_IMAGE if key == GLOBAL else topics.roi_image(key)
+        return compressed_topic(topic) if self._compressed else topic
+
     def _image_callback(self, key: str) -> Any:
-        def callback(msg: Image) -> None:
-            pixels = image_from_msg(msg, key).copy()  # own the pixels: the message buffer is reused
+        def callback(msg: Any) -> None:
+            # own the pixels: the message buffer is reused (a decoded JPEG is a new array already)
+            pixels = image_from_compressed(msg.format, msg.data, key) if self._compressed else image_from_msg(msg, key).copy()
             with self._cond:
                 self._received[key] += 1
                 part = self._part(stamp_ns(msg.header))

@@ -33,6 +33,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState
 from std_msgs.msg import String
+from visualization_msgs.msg import ImageMarker
 
 from .. import __version__
 from ..core import topics
@@ -49,11 +50,13 @@ from ..core.engine import (
 )
 from ..core.errors import ConfigError, ParameterError, RoiNodeError
 from ..core.image_codec import image_from_compressed, image_from_msg
+from ..core.overlay_cdr import overlay_cdr
 from ..core.pipeline import FrameResult
 from ..core.resources import resolve_config_file
 from ..core.stamps import NS_PER_MS, NS_PER_S
 from ..core.status_line import StatusWindow
 from ..core.stream_stats import StreamStats
+from .compressed import CompressedPublishers
 from .conversions import camera_from_msg, camera_info_msg, image_msg, stamp_ns
 from .diagnostics import StreamHealth, diagnostics_msg
 from .params import NodeParams, declare_and_read
@@ -146,14 +149,20 @@ class StreamNode(Node):
         if p.robot_description_source == "topic":
             latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
             self.create_subscription(String, topics.ROBOT_DESCRIPTION, self._on_robot_description, latched)
+        raw, global_view = p.output_transport.raw, self.rig.output.global_enabled
         self._roi_pubs = {
             arm.id: (
-                self.create_publisher(Image, topics.roi_image(arm.id), pub_qos),
+                self.create_publisher(Image, topics.roi_image(arm.id), pub_qos) if raw else None,
                 self.create_publisher(CameraInfo, topics.roi_camera_info(arm.id), pub_qos),
             )
             for arm in self.rig.arms
         }
-        self._global_pub = self.create_publisher(Image, topics.GLOBAL_IMAGE, pub_qos) if self.rig.output.global_enabled else None
+        self._global_pub = self.create_publisher(Image, topics.GLOBAL_IMAGE, pub_qos) if global_view and raw else None
+        self._compressed_pubs = (
+            CompressedPublishers(self, [a.id for a in self.rig.arms], global_view, pub_qos, p.jpeg_quality, p.output_encoding)
+            if p.output_transport.compressed else None
+        )
+        self._overlay_pub = self.create_publisher(ImageMarker, topics.OVERLAY, pub_qos) if p.overlay else None
         self._metadata_pub = self.create_publisher(String, topics.METADATA, pub_qos)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
@@ -161,7 +170,9 @@ class StreamNode(Node):
     def _log_start(self) -> None:
         p = self.params
         arms = ", ".join(f"{a.id} ({a.robot}:{a.ee_frame})" for a in self.rig.arms)
-        out_topics = topics.output_topics([a.id for a in self.rig.arms], self._global_pub is not None)
+        out_topics = topics.output_topics(
+            [a.id for a in self.rig.arms], self.rig.output.global_enabled, transport=p.output_transport, overlay=p.overlay
+        )
         outputs = ", ".join(self.resolve_topic_name(t) for t in out_topics)
         inputs = [f"{self.resolve_topic_name(self._image_topic)} ({p.image_transport})"]
         inputs += [self.resolve_topic_name(t) for t in p.joint_state_topics]
@@ -319,12 +330,20 @@ class StreamNode(Node):
         out_w, out_h = self.rig.output.size_px
         encoding = self.params.output_encoding
         for roi in result.rois:
-            self._roi_pubs[roi.arm_id][0].publish(image_msg(result.stamp_ns, frame_id, roi.image, encoding))
+            image_pub = self._roi_pubs[roi.arm_id][0]
+            if image_pub is not None:
+                image_pub.publish(image_msg(result.stamp_ns, frame_id, roi.image, encoding))
+        if self._compressed_pubs is not None:
+            self._compressed_pubs.publish_rois(result, frame_id)
         for roi in result.rois:
             self._roi_pubs[roi.arm_id][1].publish(camera_info_msg(result.stamp_ns, frame_id, roi.camera, out_w, out_h))
         self._metadata_pub.publish(String(data=result.record_json))
+        if self._overlay_pub is not None:
+            self._overlay_pub.publish(overlay_cdr(result.record, frame_id))  # CDR packed directly: core/overlay_cdr.py
         if self._global_pub is not None and result.global_view is not None:
             self._global_pub.publish(image_msg(result.stamp_ns, frame_id, result.global_view, encoding))
+        if self._compressed_pubs is not None:
+            self._compressed_pubs.publish_global(result, frame_id)
 
     def _publish_diagnostics(self) -> None:
         now_ns = time.monotonic_ns()

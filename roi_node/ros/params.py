@@ -15,6 +15,7 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from ..core.compressed_outputs import DEFAULT_JPEG_QUALITY, JPEG_QUALITY_RANGE, OutputTransport
 from ..core.config import MAX_TIME_MS, SYNC_POLICIES, RigConfig
 from ..core.errors import ParameterError
 from ..core.image_codec import OUTPUT_ENCODINGS
@@ -45,6 +46,9 @@ class NodeParams:
     max_wait_ms: float | None
     max_pending_frames: int
     output_encoding: str
+    output_transport: OutputTransport
+    jpeg_quality: int
+    overlay: bool
     global_view: bool
     diagnostics_period_s: float
     silence_timeout_s: float  # /diagnostics turns ERROR when the camera or a joint stream is silent this long
@@ -92,6 +96,9 @@ DEFAULTS: dict[str, object] = {
     "sync.max_wait_ms": -1.0,
     "sync.max_pending_frames": 8,
     "output_encoding": "rgb8",
+    "output_transport": OutputTransport.RAW.value,
+    "jpeg_quality": DEFAULT_JPEG_QUALITY,
+    "overlay": True,
     "global_view": True,
     "diagnostics_period_s": 1.0,
     "silence_timeout_s": 2.0,
@@ -194,6 +201,14 @@ def _positive_int(values: dict[str, object], param: str) -> int:
     return value
 
 
+def _int_in(values: dict[str, object], param: str, bounds: tuple[int, int]) -> int:
+    value = values[param]
+    low, high = bounds
+    if not isinstance(value, int) or not low <= value <= high:
+        raise ParameterError(param, f"expected an integer in {low}..{high}, got {value!r}")
+    return value
+
+
 def optional_ms(values: dict[str, object], param: str) -> float | None:
     """Negative means "the rig config's value"."""
     value = float(values[param])  # type: ignore[arg-type]
@@ -245,6 +260,9 @@ def _validate(v: dict[str, object]) -> NodeParams:
         max_wait_ms=optional_ms(v, "sync.max_wait_ms"),
         max_pending_frames=_positive_int(v, "sync.max_pending_frames"),
         output_encoding=_choice(v, "output_encoding", OUTPUT_ENCODINGS),
+        output_transport=OutputTransport(_choice(v, "output_transport", tuple(OutputTransport))),
+        jpeg_quality=_int_in(v, "jpeg_quality", JPEG_QUALITY_RANGE),
+        overlay=bool(v["overlay"]),
         global_view=bool(v["global_view"]),
         diagnostics_period_s=_positive_seconds(v, "diagnostics_period_s"),
         silence_timeout_s=_positive_seconds(v, "silence_timeout_s"),

@@ -1,0 +1,60 @@
+"""The node's output parameters (output_transport, jpeg_quality, overlay), read as the node reads them."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from roi_node.core.compressed_outputs import OutputTransport
+from roi_node.core.errors import ParameterError
+from roi_node.ros.params import NodeParams, declare_and_read
+
+from .conftest import CONFIG
+from .live.harness import next_domain
+
+
+@pytest.fixture(scope="module")
+def context() -> Iterator[Context]:
+    context = Context()
+    rclpy.init(context=context, domain_id=next_domain())  # the run's own domains, like the live tests
+    yield context
+    context.try_shutdown()
+
+
+def read(context: Context, **overrides: object) -> NodeParams:
+    parameters = [Parameter("config", value=str(CONFIG / "rig_demo_bimanual.yaml"))]
+    parameters += [Parameter(name, value=value) for name, value in overrides.items()]
+    node = Node("roi_node", context=context, parameter_overrides=parameters, start_parameter_services=False)
+    try:
+        return declare_and_read(node)
+    finally:
+        node.destroy_node()
+
+
+def test_defaults_are_raw_outputs_at_quality_90_with_the_overlay(context: Context) -> None:
+    params = read(context)
+    assert params.output_transport is OutputTransport.RAW and params.jpeg_quality == 90 and params.overlay is True
+    both = read(context, output_transport="both", jpeg_quality=1, overlay=False)
+    assert both.output_transport.raw and both.output_transport.compressed and both.jpeg_quality == 1 and not both.overlay
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"output_transport": "jpeg"}, "parameter output_transport: 'jpeg' is not one of raw, compressed, both"),
+        ({"jpeg_quality": 101}, "parameter jpeg_quality: expected an integer in 1..100, got 101"),
+        ({"jpeg_quality": 0}, "parameter jpeg_quality: expected an integer in 1..100, got 0"),
+        ({"jpeg_quality": 90.0}, "parameter jpeg_quality: expected an integer, got 90.0 (double)"),
+        ({"overlay": "yes"}, "parameter overlay: expected a bool, got 'yes' (string)"),
+    ],
+)
+def test_bad_output_parameters_are_refused_naming_the_parameter(context: Context, overrides: dict[str, object],
+                                                                 message: str) -> None:
+    with pytest.raises(ParameterError) as refused:
+        read(context, **overrides)
+    assert str(refused.value) == message
