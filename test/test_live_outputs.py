@@ -48,7 +48,7 @@ def test_overlay_boxes_equal_the_records_and_compressed_outputs_decode_close_to_
     env = ros_env(domain)
     collector = Collector(domain, ARMS, buffer=100)
     reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-    compressed = ObservationClient(collector.node, ARMS, max_buffer=100, qos=reliable, transport="compressed")
+    compressed = ObservationClient(collector.node, ARMS, with_global=True, max_buffer=100, qos=reliable, transport="compressed")
     markers: list[ImageMarker] = []
     sources: dict[int, str] = {}  # source image stamp -> frame_id
     collector.node.create_subscription(ImageMarker, "roi/overlay", markers.append, reliable)
