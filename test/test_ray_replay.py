@@ -1,0 +1,200 @@
+"""`roi-node replay --ray` on a real local Ray cluster: failures, a killed worker, an interrupted driver, resume.
+
+One cluster (2 CPUs) and one set of small sim bags serve the module. The
+oracle of every output is the local replay of the same bag (`replay_bags`,
+no Ray) into a folder of the same layout, compared file by file, byte by
+byte; the oracle of a failure's reason is the error local replay raises.
+"""
+
+from __future__ import annotations
+
+import filecmp
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from roi_node.bag.batch import replay_bags
+from roi_node.bag.replay import replay_bag
+from roi_node.core.errors import BagError
+from roi_node.report.manifest import verify_manifest
+from roi_node.sim.bag_sink import write_sim_bag
+
+from .raycluster import RayCluster, ray_cluster
+from .simrig import DEFAULT_RIG, scaled_camera_rig
+
+pytest.importorskip("ray")
+pytestmark = pytest.mark.ray
+
+GOOD = ("b0", "b1", "b2", "b3", "b4")
+VICTIM = "long"  # long enough that a test can stop its worker mid-bag
+POLL_S = 0.005
+
+
+class Bags:
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.rig = scaled_camera_rig(folder, DEFAULT_RIG, "small", scale=0.25)
+        for seed, name in enumerate(GOOD):
+            write_sim_bag(self.rig, folder / name, duration_s=0.4, rate_hz=15.0, seed=seed)
+        write_sim_bag(self.rig, folder / VICTIM, duration_s=4.0, rate_hz=15.0, seed=9)
+        self.corrupt = folder / "corrupt"
+        shutil.copytree(folder / "b4", self.corrupt)
+        mcap = self.corrupt / "b4.mcap"
+        with mcap.open("r+b") as stream:  # cut mid-file: no footer, no summary
+            stream.truncate(mcap.stat().st_size // 2)
+        self.local = folder / "local"
+        result = replay_bags([folder / n for n in (*GOOD, VICTIM)], self.local, self.rig)
+        assert all(o.ok for o in result.outcomes)
+
+    def path(self, name: str) -> Path:
+        return self.folder / name
+
+    def oracle(self, name: str) -> Path:
+        return self.local / f"{name}_roi"
+
+
+@pytest.fixture(scope="module")
+def cluster() -> Iterator[RayCluster]:
+    before = set(Path("/tmp/ray").iterdir()) if Path("/tmp/ray").is_dir() else set()
+    with ray_cluster() as running:
+        yield running
+        # nothing of Ray in the private HOME (token passed in the environment), nothing in the default temp dir
+        assert sorted(p.name for p in running.home.rglob("*")) == []
+    after = set(Path("/tmp/ray").iterdir()) if Path("/tmp/ray").is_dir() else set()
+    assert after == before
+    assert not running.base.exists()
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory: pytest.TempPathFactory) -> Bags:
+    return Bags(tmp_path_factory.mktemp("raybags"))
+
+
+def same_tree(a: Path, b: Path) -> bool:
+    names_a = sorted(p.relative_to(a).as_posix() for p in a.rglob("*"))
+    names_b = sorted(p.relative_to(b).as_posix() for p in b.rglob("*"))
+    return names_a == names_b and all(filecmp.cmp(a / n, b / n, shallow=False) for n in names_a if (a / n).is_file())
+
+
+def visible_only(out: Path) -> list[str]:
+    """Every entry of OUT, hidden ones (temporary outputs) included."""
+    return sorted(p.name for p in out.iterdir())
+
+
+def test_six_bags_one_corrupt(cluster: RayCluster, bags: Bags, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    inputs = [str(bags.path(n)) for n in GOOD] + [str(bags.corrupt)]
+    done = cluster.run("replay", *inputs, "-o", str(out), "--config", str(bags.rig), f"--ray={cluster.address}")
+    assert done.returncode == 1, done.stderr
+    for name in GOOD:
+        assert same_tree(out / f"{name}_roi", bags.oracle(name)), name
+    with pytest.raises(BagError) as local:
+        replay_bag(bags.corrupt, tmp_path / "local_corrupt", bags.rig)
+    assert f"roi-node replay: error: {local.value}" in done.stderr.splitlines()
+    assert f"{bags.corrupt} -> {out / 'corrupt_roi'}: failed" in done.stdout.splitlines()
+    assert visible_only(out) == sorted([*(f"{n}_roi" for n in GOOD), "manifest.json"])  # nothing of the failed bag
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert sorted(b["name"] for b in manifest["bags"]) == [f"{n}_roi" for n in GOOD]
+    assert verify_manifest(out / "manifest.json") == []
+
+
+def _wait_for(predicate: object, proc: subprocess.Popen[str], what: str, timeout_s: float = 180.0) -> object:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        found = predicate()  # type: ignore[operator]
+        if found:
+            return found
+        if proc.poll() is not None:
+            out, err = proc.communicate()
+            raise AssertionError(f"the driver ended (exit {proc.returncode}) before {what}:\n{out}\n{err}")
+        time.sleep(POLL_S)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def test_killed_worker_is_retried(cluster: RayCluster, bags: Bags, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    driver = cluster.start("replay", str(bags.path(VICTIM)), str(bags.path("b0")), "-o", str(out), "--config", str(bags.rig),
+                           f"--ray={cluster.address}", "--ray-retries=2")
+    pattern = re.compile(rf"^\.{VICTIM}_roi\.partial-(\d+)$")
+
+    def partial() -> tuple[str, int] | None:
+        if not out.is_dir():
+            return None
+        for name in os.listdir(out):
+            match = pattern.match(name)
+            if match:
+                return name, int(match.group(1))
+        return None
+
+    name, pid = _wait_for(partial, driver, "the victim's temporary output appeared")  # type: ignore[misc]
+    os.kill(pid, signal.SIGSTOP)  # hold the worker mid-bag: its output is still only the temporary one
+    assert (out / name).exists() and not (out / f"{VICTIM}_roi").exists()
+    os.kill(pid, signal.SIGKILL)
+    stdout, stderr = driver.communicate(timeout=240)
+    assert driver.returncode == 0, stderr
+    line = next(line for line in stdout.splitlines() if line.startswith(f"{bags.path(VICTIM)} ->"))
+    assert ": complete," in line and f"removed the temporary output of an attempt that died ({name})" in line
+    assert same_tree(out / f"{VICTIM}_roi", bags.oracle(VICTIM))
+    assert visible_only(out) == sorted([f"{VICTIM}_roi", "b0_roi", "manifest.json"])
+
+
+def test_interrupted_driver_then_resume(cluster: RayCluster, bags: Bags, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    names = ["b0", "b1", VICTIM, "b2", "b3"]
+    args = ["replay", *(str(bags.path(n)) for n in names), "-o", str(out), "--config", str(bags.rig), f"--ray={cluster.address}"]
+    driver = cluster.start(*args)
+
+    def finished() -> list[str]:
+        try:
+            return [b["name"] for b in json.loads((out / "manifest.json").read_text())["bags"]]
+        except (OSError, ValueError):
+            return []
+
+    _wait_for(finished, driver, "a first bag was finished")
+    driver.send_signal(signal.SIGINT)
+    stdout, stderr = driver.communicate(timeout=120)
+    assert driver.returncode == 130, stderr
+    kept = finished()
+    interrupted = [n for n in names if f"{bags.path(n)} -> {out / (n + '_roi')}: interrupted" in stdout.splitlines()]
+    assert kept and interrupted, stdout  # the interrupt came mid-run
+    assert sorted(p.name for p in out.iterdir()) == sorted([*kept, "manifest.json"])  # no temporary output left
+    stamps = {n: (out / n).stat().st_ino for n in kept}
+    # one finished output is changed behind the manifest's back (same size): its hash no longer matches, so it is redone
+    tampered = kept[0]
+    mcap = out / tampered / f"{tampered}.mcap"
+    data = bytearray(mcap.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    mcap.write_bytes(bytes(data))
+
+    again = cluster.run(*args)
+    assert again.returncode == 0, again.stderr
+    for name in names:
+        target = out / f"{name}_roi"
+        line = next(line for line in again.stdout.splitlines() if line.startswith(f"{bags.path(name)} ->"))
+        if target.name in kept and target.name != tampered:
+            assert line.endswith(": skipped (verified against the manifest)"), line
+            assert target.stat().st_ino == stamps[target.name]  # not rewritten
+        else:
+            assert ": complete," in line, line
+        assert same_tree(target, bags.oracle(name)), name
+    assert verify_manifest(out / "manifest.json") == []
+
+
+def test_without_ray_installed_one_line(bags: Bags, tmp_path: Path) -> None:
+    """The base install has no Ray: --ray says what to install, exit 2, no traceback."""
+    code = "import sys; sys.modules['ray'] = None; from roi_node.cli import main; sys.exit(main(sys.argv[1:]))"
+    done = subprocess.run([sys.executable, "-c", code, "replay", str(bags.path("b0")), "-o", str(tmp_path / "out"), "--config",
+                           str(bags.rig), "--ray"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        "roi-node replay: error: --ray needs Ray, which is not installed (ray); install the cluster extra: pip install 'roi_node[cluster]'"
+    ]
