@@ -32,6 +32,7 @@ RAY = str(Path(sys.executable).with_name("ray"))
 NUM_CPUS = 2
 OBJECT_STORE_BYTES = 256 * 1024 * 1024
 START_TIMEOUT_S = 120.0
+STOP_GRACE_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -116,11 +117,12 @@ def _wait_ready(cluster: RayCluster, head: subprocess.Popen[bytes]) -> None:
 
 
 def _stop(head: subprocess.Popen[bytes], base: Path) -> None:
-    try:
+    with suppress(ProcessLookupError):  # the group is ours: ray start and every process it spawned
         os.killpg(head.pid, signal.SIGTERM)
-        head.wait(timeout=30)
-    except (ProcessLookupError, subprocess.TimeoutExpired):
-        pass
+    with suppress(subprocess.TimeoutExpired):
+        head.wait(timeout=STOP_GRACE_S)
+    with suppress(ProcessLookupError):  # whatever of the group is still there after the grace
+        os.killpg(head.pid, signal.SIGKILL)
     for _ in range(20):
         left = _processes_naming(str(base))
         if not left:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -69,23 +69,26 @@ def replay_fleet(
         jobs.append(ReplayJob(job.source, target, config_path, out_dir, frozen, previous=entry if fits else None))
     others = {name: entry for name, entry in previous.items() if name not in {t.name for t in targets}}
     with ClusterSession(cluster) as session:
-        run = _Run(session, jobs, others, retries, FleetProgress("roi-node replay", progress))
+        run = TaskRun(session, jobs, replay_task, retries, FleetProgress("roi-node replay", progress),
+                      manifest=manifest_path(out_dir), others=others)
         interrupted = run.wait()
     return FleetResult(run.ordered(), manifest_path(out_dir), interrupted, time.perf_counter() - started)
 
 
-class _Run:
-    def __init__(self, session: ClusterSession, jobs: list[ReplayJob], others: dict[str, dict[str, Any]], retries: int,
-                 progress: FleetProgress) -> None:
+class TaskRun:
+    """One task per job on the cluster, results gathered as they finish (and into `manifest`, when given)."""
+
+    def __init__(self, session: ClusterSession, jobs: list[ReplayJob], function: Callable[[ReplayJob], TaskResult], retries: int,
+                 progress: FleetProgress, *, manifest: Path | None = None, others: dict[str, dict[str, Any]] | None = None) -> None:
         ray = session.ray
         self.ray = ray
         self.jobs = jobs
-        self.others = others
+        self.others = others or {}
         self.progress = progress
         self.slots = session.cpu_slots()
-        self.manifest = manifest_path(jobs[0].manifest_dir) if jobs else None
-        task = ray.remote(replay_task).options(
-            num_cpus=1, max_retries=retries, retry_exceptions=[TransientIOError, OSError], name="roi_node.replay"
+        self.manifest = manifest
+        task = ray.remote(function).options(
+            num_cpus=1, max_retries=retries, retry_exceptions=[TransientIOError, OSError], name=f"roi_node.{function.__name__}"
         )
         self.pending: dict[Any, int] = {task.remote(job): i for i, job in enumerate(jobs)}
         self.results: dict[int, TaskResult] = {}

@@ -100,17 +100,27 @@ def remove_stale_partials(target: Path) -> tuple[str, ...]:
 
 
 def replay_task(job: ReplayJob) -> TaskResult:
-    """Run one job in this (worker) process (or skip it, verified); raise only what a retry may cure."""
+    """Replay one job's bag in this (worker) process (or skip it, verified) and hash its output for the manifest."""
+    from ..report.manifest import entry_problems
+
+    if job.previous is not None and not entry_problems(job.previous, job.manifest_dir):
+        return TaskResult(job.source, job.target, BagStatus.SKIPPED, 0.0, entry=job.previous, worker_pid=os.getpid())
+    return _guarded(job, with_entry=True)
+
+
+def roi_task(job: ReplayJob) -> TaskResult:
+    """Replay one recording into the ROI bag an export reads (no manifest entry: the export hashes its sources itself)."""
+    return _guarded(job, with_entry=False)
+
+
+def _guarded(job: ReplayJob, *, with_entry: bool) -> TaskResult:
+    """`replay_bag` on the job; input errors become a failed result, what a retry may cure is raised."""
     import cv2
 
     from ..bag.memory import tune_malloc_for_large_frames
     from ..bag.replay import replay_bag
-    from ..report.manifest import entry_problems
 
     started = time.perf_counter()
-    if job.previous is not None and not entry_problems(job.previous, job.manifest_dir):
-        return TaskResult(job.source, job.target, BagStatus.SKIPPED, time.perf_counter() - started, entry=job.previous,
-                          worker_pid=os.getpid())
     tune_malloc_for_large_frames()
     cv2.setNumThreads(1)  # parallelism is across tasks
     stale = remove_stale_partials(job.target)
@@ -122,7 +132,7 @@ def replay_task(job: ReplayJob) -> TaskResult:
     try:
         # the output is rebuilt when it exists: the driver only sends bags the manifest does not vouch for
         summary = replay_bag(job.source, job.target, job.config, **{**dict(job.options), "overwrite": True})
-        entry = output_entry(job)
+        entry = output_entry(job) if with_entry else None
     except RoiNodeError as exc:
         if is_transient(exc):
             raise TransientIOError(str(exc)) from exc

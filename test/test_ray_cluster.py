@@ -1,4 +1,4 @@
-"""`roi-node replay --ray` on a real local Ray cluster: failures, a killed worker, an interrupted driver, resume.
+"""`--ray` on a real local Ray cluster: replay's failures, a killed worker, an interrupted driver and resume; export.
 
 One cluster (2 CPUs) and one set of small sim bags serve the module. The
 oracle of every output is the local replay of the same bag (`replay_bags`,
@@ -20,11 +20,15 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import av
+import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 from roi_node.bag.batch import replay_bags
 from roi_node.bag.replay import replay_bag
 from roi_node.core.errors import BagError
+from roi_node.export.exporter import ExportOptions, export_lerobot
 from roi_node.report.manifest import verify_manifest
 from roi_node.sim.bag_sink import write_sim_bag
 
@@ -45,7 +49,7 @@ class Bags:
         self.rig = scaled_camera_rig(folder, DEFAULT_RIG, "small", scale=0.25)
         for seed, name in enumerate(GOOD):
             write_sim_bag(self.rig, folder / name, duration_s=0.4, rate_hz=15.0, seed=seed)
-        write_sim_bag(self.rig, folder / VICTIM, duration_s=4.0, rate_hz=15.0, seed=9)
+        write_sim_bag(self.rig, folder / VICTIM, duration_s=3.0, rate_hz=15.0, seed=9)
         self.corrupt = folder / "corrupt"
         shutil.copytree(folder / "b4", self.corrupt)
         mcap = self.corrupt / "b4.mcap"
@@ -198,3 +202,32 @@ def test_without_ray_installed_one_line(bags: Bags, tmp_path: Path) -> None:
     assert done.stderr.strip().splitlines() == [
         "roi-node replay: error: --ray needs Ray, which is not installed (ray); install the cluster extra: pip install 'roi_node[cluster]'"
     ]
+
+
+def _decoded(path: Path) -> list[np.ndarray]:
+    with av.open(str(path)) as container:
+        return [frame.to_ndarray(format="rgb24") for frame in container.decode(video=0)]
+
+
+def test_export_on_ray_equals_the_local_export(cluster: RayCluster, bags: Bags, tmp_path: Path) -> None:
+    inputs = [bags.path(n) for n in ("b0", "b1", "b2")]
+    local = tmp_path / "local"
+    export_lerobot(inputs, local, ExportOptions(fps=10, task="pick", config=bags.rig))
+    ray_out = tmp_path / "ray"
+    done = cluster.run("export", "lerobot", *map(str, inputs), "-o", str(ray_out), "--fps", "10", "--task", "pick",
+                       "--config", str(bags.rig), f"--ray={cluster.address}")
+    assert done.returncode == 0, done.stderr
+    files = sorted(p.relative_to(local).as_posix() for p in local.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(ray_out).as_posix() for p in ray_out.rglob("*") if p.is_file())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["local", "ray"]  # the episodes' staging folder is gone
+    parquet = [f for f in files if f.endswith(".parquet")]
+    videos = [f for f in files if f.endswith(".mp4")]
+    assert parquet and videos
+    for name in parquet:
+        assert pq.read_table(ray_out / name).equals(pq.read_table(local / name)), name
+    total = json.loads((local / "meta" / "info.json").read_text())["total_frames"]
+    for name in videos:
+        ours, theirs = _decoded(ray_out / name), _decoded(local / name)
+        assert len(ours) == len(theirs) == total and all(np.array_equal(a, b) for a, b in zip(ours, theirs, strict=True)), name
+    for name in (f for f in files if f.endswith(".json")):
+        assert json.loads((ray_out / name).read_text()) == json.loads((local / name).read_text()), name
