@@ -214,8 +214,10 @@ def test_export_on_ray_equals_the_local_export(cluster: RayCluster, bags: Bags, 
     local = tmp_path / "local"
     export_lerobot(inputs, local, ExportOptions(fps=10, task="pick", config=bags.rig))
     ray_out = tmp_path / "ray"
-    done = cluster.run("export", "lerobot", *map(str, inputs), "-o", str(ray_out), "--fps", "10", "--task", "pick",
-                       "--config", str(bags.rig), f"--ray={cluster.address}")
+    # bare --ray: the CLI starts (and stops) a local cluster of its own, with a token of its own (none in the environment)
+    env = {k: v for k, v in cluster.env.items() if not k.startswith("RAY_AUTH")}
+    done = subprocess.run(cluster.cli("export", "lerobot", *map(str, inputs), "-o", str(ray_out), "--fps", "10", "--task", "pick",
+                                      "--config", str(bags.rig), "--ray"), env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     files = sorted(p.relative_to(local).as_posix() for p in local.rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(ray_out).as_posix() for p in ray_out.rglob("*") if p.is_file())
