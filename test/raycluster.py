@@ -73,7 +73,7 @@ def _processes_naming(text: str) -> list[int]:
 
 
 @contextmanager
-def ray_cluster() -> Iterator[RayCluster]:
+def ray_cluster(num_cpus: int = NUM_CPUS) -> Iterator[RayCluster]:
     base = Path(tempfile.mkdtemp(prefix="ray", dir="/tmp"))
     home, temp = base / "h", base / "t"
     home.mkdir()
@@ -89,20 +89,20 @@ def ray_cluster() -> Iterator[RayCluster]:
     }
     log = (base / "head.log").open("w")
     head = subprocess.Popen(
-        [RAY, "start", "--head", "--block", f"--port={port}", f"--num-cpus={NUM_CPUS}", f"--object-store-memory={OBJECT_STORE_BYTES}",
+        [RAY, "start", "--head", "--block", f"--port={port}", f"--num-cpus={num_cpus}", f"--object-store-memory={OBJECT_STORE_BYTES}",
          "--include-dashboard=false", "--disable-usage-stats", f"--temp-dir={temp / 'ray'}"],
         env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
     )
     log.close()  # the child has its own copy
     cluster = RayCluster(f"127.0.0.1:{port}", env, base, home)
     try:
-        _wait_ready(cluster, head)
+        _wait_ready(cluster, head, num_cpus)
         yield cluster
     finally:
         _stop(head, base)
 
 
-def _wait_ready(cluster: RayCluster, head: subprocess.Popen[bytes]) -> None:
+def _wait_ready(cluster: RayCluster, head: subprocess.Popen[bytes], num_cpus: int) -> None:
     """A driver can connect and sees the CPUs."""
     probe = f"import ray; ray.init(address={cluster.address!r}, logging_level='ERROR'); print(int(ray.cluster_resources().get('CPU', 0)))"
     deadline = time.monotonic() + START_TIMEOUT_S
@@ -110,7 +110,7 @@ def _wait_ready(cluster: RayCluster, head: subprocess.Popen[bytes]) -> None:
         if head.poll() is not None:
             raise RuntimeError(f"ray start exited with {head.returncode}: {(cluster.base / 'head.log').read_text()[-2000:]}")
         done = subprocess.run([PYTHON, "-c", probe], env=cluster.env, capture_output=True, text=True, timeout=START_TIMEOUT_S)
-        if done.returncode == 0 and done.stdout.strip() == str(NUM_CPUS):
+        if done.returncode == 0 and done.stdout.strip() == str(num_cpus):
             return
         time.sleep(1.0)
     raise RuntimeError(f"the Ray head at {cluster.address} did not come up: {(cluster.base / 'head.log').read_text()[-2000:]}")

@@ -15,7 +15,6 @@ import re
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -109,6 +108,8 @@ def test_six_bags_one_corrupt(cluster: RayCluster, bags: Bags, tmp_path: Path) -
     manifest = json.loads((out / "manifest.json").read_text())
     assert sorted(b["name"] for b in manifest["bags"]) == [f"{n}_roi" for n in GOOD]
     assert verify_manifest(out / "manifest.json") == []
+    assert any(re.fullmatch(r"roi-node replay: 5/6 bags done, 1 failed, 0 running, [0-9.]+ frames/s, ETA 0 s", line)
+               for line in done.stderr.splitlines())  # the last progress line (stderr is not a terminal)
 
 
 def _wait_for(predicate: object, proc: subprocess.Popen[str], what: str, timeout_s: float = 180.0) -> object:
@@ -191,17 +192,6 @@ def test_interrupted_driver_then_resume(cluster: RayCluster, bags: Bags, tmp_pat
             assert ": complete," in line, line
         assert same_tree(target, bags.oracle(name)), name
     assert verify_manifest(out / "manifest.json") == []
-
-
-def test_without_ray_installed_one_line(bags: Bags, tmp_path: Path) -> None:
-    """The base install has no Ray: --ray says what to install, exit 2, no traceback."""
-    code = "import sys; sys.modules['ray'] = None; from roi_node.cli import main; sys.exit(main(sys.argv[1:]))"
-    done = subprocess.run([sys.executable, "-c", code, "replay", str(bags.path("b0")), "-o", str(tmp_path / "out"), "--config",
-                           str(bags.rig), "--ray"], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 2
-    assert done.stderr.strip().splitlines() == [
-        "roi-node replay: error: --ray needs Ray, which is not installed (ray); install the cluster extra: pip install 'roi_node[cluster]'"
-    ]
 
 
 def _decoded(path: Path) -> list[np.ndarray]:

@@ -14,6 +14,7 @@ session started.
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import secrets
 from dataclasses import dataclass
@@ -25,6 +26,16 @@ from .errors import ClusterUnavailableError
 LOCAL_OBJECT_STORE_BYTES = 256 * 1024 * 1024
 INSTALL_HINT = "install the cluster extra: pip install 'roi_node[cluster]'"
 AUTH_VARIABLES = ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH")
+
+
+def require_ray() -> None:
+    """Refuse --ray before any output is touched when Ray is not installed (without importing it: see __enter__)."""
+    try:
+        found = importlib.util.find_spec("ray") is not None
+    except ValueError:
+        found = False
+    if not found:
+        raise ClusterUnavailableError(f"--ray needs Ray, which is not installed (ray); {INSTALL_HINT}")
 
 
 def import_ray() -> ModuleType:
@@ -64,7 +75,7 @@ class ClusterSession:
                          include_dashboard=False, logging_level="WARNING", log_to_driver=False)
             else:
                 ray.init(address=self.spec.address, logging_level="WARNING", log_to_driver=False)
-        except (ConnectionError, RuntimeError, ValueError) as exc:
+        except Exception as exc:  # Ray raises ConnectionError, RuntimeError, ValueError or a bare Exception (startup timeout)
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise ClusterUnavailableError(f"--ray: cannot start or join {self.spec.describe()}: {first}") from exc
         self.ray = ray

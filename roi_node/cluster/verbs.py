@@ -40,8 +40,10 @@ def add_ray_options(parser: argparse.ArgumentParser, unit: str) -> None:
 
 
 def cluster_spec(args: argparse.Namespace) -> Any:
-    from .session import ClusterSpec
+    """The cluster --ray names; refuses at once (one line, exit 2) when Ray is not installed."""
+    from .session import ClusterSpec, require_ray
 
+    require_ray()
     return ClusterSpec(address=args.ray or None)
 
 
