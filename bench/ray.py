@@ -61,7 +61,7 @@ def memory_driver(address: str, folder: Path) -> None:
     import ray
 
     ray.init(address=address, logging_level="ERROR", log_to_driver=False)
-    task = ray.remote(peak_rss_task).options(num_cpus=1, max_calls=1)
+    task = ray.remote(num_cpus=1, max_calls=1)(peak_rss_task)
     print(f"memory: an idle replay worker (roi_node's replay imported): peak RSS {ray.get(task.remote(None)) / 2**20:.0f} MiB")
     for label, rig in (("720p", RIG), ("1080p", folder / "fhd.yaml")):
         job = ReplayJob(folder / f"mem_{label}", folder / f"mem_{label}_roi", rig, folder, ())
