@@ -171,7 +171,11 @@ def test_interrupted_driver_then_resume(cluster: RayCluster, bags: Bags, tmp_pat
     kept = finished()
     interrupted = [n for n in names if f"{bags.path(n)} -> {out / (n + '_roi')}: interrupted" in stdout.splitlines()]
     assert kept and interrupted, stdout  # the interrupt came mid-run
-    assert sorted(p.name for p in out.iterdir()) == sorted([*kept, "manifest.json"])  # no temporary output left
+    present = sorted(p.name for p in out.iterdir())
+    assert not [n for n in present if n.startswith(".")], present  # no temporary output left
+    # besides the manifest's outputs there may be one whose task was killed after its rename, while hashing it:
+    # complete, but not vouched for, so the rerun rebuilds it
+    assert set(kept) | {"manifest.json"} <= set(present) <= {*kept, "manifest.json", *(f"{n}_roi" for n in interrupted)}
     stamps = {n: (out / n).stat().st_ino for n in kept}
     # one finished output is changed behind the manifest's back (same size): its hash no longer matches, so it is redone
     tampered = kept[0]
