@@ -1,7 +1,7 @@
 """A real local Ray cluster for the --ray tests, kept to a temporary folder and removed afterwards.
 
-`ray start --head --block` runs in its own session (process group) with a
-private HOME, RAY_TMPDIR and temp dir under one short folder (Ray's unix
+`ray start --head --block` runs in its own session (process group), on
+127.0.0.1 only, with a private HOME, RAY_TMPDIR and temp dir under one short folder (Ray's unix
 sockets live there; socket paths have a length limit), token authentication
 with a token passed in the environment (so no ~/.ray/auth_token is written),
 no dashboard, no usage report, 2 CPUs and a 256 MB object store. Drivers are
@@ -86,10 +86,12 @@ def ray_cluster(num_cpus: int = NUM_CPUS) -> Iterator[RayCluster]:
         "RAY_USAGE_STATS_ENABLED": "0",
         "RAY_AUTH_MODE": "token",
         "RAY_AUTH_TOKEN": secrets.token_hex(32),
+        "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0",  # single node: Ray keeps to 127.0.0.1 (else it uses the machine's address)
     }
     log = (base / "head.log").open("w")
     head = subprocess.Popen(
-        [RAY, "start", "--head", "--block", f"--port={port}", f"--num-cpus={num_cpus}", f"--object-store-memory={OBJECT_STORE_BYTES}",
+        [RAY, "start", "--head", "--block", "--node-ip-address=127.0.0.1", f"--port={port}", f"--num-cpus={num_cpus}",
+         f"--object-store-memory={OBJECT_STORE_BYTES}",
          "--include-dashboard=false", "--disable-usage-stats", f"--temp-dir={temp / 'ray'}"],
         env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
     )

@@ -1,7 +1,7 @@
 """Connecting to Ray: start a private local cluster, or join one that runs (`auto`, `host:port`, `ray://host:port`).
 
 A local cluster is sized to the machine (every CPU) and started with what
-keeps it to itself: no dashboard, no usage reporting, and token
+keeps it to itself: on loopback only, no dashboard, no usage reporting, and token
 authentication with a token made for this run and passed to Ray's processes
 in the environment (RAY_AUTH_TOKEN), so nothing is written to ~/.ray; an
 explicit RAY_AUTH_MODE / RAY_AUTH_TOKEN / RAY_AUTH_TOKEN_PATH of the user's
@@ -26,6 +26,8 @@ from .errors import ClusterUnavailableError
 LOCAL_OBJECT_STORE_BYTES = 256 * 1024 * 1024
 INSTALL_HINT = "install the cluster extra: pip install 'roi_node[cluster]'"
 AUTH_VARIABLES = ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH")
+# Ray's switch for multi-node clusters (named for the platforms where it is off by default); off, Ray keeps to 127.0.0.1
+SINGLE_NODE_VARIABLE = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
 
 
 def require_ray() -> None:
@@ -68,6 +70,8 @@ class ClusterSession:
         os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # no usage report leaves this machine
         if self.spec.address is None:
             _private_token()
+            # a single-node cluster on loopback only: Ray otherwise advertises (and listens on) the machine's address
+            os.environ.setdefault(SINGLE_NODE_VARIABLE, "0")
         ray = import_ray()
         try:
             if self.spec.address is None:
