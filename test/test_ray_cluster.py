@@ -38,7 +38,8 @@ pytest.importorskip("ray")
 pytestmark = pytest.mark.ray
 
 GOOD = ("b0", "b1", "b2", "b3", "b4")
-VICTIM = "long"  # long enough that a test can stop its worker mid-bag
+VICTIM = "long"  # fifty times a short bag: still running when a test acts on the others finishing, or looks for it mid-bag
+VICTIM_S = 20.0
 POLL_S = 0.005
 
 
@@ -48,7 +49,7 @@ class Bags:
         self.rig = scaled_camera_rig(folder, DEFAULT_RIG, "small", scale=0.25)
         for seed, name in enumerate(GOOD):
             write_sim_bag(self.rig, folder / name, duration_s=0.4, rate_hz=15.0, seed=seed)
-        write_sim_bag(self.rig, folder / VICTIM, duration_s=3.0, rate_hz=15.0, seed=9)
+        write_sim_bag(self.rig, folder / VICTIM, duration_s=VICTIM_S, rate_hz=15.0, seed=9)
         self.corrupt = folder / "corrupt"
         shutil.copytree(folder / "b4", self.corrupt)
         mcap = self.corrupt / "b4.mcap"
@@ -154,7 +155,7 @@ def test_killed_worker_is_retried(cluster: RayCluster, bags: Bags, tmp_path: Pat
 
 def test_interrupted_driver_then_resume(cluster: RayCluster, bags: Bags, tmp_path: Path) -> None:
     out = tmp_path / "out"
-    names = ["b0", "b1", VICTIM, "b2", "b3"]
+    names = [VICTIM, "b0", "b1", "b2", "b3"]  # the victim and b0 start together; b0 ends long before the victim
     args = ["replay", *(str(bags.path(n)) for n in names), "-o", str(out), "--config", str(bags.rig), f"--ray={cluster.address}"]
     driver = cluster.start(*args)
 
