@@ -41,6 +41,8 @@ setup(
         "robots": ["example-robot-data>=4.1"],
         # `roi-node export lerobot`: parquet + video without torch (PyAV's wheels bundle SVT-AV1 and x264)
         "export": ["av>=14", "pyarrow>=15"],
+        # `--ray`: one task per bag on a Ray cluster; 2.52 is the first with token authentication (RAY_AUTH_TOKEN)
+        "cluster": ["ray>=2.52,<3"],
         "dev": [
             "pytest>=8",
             "pytest-timeout>=2.3",

@@ -21,11 +21,11 @@ def single_rig_path() -> Path:
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Under pytest-xdist (`--dist loadgroup`) the DDS tests share one worker, so they run one at a time.
+    """Under pytest-xdist (`--dist loadgroup`) the DDS and Ray tests share one worker, so they run one at a time.
 
-    Every other module is a group of its own, so its module-scoped fixtures (sim bags, recorded sessions) are
-    built once, not once per worker.
+    They are timing-sensitive (DDS) or take both cores (a Ray cluster); every other module is a group of its own,
+    so its module-scoped fixtures (sim bags, recorded sessions) are built once, not once per worker.
     """
     for item in items:
-        group = "dds" if item.get_closest_marker("dds") is not None else item.nodeid.split("::")[0]
-        item.add_marker(pytest.mark.xdist_group(group))
+        serial = item.get_closest_marker("dds") is not None or item.get_closest_marker("ray") is not None
+        item.add_marker(pytest.mark.xdist_group("serial" if serial else item.nodeid.split("::")[0]))

@@ -63,6 +63,14 @@ def output_paths(inputs: Sequence[Path], out_dir: Path) -> list[Path]:
     return [out_dir / n for n in names]
 
 
+def prepare_output_folder(out_dir: Path) -> None:
+    """The folder several outputs go to: made with its missing parents, refused if it is a file."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise BagError(f"{out_dir}: exists and is not a folder; with several inputs the output is a folder")
+    ensure_parent(out_dir)
+    out_dir.mkdir(exist_ok=True)
+
+
 def _replay_one(source: Path, target: Path, config_path: Path, options: dict[str, Any]) -> BagOutcome:
     """One bag; every failure becomes an outcome so the other bags carry on."""
     try:
@@ -104,10 +112,7 @@ def replay_bags(
         raise BagError(f"--workers must be at least 1, got {workers}")
     out_dir = Path(out_dir)
     targets = output_paths(inputs, out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise BagError(f"{out_dir}: exists and is not a folder; with several inputs the output is a folder")
-    ensure_parent(out_dir)
-    out_dir.mkdir(exist_ok=True)
+    prepare_output_folder(out_dir)
     jobs = [(Path(src), dst, Path(config_path)) for src, dst in zip(inputs, targets, strict=True)]
     if workers == 1 or len(jobs) == 1:
         return _sequential(jobs, options, on_done)

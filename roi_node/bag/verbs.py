@@ -48,6 +48,10 @@ def _interrupted_note(summary: ReplaySummary) -> str:
 def _cmd_replay(args: argparse.Namespace) -> int:
     from .memory import tune_malloc_for_large_frames
 
+    if args.ray is not None:
+        from ..cluster.verbs import replay_on_ray
+
+        return replay_on_ray(args, _replay_options(args))
     tune_malloc_for_large_frames()  # this process is ours: keep frame buffers in the heap
     inputs = [Path(p) for p in args.inputs]
     if len(inputs) == 1:
@@ -145,6 +149,8 @@ def compression_option(parser: argparse.ArgumentParser, default: str = "none") -
 
 
 def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from ..cluster.verbs import add_ray_options
+
     replay = verbs.add_parser(
         "replay",
         help="replay recorded bags through the ROI pipeline into MCAP bags (no ROS runtime needed)",
@@ -164,6 +170,7 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
                         help="JPEG quality 1..100 of the compressed outputs (default: 90)")
     replay.add_argument("--overlay", action="store_true", help="also write the node's roi/overlay ImageMarker per frame")
     replay.add_argument("--workers", type=_positive_int, default=1, metavar="N", help="bags replayed in parallel processes (default: 1)")
+    add_ray_options(replay, "bag")
     replay.add_argument("--image-topic", metavar="T", help="camera topic (default: the one Image/CompressedImage topic)")
     replay.add_argument("--joint-topics", nargs="+", metavar="T", help="JointState topics (default: all, merged by joint name)")
     replay.add_argument("--camera-info-topic", metavar="T", help="take the intrinsics from this CameraInfo topic")

@@ -18,7 +18,7 @@ import os
 import shutil
 import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,9 +98,18 @@ class ExportResult:
 
 
 def export_lerobot(
-    bags: list[Path], output: Path, options: ExportOptions, on_episode: Callable[[EpisodeReport], None] | None = None
+    bags: list[Path],
+    output: Path,
+    options: ExportOptions,
+    on_episode: Callable[[EpisodeReport], None] | None = None,
+    regenerated: Mapping[Path, Path] | None = None,
 ) -> ExportResult:
-    """Write (or extend, with options.append) the dataset at `output`; RoiNodeError names what is unusable."""
+    """Write (or extend, with options.append) the dataset at `output`; RoiNodeError names what is unusable.
+
+    `regenerated` maps a raw recording to the ROI bag already made from it
+    with options.config (as here: `replay_bag` with the command topic), so a
+    caller that made them elsewhere (on a cluster) gets the same dataset.
+    """
     started = time.perf_counter()
     if not bags:
         raise BagError("no bags given")
@@ -113,7 +122,7 @@ def export_lerobot(
         reports: list[EpisodeReport] = []
         try:
             for bag in bags:
-                with _roi_bag(bag, options, work.parent) as roi:
+                with _roi_bag(bag, options, work.parent, (regenerated or {}).get(bag)) as roi:
                     source = read_source(roi, gates.params)
                     writer = writer or _writer(work, source, state, options, provenance.codec)
                     report = _episode(writer, bag, source, options, provenance, gates)
@@ -225,7 +234,7 @@ def _roi_origin(config: Path | None) -> dict[str, Any]:
 
 
 @contextmanager
-def _roi_bag(bag: Path, options: ExportOptions, scratch: Path) -> Iterator[Path]:
+def _roi_bag(bag: Path, options: ExportOptions, scratch: Path, made: Path | None) -> Iterator[Path]:
     """The bag's ROI outputs: the bag itself, or a replay of it through the rig into a temporary folder.
 
     A command topic is the replay's command stream too (its records then carry the teleop residual),
@@ -235,6 +244,9 @@ def _roi_bag(bag: Path, options: ExportOptions, scratch: Path) -> Iterator[Path]
         if not has_roi_outputs(bag):
             raise BagError(f"{bag}: no ROI outputs ({METADATA_TOPIC}); pass --config RIG to regenerate them from the recording")
         yield bag
+        return
+    if made is not None:
+        yield made
         return
     folder = Path(tempfile.mkdtemp(prefix=f".{bag.name}.roi.", dir=scratch))
     try:

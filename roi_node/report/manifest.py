@@ -223,6 +223,11 @@ def build_manifest(
         bag_entry(bag, name, output.parent, gates=gate_set, validation=loaded, rig=rig)
         for bag, name in zip(bags, unique_names(bags), strict=True)
     ]
+    return manifest_document(entries)
+
+
+def manifest_document(entries: list[dict[str, Any]]) -> dict[str, Any]:
+    """A whole manifest around bag entries (from `bag_entry`)."""
     return {
         "schema": MANIFEST_SCHEMA,
         "roi_node_version": __version__,
@@ -272,20 +277,26 @@ def verify_manifest(path: Path) -> list[str]:
     manifest = load_manifest(path)
     problems: list[str] = []
     for entry in manifest["bags"]:
-        bag = path.parent / entry["path"]
-        where = f"bag {entry['name']} ({bag})"
-        if not bag.exists():
-            problems.append(f"{where}: the bag is missing")
-            continue
-        listed = {f["path"]: f for f in entry["files"]}
-        present = {relative_name(bag, f): f for f in bag_files(bag)}
-        for name, recorded in listed.items():
-            file = present.get(name)
-            if file is None:
-                problems.append(f"{where}: file {name}: missing")
-            elif file.stat().st_size != recorded["size"]:
-                problems.append(f"{where}: file {name}: size {file.stat().st_size} bytes, manifest says {recorded['size']}")
-            elif sha256_file(file) != recorded["sha256"]:
-                problems.append(f"{where}: file {name}: sha256 differs from the manifest (content changed)")
-        problems.extend(f"{where}: file {name}: not in the manifest (added since)" for name in sorted(set(present) - set(listed)))
+        problems.extend(entry_problems(entry, path.parent))
+    return problems
+
+
+def entry_problems(entry: dict[str, Any], manifest_dir: Path) -> list[str]:
+    """Re-hash one bag of a manifest in `manifest_dir`; one line per missing, changed or added file."""
+    bag = manifest_dir / entry["path"]
+    where = f"bag {entry['name']} ({bag})"
+    if not bag.exists():
+        return [f"{where}: the bag is missing"]
+    problems: list[str] = []
+    listed = {f["path"]: f for f in entry["files"]}
+    present = {relative_name(bag, f): f for f in bag_files(bag)}
+    for name, recorded in listed.items():
+        file = present.get(name)
+        if file is None:
+            problems.append(f"{where}: file {name}: missing")
+        elif file.stat().st_size != recorded["size"]:
+            problems.append(f"{where}: file {name}: size {file.stat().st_size} bytes, manifest says {recorded['size']}")
+        elif sha256_file(file) != recorded["sha256"]:
+            problems.append(f"{where}: file {name}: sha256 differs from the manifest (content changed)")
+    problems.extend(f"{where}: file {name}: not in the manifest (added since)" for name in sorted(set(present) - set(listed)))
     return problems

@@ -1,0 +1,83 @@
+"""`--ray [ADDRESS]` for `roi-node replay` (and its options): the verb's cluster path and its run summary.
+
+With --ray, OUT is always a folder (OUT/<input stem>_roi per bag, plus
+OUT/manifest.json), even for one input, and it belongs to the run: an output
+there that the manifest does not vouch for is rebuilt. Exit 0 when every bag
+is complete, 1 when any failed, 130 when interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from ..core.errors import UsageError
+
+EXIT_BAG_FAILED = 1
+EXIT_INTERRUPTED = 130
+DEFAULT_RETRIES = 3
+
+
+def _retries(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 or more, got {value}")
+    return value
+
+
+def add_ray_options(parser: argparse.ArgumentParser, unit: str) -> None:
+    parser.add_argument(
+        "--ray", nargs="?", const="", default=None, metavar="ADDRESS",
+        help=f"run one Ray task per {unit}: on a local cluster sized to this machine, or on the cluster at ADDRESS "
+        "(auto, HOST:PORT, ray://HOST:PORT); needs the [cluster] extra. Put it after the inputs, or write --ray=ADDRESS",
+    )
+    parser.add_argument(
+        "--ray-retries", type=_retries, default=DEFAULT_RETRIES, metavar="N",
+        help=f"with --ray: times a task is retried after its worker or node died or a transient I/O error (default: {DEFAULT_RETRIES})",
+    )
+
+
+def cluster_spec(args: argparse.Namespace) -> Any:
+    """The cluster --ray names; refuses at once (one line, exit 2) when Ray is not installed."""
+    from .session import ClusterSpec, require_ray
+
+    require_ray()
+    return ClusterSpec(address=args.ray or None)
+
+
+def replay_on_ray(args: argparse.Namespace, options: dict[str, Any]) -> int:
+    """`roi-node replay ... --ray`: every bag a task; prints a line per bag and the totals."""
+    from .fleet import replay_fleet
+    from .tasks import BagStatus
+
+    if args.workers != 1:
+        raise UsageError("--workers is for local processes; with --ray the cluster's CPUs decide how many bags run at once")
+    spec = cluster_spec(args)
+    out = Path(args.output)
+    result = replay_fleet([Path(p) for p in args.inputs], out, Path(args.config), cluster=spec, retries=args.ray_retries,
+                          progress=True, options=options)
+    for item in result.results:
+        line = f"{item.source} -> {item.target}: {item.status}"
+        if item.status == BagStatus.COMPLETE:
+            line += f", {item.frames} frames, {item.seconds:.2f} s"
+        elif item.status == BagStatus.SKIPPED:
+            line += " (verified against the manifest)"
+        if item.stale_partials:
+            line += f"; removed the temporary output of an attempt that died ({', '.join(item.stale_partials)})"
+        print(line)
+        if item.error is not None:
+            print(f"roi-node replay: error: {item.error}", file=sys.stderr)
+    complete = result.count(BagStatus.COMPLETE)
+    skipped = result.count(BagStatus.SKIPPED)
+    failed = result.count(BagStatus.FAILED)
+    print(
+        f"replayed {complete} of {len(result.results)} bags into {out} on {spec.describe()} ({skipped} skipped as already complete, "
+        f"{failed} failed) in {result.elapsed_s:.1f} s; manifest {result.manifest}"
+    )
+    if result.interrupted:
+        left = result.count(BagStatus.INTERRUPTED)
+        print(f"roi-node replay: interrupted; {left} bags not done (rerun the same command to finish them)", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return EXIT_BAG_FAILED if failed else 0
