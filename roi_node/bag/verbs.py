@@ -22,7 +22,7 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def _replay_options(args: argparse.Namespace) -> dict[str, Any]:
+def replay_options(args: argparse.Namespace) -> dict[str, Any]:
     return {
         "overwrite": args.overwrite,
         "include_inputs": args.include_inputs,
@@ -48,10 +48,6 @@ def _interrupted_note(summary: ReplaySummary) -> str:
 def _cmd_replay(args: argparse.Namespace) -> int:
     from .memory import tune_malloc_for_large_frames
 
-    if args.ray is not None:
-        from ..cluster.verbs import replay_on_ray
-
-        return replay_on_ray(args, _replay_options(args))
     tune_malloc_for_large_frames()  # this process is ours: keep frame buffers in the heap
     inputs = [Path(p) for p in args.inputs]
     if len(inputs) == 1:
@@ -64,7 +60,7 @@ def _replay_one(source: Path, args: argparse.Namespace) -> int:
     from .replay import ReplayInterrupted, replay_bag
 
     try:
-        summary = replay_bag(source, Path(args.output), Path(args.config), progress=True, **_replay_options(args))
+        summary = replay_bag(source, Path(args.output), Path(args.config), progress=True, **replay_options(args))
     except ReplayInterrupted as exc:
         print("\n".join(exc.summary.lines()))
         print(_interrupted_note(exc.summary), file=sys.stderr)
@@ -84,7 +80,7 @@ def _replay_many(inputs: list[Path], args: argparse.Namespace) -> int:
 
     out = Path(args.output)
     # progress lines of parallel workers would overwrite each other: one line per finished bag instead
-    options = {**_replay_options(args), "progress": args.workers == 1}
+    options = {**replay_options(args), "progress": args.workers == 1}
     result = replay_bags(inputs, out, Path(args.config), workers=args.workers, on_done=finished, **options)
     failed = 0
     for outcome in result.outcomes:
@@ -149,8 +145,6 @@ def compression_option(parser: argparse.ArgumentParser, default: str = "none") -
 
 
 def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    from ..cluster.verbs import add_ray_options
-
     replay = verbs.add_parser(
         "replay",
         help="replay recorded bags through the ROI pipeline into MCAP bags (no ROS runtime needed)",
@@ -170,7 +164,6 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
                         help="JPEG quality 1..100 of the compressed outputs (default: 90)")
     replay.add_argument("--overlay", action="store_true", help="also write the node's roi/overlay ImageMarker per frame")
     replay.add_argument("--workers", type=_positive_int, default=1, metavar="N", help="bags replayed in parallel processes (default: 1)")
-    add_ray_options(replay, "bag")
     replay.add_argument("--image-topic", metavar="T", help="camera topic (default: the one Image/CompressedImage topic)")
     replay.add_argument("--joint-topics", nargs="+", metavar="T", help="JointState topics (default: all, merged by joint name)")
     replay.add_argument("--camera-info-topic", metavar="T", help="take the intrinsics from this CameraInfo topic")
