@@ -44,7 +44,7 @@ setup(
         # `--ray`: one task per bag on a Ray cluster; 2.52 is the first with token authentication (RAY_AUTH_TOKEN)
         "cluster": ["ray>=2.52,<3"],
         "dev": [
-            "pytest>=8",
+            "pytest>=8,<9",  # pytest 9 renamed the node id pytest-xdist's loadgroup rewrites (its groups are ignored)
             "pytest-timeout>=2.3",
             "pytest-xdist>=3.5",  # make test: the DDS tests on one worker, the rest beside them
             "ruff>=0.6",

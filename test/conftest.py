@@ -20,12 +20,12 @@ def single_rig_path() -> Path:
     return CONFIG / "rig_panda_single.yaml"
 
 
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Under pytest-xdist (`--dist loadgroup`) the DDS and Ray tests share one worker, so they run one at a time.
+def pytest_itemcollected(item: pytest.Item) -> None:
+    """Under pytest-xdist (`--dist loadgroup`) the DDS tests share one worker, so they run one at a time.
 
-    They are timing-sensitive (DDS) or take both cores (a Ray cluster); every other module is a group of its own,
-    so its module-scoped fixtures (sim bags, recorded sessions) are built once, not once per worker.
+    Every other module is a group of its own, so its module-scoped fixtures (sim bags, recorded sessions, a Ray
+    cluster) are built once, not once per worker, and the offline modules run beside the DDS tests. Marked as each
+    item is collected, before xdist reads the groups.
     """
-    for item in items:
-        serial = item.get_closest_marker("dds") is not None or item.get_closest_marker("ray") is not None
-        item.add_marker(pytest.mark.xdist_group("serial" if serial else item.nodeid.split("::")[0]))
+    dds = item.get_closest_marker("dds") is not None
+    item.add_marker(pytest.mark.xdist_group("dds" if dds else item.nodeid.split("::")[0]))
