@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+import numpy as np
+
+from roi_node.core.config import load_rig_config
+from roi_node.core.engine import CameraInfoEvent, FrameEvent, JointStateEvent, StreamEngine
 from roi_node.core.stamps import CONFIRMING_STAMPS, NS_PER_S, StampVerdict, StreamClock, ns_to_stamp, stamp_to_ns
+
+from .conftest import CONFIG
 
 T0 = 1_700_000_000 * NS_PER_S
 PERIOD = NS_PER_S // 30
@@ -58,3 +64,29 @@ def test_a_small_step_back_is_accepted_for_the_synchronizer_to_order() -> None:
     clock = StreamClock()
     assert _run(clock, [T0, T0 - NS_PER_S // 2]) == [(StampVerdict.ACCEPTED, 0), (StampVerdict.ACCEPTED, 0)]
     assert clock.last_ns == T0
+
+
+def test_frames_held_over_a_loop_still_wait_for_their_epochs_camera_info() -> None:
+    """A live loop: the frames held until the jump back is confirmed start their max_wait at the confirmation.
+
+    Counted from their arrival, their wait would already be over when released, and the first looped frames would be
+    dropped as no_intrinsics just before the camera info of their epoch is confirmed (one message later).
+    """
+    rig = load_rig_config(CONFIG / "rig_demo_bimanual.yaml")
+    engine = StreamEngine(rig, intrinsics_from_stream=True)
+    assert engine.pipeline is not None and rig.camera.intrinsics is not None
+    camera, joints = rig.camera.intrinsics, engine.pipeline.required_joints
+    image = np.zeros((camera.height_px, camera.width_px, 3), np.uint8)
+    prepared, frames = 0, 24
+    for i in range(frames):
+        now = i * PERIOD  # monotonic arrival: a frame every 33 ms
+        stamp = T0 + (i if i < 12 else i - 12 - 3 * 30) * PERIOD  # frame 12 jumps 3 s back: a loop
+        for k in range(7):  # 200 Hz joint states around the frame, a few before and after its stamp
+            engine.feed(JointStateEvent(stamp + (k - 3) * PERIOD // 6, joints, [0.0] * len(joints)))
+        engine.feed(FrameEvent(stamp, image, arrival_ns=now))
+        for ready in engine.pop_ready(now + 1):  # the live worker looks before the frame's camera info is in
+            prepared += engine.prepare(ready) is not None
+        engine.feed(CameraInfoEvent(stamp, camera))  # each frame's camera info follows it, as a driver sends them
+    for ready in engine.pop_ready(None):
+        prepared += engine.prepare(ready) is not None
+    assert not engine.stats.drops and prepared == frames

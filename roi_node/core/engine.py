@@ -31,7 +31,7 @@ import bisect
 import math
 from collections import deque
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -260,6 +260,10 @@ class StreamEngine:
             return Refusal(check.verdict.value, f"{event.where}: stamp {event.stamp_ns} refused: {check.reason}")
         if check.release_held:
             for confirmed in held:
+                if isinstance(confirmed, FrameEvent) and isinstance(event, FrameEvent):
+                    # a held frame could not be paired before its stamp was confirmed: its max_wait starts now, so it
+                    # still waits for the joint states and camera info of its epoch, which their clocks confirm alike
+                    confirmed = replace(confirmed, arrival_ns=max(confirmed.arrival_ns, event.arrival_ns))
                 if (refusal := self._use(confirmed, check.epoch)) is not None:
                     self._refuse(confirmed, refusal)
             held.clear()

@@ -100,7 +100,10 @@ def main(spec_path: str, truth_path: str) -> int:
 
     deadline = time.monotonic() + 30
     want = int(spec.get("min_subscribers", 1))  # e.g. 2: the node and a recorder
-    while (image_pub.get_subscription_count() < want or joint_pub.get_subscription_count() < want) and time.monotonic() < deadline:
+    # every stream the node takes must be matched first: a camera info sent before its reader matched is lost, and the
+    # frame it calibrates is then dropped as no_intrinsics
+    awaited = [image_pub, joint_pub] + ([info_pub] if spec.get("camera_info") else [])
+    while any(p.get_subscription_count() < want for p in awaited) and time.monotonic() < deadline:
         rclpy.spin_once(node, timeout_sec=0.05)
     if image_pub.get_subscription_count() < 1:
         print("publisher: no subscriber on image_raw within 30 s", file=sys.stderr)
