@@ -27,7 +27,7 @@ $(STAMP): setup.py setup.cfg package.xml
 test: $(STAMP)
 	$(PY) -m compileall -q roi_node test examples  # a cold first import must not slow the first live test
 	$(PY) -c "from roi_node.core.area_resample import warm_up; warm_up()"  # nor the resampling kernels' first JIT compile
-	# two workers: the DDS tests one at a time on one (xdist group "dds", test/conftest.py), the other modules beside them
+	# two workers: the DDS and Ray tests one at a time on one (xdist group "serial", test/conftest.py), the other modules beside them
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-71} $(PY) -m pytest -q -n 2 --dist loadgroup test
 
 # Opt-in, not part of `make test`: the real LeRobot reader (lerobot pulls torch, several GB) in its own

@@ -21,11 +21,11 @@ def single_rig_path() -> Path:
 
 
 def pytest_itemcollected(item: pytest.Item) -> None:
-    """Under pytest-xdist (`--dist loadgroup`) the DDS tests share one worker, so they run one at a time.
+    """Under pytest-xdist (`--dist loadgroup`) the DDS and Ray tests share one worker, so they run one at a time.
 
-    Every other module is a group of its own, so its module-scoped fixtures (sim bags, recorded sessions, a Ray
-    cluster) are built once, not once per worker, and the offline modules run beside the DDS tests. Marked as each
-    item is collected, before xdist reads the groups.
+    DDS tests are timing-sensitive and a Ray cluster takes both cores, so none of them runs beside another; every
+    other module is a group of its own, so its module-scoped fixtures (sim bags, recorded sessions) are built once,
+    not once per worker. Marked as each item is collected, before xdist reads the groups.
     """
-    dds = item.get_closest_marker("dds") is not None
-    item.add_marker(pytest.mark.xdist_group("dds" if dds else item.nodeid.split("::")[0]))
+    serial = item.get_closest_marker("dds") is not None or item.get_closest_marker("ray") is not None
+    item.add_marker(pytest.mark.xdist_group("serial" if serial else item.nodeid.split("::")[0]))
