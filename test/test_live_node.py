@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import time
@@ -87,7 +88,12 @@ def test_bimanual_720p_every_frame_with_stamps_sizes_residual_and_markers(tmp_pa
     collector, truth, log = run_session(tmp_path, spec, *PATIENT)
     sent = {f["stamp_ns"]: f for f in truth["frames"]}
     assert "rig demo_bimanual" in log and "/roi/left/image_raw" in log and "lineage" in log
-    assert sorted(r["stamp_ns"] for r in collector.metadata) == sorted(sent), "one metadata record per frame, same stamps"
+    # image_raw is best effort (the default sensor QoS), so a busy core may lose a frame in transport; every frame the
+    # node received comes out, once, with its own stamp
+    stopped = re.search(r"stopped: frames in (\d+), out (\d+); dropped: none", log)
+    assert stopped is not None and stopped[1] == stopped[2], log
+    stamps = [r["stamp_ns"] for r in collector.metadata]
+    assert len(stamps) == len(set(stamps)) == int(stopped[2]) >= len(sent) - 1 and set(stamps) <= set(sent), "one record per frame"
     schema = metadata_schema()
     period_ms = 1000 / 200
     for record in collector.metadata:
