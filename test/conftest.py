@@ -29,3 +29,14 @@ def pytest_itemcollected(item: pytest.Item) -> None:
     """
     serial = item.get_closest_marker("dds") is not None or item.get_closest_marker("ray") is not None
     item.add_marker(pytest.mark.xdist_group("serial" if serial else item.nodeid.split("::")[0]))
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A test module that takes a DDS domain (`next_domain`) must mark its DDS tests dds, or they run beside the live ones."""
+    from .live import harness
+
+    takes_domain = {item.nodeid.split("::")[0] for item in items
+                    if getattr(getattr(item, "module", None), "next_domain", None) is harness.next_domain}
+    marked = {item.nodeid.split("::")[0] for item in items if item.get_closest_marker("dds") is not None}
+    if unmarked := sorted(takes_domain - marked):
+        raise pytest.UsageError(f"{', '.join(unmarked)}: takes a DDS domain (next_domain) but marks no test pytest.mark.dds")

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, JointState
 from visualization_msgs.msg import ImageMarker
@@ -18,6 +19,8 @@ from .conftest import CONFIG, REPO
 from .live.harness import Collector, next_domain, node_args, process, ros_env
 from .test_live_node import observations
 from .test_overlay import box_edges, segments_by_colour
+
+pytestmark = pytest.mark.dds  # a DDS participant in the run's domains: runs one at a time (see Makefile)
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 ARMS = ["left", "right"]

@@ -50,9 +50,15 @@ def ros_env(domain_id: int) -> dict[str, str]:
 
 
 def next_domain() -> int:
-    """A domain for one test: distinct within the run, offset from the run's own ROS_DOMAIN_ID."""
+    """A domain for one test: distinct within the run across pytest-xdist workers, offset from the run's ROS_DOMAIN_ID.
+
+    Each worker numbers its own tests, so the k-th domain of worker w is k * workers + w: two workers never share a
+    domain, and a test on one never hears another's joint states.
+    """
     base = int(os.environ.get("ROS_DOMAIN_ID", "71"))
-    return (base + next(_domains) * 3) % 200 + 1
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw"))
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    return (base + next(_domains) * workers + worker) % 200 + 1
 
 
 @contextmanager
