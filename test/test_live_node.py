@@ -33,6 +33,7 @@ ARMS = ["left", "right"]
 # tests of what every frame carries (exact residuals, intrinsics) let a frame wait 250 ms for the joint sample after
 # it, so a busy core (the other test worker, a loaded CI machine) does not release it unpaired; latency is bench/live.py's
 PATIENT = ("sync.max_wait_ms:=250.0",)
+RELIABLE = ("qos.subscription_reliability:=reliable", "qos.joint_state_depth:=2000")
 
 
 def run_session(tmp_path: Path, spec: dict[str, Any], *params: str, config: Path = BIMANUAL, arms: list[str] = ARMS,
@@ -133,9 +134,12 @@ def test_compressed_input_camera_info_intrinsics_and_robot_description_topic(tmp
     """PNG CompressedImage in, intrinsics only from CameraInfo, URDF only from the latched robot_description topic."""
     config = _rig_without_intrinsics(tmp_path)
     urdf = resolve_robot_reference("example-robot-data:panda", "test")
-    spec = {"frames": 20, "transport": "compressed", "camera_info": True, "robot_description": str(urdf), "render_rig": str(BIMANUAL)}
+    # 10 Hz, reliable, a deep joint queue: what is tested is where intrinsics and URDF come from, not how a node
+    # starved by the other test worker keeps up with 720p PNG decoding (test_live_faults has that)
+    spec = {"frames": 20, "rate_hz": 10.0, "transport": "compressed", "camera_info": True, "robot_description": str(urdf),
+            "render_rig": str(BIMANUAL)}
     collector, truth, log = run_session(
-        tmp_path, spec, "image_transport:=compressed", "robot_description_source:=topic", *PATIENT, config=config
+        tmp_path, spec, "image_transport:=compressed", "robot_description_source:=topic", *PATIENT, *RELIABLE, config=config
     )
     sent = {f["stamp_ns"]: f for f in truth["frames"]}
     assert "waiting for CameraInfo" in log and "URDF from /robot_description" in log and "intrinsics from /camera_info" in log
@@ -149,11 +153,8 @@ def test_compressed_input_camera_info_intrinsics_and_robot_description_topic(tmp
         assert record["lineage"]["fk_ver"] == reference.lineage.fk_ver  # same URDF text -> same hash
     obs = observations(collector)
     assert len(obs) == len(records)
-    # lossless PNG: the markers are exact where the joint sample fits; a frame whose joint samples a busy core lost in
-    # transport (best-effort joint_states) says so in its sync status and is not held to the pixel
-    paired = {stamp: o for stamp, o in obs.items() if o.metadata["sync"]["status"] == "ok"}
-    assert len(paired) >= len(obs) - 2
-    for stamp, o in paired.items():
+    for stamp, o in obs.items():  # lossless PNG: the markers are exact
+        assert o.metadata["sync"]["status"] == "ok"
         assert_markers_where_metadata_says(o, sent[stamp])
     drops = diagnostics_values(collector.diagnostics, "roi_node: input")["dropped_by_reason"]
     assert sum(drops.values()) == len(sent) - len(records)

@@ -62,9 +62,9 @@ class StreamStats:
     def frames_out(self) -> int:
         return self.totals["frames_out"]
 
-    def frame_in(self) -> None:
-        self.totals["frames_in"] += 1
-        self._window.frames_in += 1
+    def frame_in(self, count: int = 1) -> None:
+        self.totals["frames_in"] += count
+        self._window.frames_in += count
 
     def joint_msg_in(self) -> None:
         self.totals["joint_msgs_in"] += 1

@@ -3,9 +3,11 @@ shared with the lifecycle node (ros/lifecycle.py).
 
 Threads: the executor thread only converts messages into engine events (a
 zero-copy view of an Image, a joint state) under one lock, so joint states
-are never starved by image work; one worker thread pops frames in stamp
-order, runs the pipeline outside the lock and publishes (see ros/spin.py for
-why one executor thread). Every rule about what is used, flagged or refused
+are never starved by image work; a joint callback takes every joint state
+already queued (ros/drain.py); a CompressedImage is only queued there and
+decoded on a decoder thread (ros/frame_decoder.py); one worker thread pops
+frames in stamp order, runs the pipeline outside the lock and publishes (see
+ros/spin.py for why one executor thread). Every rule about what is used, flagged or refused
 is the engine's; this file only moves messages.
 
 The node never runs on pretending: a bad message is counted by kind, logged
@@ -59,6 +61,8 @@ from ..core.stream_stats import StreamStats
 from .compressed import CompressedPublishers
 from .conversions import camera_from_msg, camera_info_msg, image_msg, stamp_ns
 from .diagnostics import StreamHealth, diagnostics_msg
+from .drain import draining_subscription
+from .frame_decoder import EncodedFrame, FrameDecoder
 from .params import NodeParams, declare_and_read
 from .runtime_params import RuntimePolicy, declare_policy, refusal, undeclare_policy
 
@@ -80,6 +84,7 @@ class StreamNode(Node):
     policy: RuntimePolicy | None = None  # the runtime parameters, while streaming
     active = True  # False: frames are dropped and counted ("inactive") instead of processed
     _stream_entities: tuple[Any, ...] = ()  # what `_start_stream` created, for `_stop_stream`
+    _decoder: FrameDecoder | None = None  # compressed input only
 
     def _start_stream(self) -> None:
         """Load the rig, build the engine, create the endpoints and start the worker thread."""
@@ -122,6 +127,12 @@ class StreamNode(Node):
         # the worker keeps its own stop event: one that outlived its join must not run on a re-configured stream
         self._worker = threading.Thread(target=self._work, args=(self._stop,), name="roi_node_worker", daemon=True)
         self._worker.start()
+        if self.params.image_transport == "compressed":
+            self._decoder = FrameDecoder(
+                lambda fmt, data: image_from_compressed(fmt, data, self._image_topic), capacity=self.params.max_pending_frames,
+                on_frame=self._on_decoded, on_refused=lambda message: self._refused("image", message),
+                on_error=self._on_decode_error, on_overflow=self._on_decode_overflow, on_failure=self._fail,
+            )
         self._stream_entities = tuple(e for e in self._entities() if e not in before)
         self.policy = policy  # streaming from here on
         self._log_start()
@@ -140,10 +151,10 @@ class StreamNode(Node):
         else:
             self._image_topic = p.image_topic
             self.create_subscription(Image, self._image_topic, self._on_image, sub_qos)
-        for topic in p.joint_state_topics:
-            self.create_subscription(JointState, topic, self._joint_callback(topic), p.joint_state_qos())
+        for topic in p.joint_state_topics:  # draining: see ros/drain.py
+            draining_subscription(self, JointState, topic, self._joint_callback(topic), p.joint_state_qos())
         if p.command_topic:
-            self.create_subscription(JointState, p.command_topic, self._on_command, p.joint_state_qos())
+            draining_subscription(self, JointState, p.command_topic, self._on_command, p.joint_state_qos())
         if self.engine.intrinsics_from_stream:
             self.create_subscription(CameraInfo, p.camera_info_topic, self._on_camera_info, sub_qos)
         if p.robot_description_source == "topic":
@@ -211,15 +222,41 @@ class StreamNode(Node):
         self._offer_frame(msg.header, lambda: image_from_msg(msg, self._image_topic))
 
     def _on_compressed(self, msg: CompressedImage) -> None:
-        self._offer_frame(msg.header, lambda: image_from_compressed(msg.format, msg.data, self._image_topic))
+        """Queued for the decoder thread: a decode here would pace how many joint states the executor takes."""
+        arrival_ns = self._frame_arrived()
+        if arrival_ns is not None and self._decoder is not None:
+            self._decoder.offer(EncodedFrame(msg.header, msg.format, msg.data, arrival_ns))
 
-    def _offer_frame(self, msg_header: Any, decode: Callable[[], Any]) -> None:
+    def _on_decoded(self, frame: EncodedFrame, pixels: Any) -> None:
+        """Decoder thread: the decoded frame goes to the engine with the time it arrived."""
+        self._offer_frame(frame.header, lambda: pixels, frame.arrival_ns)
+
+    def _on_decode_error(self, frame: EncodedFrame, exc: Exception) -> None:
+        with self._lock:
+            self.stats.frame_in()
+            line = self.stats.processing_error(exc)
+            self.stats.drop("processing_error")
+        stamp = frame.header.stamp
+        self._warn("processing", f"decoding the frame stamped {stamp.sec}.{stamp.nanosec:09d}: {line}", error_level=True)
+
+    def _on_decode_overflow(self) -> None:
+        with self._lock:
+            self.stats.frame_in()
+            self.stats.drop("decode_overflow")
+
+    def _frame_arrived(self) -> int | None:
+        """The arrival time of a frame to take, or None for one refused (counted) because the node is inactive."""
         arrival_ns = time.monotonic_ns()
         self.health.frame_seen(arrival_ns)
-        if not self.active:
-            with self._lock:
-                self.stats.frame_in()
-                self.stats.drop("inactive")
+        if self.active:
+            return arrival_ns
+        with self._lock:
+            self.stats.frame_in()
+            self.stats.drop("inactive")
+        return None
+
+    def _offer_frame(self, msg_header: Any, decode: Callable[[], Any], arrival_ns: int | None = None) -> None:
+        if arrival_ns is None and (arrival_ns := self._frame_arrived()) is None:
             return
         try:
             pixels = decode()
@@ -408,14 +445,17 @@ class StreamNode(Node):
         """Stop the worker (it finishes the frame in hand); pending frames are counted as dropped."""
         if self.policy is None:
             return  # not streaming
+        undecoded = self._decoder.close() if self._decoder is not None else 0
+        self._decoder = None
         self._stop.set()
         with self._lock:
             self._lock.notify_all()
         self._worker.join(timeout=5.0)
         with self._lock:
             self.engine.finish()
-            if self.engine.pending:
-                self.stats.drop("shutdown", self.engine.pending)
+            self.stats.frame_in(undecoded)
+            if self.engine.pending + undecoded:
+                self.stats.drop("shutdown", self.engine.pending + undecoded)
             summary = self.stats.summary_line()
         self.get_logger().info(f"stopped: {summary}")
 
