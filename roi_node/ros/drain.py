@@ -4,9 +4,9 @@ rclpy's executor takes one message per ready subscription per wait. Each wait
 costs the executor a wait-set rebuild in Python, so on a busy core its cycle
 can grow past the 5 ms period of a 200 Hz joint stream: joint states then fall
 behind the frames without bound, and frames are paired with samples seconds
-old. A joint callback therefore drains its subscription's queue (bounded by
-the queue depth), as rclpy's executor does for one message, with the same
-`take_message` call.
+old. A joint callback (and the recorder's, for every topic) therefore drains
+its subscription's queue (bounded by the queue depth), as rclpy's executor
+does for one message, with the same `take_message` call.
 """
 
 from __future__ import annotations
@@ -20,8 +20,10 @@ from rclpy.qos import QoSProfile
 from rclpy.subscription import Subscription
 
 
-def draining_subscription(node: Node, msg_type: Any, topic: str, handle: Callable[[Any], None], qos: QoSProfile) -> Subscription:
-    """A subscription whose callback handles the message it is given, then every message already queued."""
+def draining_subscription(node: Node, msg_type: Any, topic: str, handle: Callable[[Any], None], qos: QoSProfile, *,
+                          raw: bool = False) -> Subscription:
+    """A subscription whose callback handles the message it is given, then every message already queued
+    (`raw`: serialized bytes, as rclpy's `create_subscription(raw=True)`)."""
     limit = max(1, qos.depth)
     subscription: Subscription | None = None
 
@@ -39,5 +41,5 @@ def draining_subscription(node: Node, msg_type: Any, topic: str, handle: Callabl
                 return
             handle(taken[0])
 
-    subscription = node.create_subscription(msg_type, topic, callback, qos)
+    subscription = node.create_subscription(msg_type, topic, callback, qos, raw=raw)
     return subscription

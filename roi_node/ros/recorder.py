@@ -38,6 +38,7 @@ from ..bag.mcap_file import Compression
 from ..bag.transcode import COMPRESSED_TYPE, IMAGE_TYPE, ImageTranscoder, ImageTransport, compressed_topic
 from ..bag.writer import BagWriteError, BagWriter, SplitPolicy
 from ..core.errors import BagError, ImageError, UsageError
+from .drain import draining_subscription
 from .msg_types import message_class, subscription_qos, to_bag_qos
 
 DISCOVERY_PERIOD_S = 0.5
@@ -129,9 +130,8 @@ class Recorder(Node):
             except queue.Full:
                 continue
             self.stored_as[name] = stored_as
-            self._recorded[name] = self.create_subscription(
-                cls, name, self._callback(name), subscription_qos(offered), raw=True
-            )
+            # draining (ros/drain.py): a 200 Hz joint stream must not wait for one executor cycle per message
+            self._recorded[name] = draining_subscription(self, cls, name, self._callback(name), subscription_qos(offered), raw=True)
             note = f" as {stored_as} [{stored_type}]" if transcode else ""
             self.get_logger().info(f"recording {name} [{type_name}]{note}")
 
