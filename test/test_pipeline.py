@@ -13,7 +13,7 @@ import pytest
 from roi_node.core.config import load_rig_config
 from roi_node.core.errors import ImageError
 from roi_node.core.metadata import metadata_schema
-from roi_node.core.pipeline import RoiPipeline
+from roi_node.core.pipeline import RoiPipeline, overlap_global_view
 from roi_node.core.sync import JointStateBuffer
 
 from .rigs import (
@@ -91,21 +91,26 @@ def test_roi_virtual_camera_projects_3d_points_onto_the_same_content(pipeline: R
 
 
 def test_every_record_validates_and_same_inputs_give_identical_bytes(bimanual_rig_path: Path) -> None:
+    """Two fresh pipelines give the same bytes, one resampling the global view on its own thread, one inline."""
     schema = metadata_schema()
     rng = np.random.default_rng(5)
     frames = [rng.integers(0, 255, (720, 1280, 3), dtype=np.uint8) for _ in range(3)]
     poses = [bimanual_positions(_random_pose(rng), _random_pose(rng)) for _ in range(12)]
     poses.append(bimanual_positions({**PANDA_HOME, "panda_joint1": 1.7}, {**PANDA_HOME, "panda_joint1": -1.7}))  # toward the camera edge
     runs = []
-    for _ in range(2):
-        pipe = RoiPipeline(load_rig_config(bimanual_rig_path))  # a fresh instance: no hidden state
-        out = []
-        for i, positions in enumerate(poses):
-            result = pipe.process(frames[i % 3], 1_000 + i, i, ok_sync(positions))
-            jsonschema.validate(result.record.as_dict(), schema)
-            assert result.global_view is not None and result.global_view.shape == (256, 256, 3)
-            out.append((result.record_json, [r.image.tobytes() for r in result.rois], result.global_view.tobytes()))
-        runs.append(out)
+    for overlap in (True, False):
+        overlap_global_view(overlap)
+        try:
+            pipe = RoiPipeline(load_rig_config(bimanual_rig_path))  # a fresh instance: no hidden state
+            out = []
+            for i, positions in enumerate(poses):
+                result = pipe.process(frames[i % 3], 1_000 + i, i, ok_sync(positions))
+                jsonschema.validate(result.record.as_dict(), schema)
+                assert result.global_view is not None and result.global_view.shape == (256, 256, 3)
+                out.append((result.record_json, [r.image.tobytes() for r in result.rois], result.global_view.tobytes()))
+            runs.append(out)
+        finally:
+            overlap_global_view(True)  # the process-wide default, whatever happened
     assert runs[0] == runs[1]
 
 

@@ -21,6 +21,7 @@ import cv2
 
 from ..core.atomic_output import ensure_parent
 from ..core.errors import BagError, RoiNodeError
+from ..core.pipeline import overlap_global_view
 from .memory import tune_malloc_for_large_frames
 from .reader import BAG_FILE_SUFFIXES
 from .replay import ReplayInterrupted, replay_bag
@@ -84,9 +85,11 @@ def _replay_one(source: Path, target: Path, config_path: Path, options: dict[str
 
 
 def _worker_init() -> None:
-    """Idle workers ignore Ctrl-C; parallelism is across processes, so OpenCV stays on one thread each."""
+    """Idle workers ignore Ctrl-C; parallelism is across processes, so OpenCV stays on one thread each and the
+    global view is resampled inline."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     cv2.setNumThreads(1)
+    overlap_global_view(False)
     tune_malloc_for_large_frames()
 
 

@@ -11,8 +11,11 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from collections.abc import Mapping
+import os
+from collections.abc import Callable, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -220,12 +223,13 @@ class RoiPipeline:
         self.check_image(image)
         camera, lineage = self.camera, self.lineage
         assert camera is not None and lineage is not None
+        output = self.rig.output
+        place_global = (place_in_output, image, (0, 0), output.global_size_px, output.resize_policy, output.interpolation)
+        pending_global = _GlobalViewThread.submit(*place_global) if output.global_enabled else None
         rois = tuple(self._process_arm(arm, camera, image, sync, flagged_joints) for arm in self._arms)
         global_view = None
-        if self.rig.output.global_enabled:
-            global_view = place_in_output(
-                image, (0, 0), self.rig.output.global_size_px, self.rig.output.resize_policy, self.rig.output.interpolation
-            ).image
+        if output.global_enabled:
+            global_view = (pending_global.result() if pending_global is not None else place_in_output(*place_global[1:])).image
         if teleop is None:
             teleop = TeleopRecord(control_hz=rnd(sync.joint_rate_hz, MS_DECIMALS))
         record = FrameRecord(
@@ -357,3 +361,40 @@ def _pose_record(base_T_ee: Transform) -> PoseRecord:
     xyz = rnd_list(base_T_ee.translation_m, M_DECIMALS)
     quat = rnd_list(base_T_ee.quat_xyzw(), M_DECIMALS)
     return PoseRecord((xyz[0], xyz[1], xyz[2]), (quat[0], quat[1], quat[2], quat[3]))
+
+
+
+_T = TypeVar("_T")
+
+
+class _GlobalViewThread:
+    """The thread that resamples the global view while the ROIs are cut (the area kernels release the GIL).
+
+    It lowers a frame's latency when a second core is free, at some CPU per
+    frame for the hand-off (bench/core.py prints both). Processes that already
+    run one pipeline per core (replay workers, cluster tasks) turn it off with
+    `overlap_global_view(False)`, as they keep OpenCV on one thread.
+    """
+
+    enabled = True
+    _executor: ThreadPoolExecutor | None = None
+
+    @classmethod
+    def submit(cls, fn: Callable[..., _T], *args: Any) -> Future[_T] | None:
+        if not cls.enabled:
+            return None
+        if cls._executor is None:
+            cls._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="roi_global_view")
+        return cls._executor.submit(fn, *args)
+
+    @classmethod
+    def forget_after_fork(cls) -> None:
+        cls._executor = None  # a forked child has none of the parent's threads
+
+
+os.register_at_fork(after_in_child=_GlobalViewThread.forget_after_fork)
+
+
+def overlap_global_view(enabled: bool) -> None:
+    """Process-wide: resample the global view on its own thread beside the ROIs (the default) or inline."""
+    _GlobalViewThread.enabled = enabled
