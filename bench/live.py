@@ -44,6 +44,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 
+from roi_node.bag.memory import tune_malloc_for_large_frames
 from roi_node.core.camera import calibration_yaml_text, camera_from_info
 from roi_node.core.config import load_rig_config
 
@@ -164,6 +165,7 @@ def run_case(size: int, duration_s: float, tmp: Path, domain: int, interpolation
 
 
 def main() -> int:
+    tune_malloc_for_large_frames()  # this process receives the full frames of (a): the same heap settings as the children
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--duration-s", type=float, default=60.0, help="seconds per measurement (default: 60)")
     parser.add_argument("--sizes", type=int, nargs="+", default=[720, 1080], choices=sorted(SIZES))

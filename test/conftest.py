@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -18,6 +20,16 @@ def bimanual_rig_path() -> Path:
 @pytest.fixture(scope="session")
 def single_rig_path() -> Path:
     return CONFIG / "rig_panda_single.yaml"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def no_orphaned_shm_segments() -> Iterator[None]:
+    """The shared-memory segments that DDS processes killed during the run left in /dev/shm go with the run."""
+    from .live.harness import remove_orphaned_shm_segments
+
+    started = time.time()
+    yield
+    remove_orphaned_shm_segments(started)
 
 
 def pytest_itemcollected(item: pytest.Item) -> None:

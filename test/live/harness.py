@@ -7,6 +7,7 @@ the shared-memory FastDDS profile and the glibc malloc settings.
 
 from __future__ import annotations
 
+import fcntl
 import itertools
 import json
 import os
@@ -59,6 +60,40 @@ def next_domain() -> int:
     worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw"))
     workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
     return (base + next(_domains) * workers + worker) % 200 + 1
+
+
+SHM_DIR = Path("/dev/shm")
+
+
+def remove_orphaned_shm_segments(since_s: float) -> list[str]:
+    """Remove the Fast DDS shared-memory segments, created since `since_s`, whose owner is gone; returns their names.
+
+    A participant holds an exclusive flock on its segment's `_el` file while it lives; a process killed by SIGKILL
+    (as the crash tests do) leaves segment and lock file behind in /dev/shm, 64 MiB each with our profile. The
+    shared port files (`fastrtps_port*`) are Fast DDS's own to recycle and are left alone.
+    """
+    removed = []
+    for lock in SHM_DIR.glob("fastrtps_*_el"):
+        segment = lock.with_name(lock.name.removesuffix("_el"))
+        if segment.name.startswith("fastrtps_port"):
+            continue
+        try:
+            if lock.stat().st_mtime < since_s:
+                continue
+            fd = os.open(lock, os.O_RDWR)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            continue  # held: its process is alive
+        else:
+            segment.unlink(missing_ok=True)
+            lock.unlink(missing_ok=True)
+            removed.append(segment.name)
+        finally:
+            os.close(fd)
+    return removed
 
 
 @contextmanager
