@@ -20,6 +20,7 @@ import argparse
 import contextlib
 import os
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -64,6 +65,7 @@ class KernelClock:
 
     def __init__(self) -> None:
         self.ms = 0.0
+        self._lock = threading.Lock()  # the global view's kernel runs on its own thread
 
     @contextlib.contextmanager
     def installed(self) -> Iterator[None]:
@@ -72,7 +74,8 @@ class KernelClock:
         def timed_kernel(*args, **kwargs):  # type: ignore[no-untyped-def]
             t0 = time.perf_counter()
             original(*args, **kwargs)
-            self.ms += (time.perf_counter() - t0) * 1e3
+            with self._lock:
+                self.ms += (time.perf_counter() - t0) * 1e3
 
         resample.resample_window = timed_kernel  # type: ignore[assignment]
         try:

@@ -80,18 +80,35 @@ def test_a_full_queue_drops_the_oldest_undecoded_frames_and_close_reports_the_re
         return np.array([data])
 
     calls = Calls()
-    d = decoder(decode, calls, capacity=3, until=10**6)
+    d = decoder(decode, calls, capacity=3, until=4)
     d.offer(encoded(0))
     assert started.wait(5.0)  # frame 0 in hand; 1..6 compete for 3 places
     for i in range(1, 7):
         d.offer(encoded(i))
     assert calls.overflows == 3
     gate.set()
-    calls.done.wait(0.5)
-    left = d.close()
-    decoded = [data for data, _ in calls.frames]
-    assert decoded[0] == 0 and decoded[1:] == [4, 5, 6][:len(decoded) - 1]  # the newest three survived, in order
-    assert left == 4 - len(decoded)
+    assert calls.done.wait(5.0)
+    assert [data for data, _ in calls.frames] == [0, 4, 5, 6]  # the newest three survived, in order
+    assert d.close() == 0
+
+
+def test_close_counts_the_queued_frames_and_the_one_in_hand_and_hands_on_neither() -> None:
+    gate = threading.Event()
+    started = threading.Event()
+
+    def decode(fmt: str, data: Any) -> np.ndarray:
+        started.set()
+        gate.wait(5.0)
+        return np.array([data])
+
+    calls = Calls()
+    d = decoder(decode, calls, capacity=8, until=1)
+    for i in range(3):
+        d.offer(encoded(i))
+    assert started.wait(5.0)
+    threading.Timer(0.2, gate.set).start()  # frame 0 finishes decoding while close() waits
+    assert d.close(timeout_s=5.0) == 3  # 1 and 2 queued, 0 decoded after close began
+    assert calls.frames == []
 
 
 @pytest.mark.parametrize("fault", [RuntimeError("callback bug"), SystemExit(3)])

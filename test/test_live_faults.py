@@ -15,6 +15,7 @@ import subprocess
 import sys
 import time
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +51,27 @@ def publish(tmp_path: Path, env: dict[str, str], spec: dict[str, Any]) -> dict[s
     return truth
 
 
+def run_session(tmp_path: Path, node_cmd: list[str], spec: dict[str, Any], *, records: int, diagnostics: int,
+                settled: Callable[[Collector], bool] | None = None) -> tuple[Collector, dict[str, Any]]:
+    """Start the node (`node_cmd`, python arguments) and a collector, publish `spec`, wait for `records` records
+    and `diagnostics` arrays (and, given `settled`, until it holds: it must within 10 s)."""
+    domain = next_domain()
+    env = ros_env(domain)
+    collector = Collector(domain, ARMS)
+    try:
+        with process(node_cmd, env, tmp_path / "node.log") as node:
+            collector.wait_for_node()
+            truth = publish(tmp_path, env, spec)
+            collector.wait_until(lambda: len(collector.metadata) >= records, 10.0)
+            collector.wait_until(lambda: len(collector.diagnostics) >= diagnostics, 5.0)
+            if settled is not None:
+                assert collector.wait_until(lambda: settled(collector), 10.0), diagnostics_values(collector.diagnostics, "roi_node: input")
+            assert node.poll() is None, (tmp_path / "node.log").read_text()
+    finally:
+        collector.close()
+    return collector, truth
+
+
 def levels(collector: Collector, name: str) -> list[int]:
     return [int.from_bytes(s.level, "little") if isinstance(s.level, bytes) else int(s.level)
             for array in collector.diagnostics for s in array.status if s.name == name]
@@ -63,27 +85,16 @@ ERROR = int.from_bytes(DiagnosticStatus.ERROR, "little")
 
 
 def test_node_keeps_publishing_through_injected_exceptions_absurd_camera_info_and_wild_joints(tmp_path: Path) -> None:
-    domain = next_domain()
-    env = ros_env(domain)
-    collector = Collector(domain, ARMS)
     spec = {
         "frames": 60,
         "camera_info": True,
         "absurd_camera_info_at_frames": [10, 11],
         "wild_joints_between_frames": [30, 36],
     }
-    try:
-        # reliable, deep queues: on a loaded machine transport loss and overflow would hide what is tested here
-        params = ("use_camera_info:=true", "qos.subscription_reliability:=reliable", "qos.subscription_depth:=30",
-                  "sync.max_pending_frames:=64")
-        with process(run_args(*params, faulty_every=7), env, tmp_path / "node.log") as node:
-            collector.wait_for_node()
-            truth = publish(tmp_path, env, spec)
-            collector.wait_until(lambda: len(collector.metadata) >= 50, 10.0)
-            collector.wait_until(lambda: len(collector.diagnostics) >= 3, 5.0)
-            assert node.poll() is None, (tmp_path / "node.log").read_text()
-    finally:
-        collector.close()
+    # reliable, deep queues: on a loaded machine transport loss and overflow would hide what is tested here
+    params = ("use_camera_info:=true", "qos.subscription_reliability:=reliable", "qos.subscription_depth:=30",
+              "sync.max_pending_frames:=64")
+    collector, truth = run_session(tmp_path, run_args(*params, faulty_every=7), spec, records=50, diagnostics=3)
     log = (tmp_path / "node.log").read_text()
     records = {r["frame_index"]: r for r in collector.metadata}
     inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
@@ -113,12 +124,23 @@ def test_node_keeps_publishing_through_injected_exceptions_absurd_camera_info_an
     assert len({r["lineage"]["intrinsics_ver"] for r in records.values()}) == 1
 
 
-def test_a_node_whose_every_frame_fails_stops_with_a_non_zero_exit(tmp_path: Path) -> None:
+@pytest.mark.parametrize("failing", ["processing", "decoding"])
+def test_a_node_whose_every_frame_fails_stops_with_a_non_zero_exit(tmp_path: Path, failing: str) -> None:
+    """Every frame raising in the pipeline (ZeroDivisionError), or every CompressedImage failing to decode with an
+    unexpected exception (KeyError, on the decoder thread): the node stops after max_failure_s and exits 2."""
     domain = next_domain()
     env = ros_env(domain)
-    (tmp_path / "spec.json").write_text(json.dumps({"rig": str(BIMANUAL), "frames": 240}))
+    spec: dict[str, Any] = {"rig": str(BIMANUAL), "frames": 240, "distinct_frames": 20}
+    params = ("max_failure_s:=1.5", "status_period_s:=0.5")
+    if failing == "processing":
+        node_cmd, error = run_args(*params, faulty_every=1), "ZeroDivisionError"
+    else:
+        spec["transport"] = "compressed"
+        node_cmd = ["-m", "test.live.slow_decoder_node", "0", "1", "--", *run_args(*params, "image_transport:=compressed")[2:]]
+        error = "KeyError"
+    (tmp_path / "spec.json").write_text(json.dumps(spec))
     log_path = tmp_path / "node.log"
-    with process(run_args("max_failure_s:=1.5", "status_period_s:=0.5", faulty_every=1), env, log_path) as node:
+    with process(node_cmd, env, log_path) as node:
         pub = subprocess.Popen(
             [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
             cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
@@ -132,13 +154,13 @@ def test_a_node_whose_every_frame_fails_stops_with_a_non_zero_exit(tmp_path: Pat
     log = log_path.read_text()
     assert node.returncode == 2, log
     last = log.strip().splitlines()[-1]
-    assert last.startswith("roi-node run: error: every frame failed for") and "ZeroDivisionError" in last, last
-    first_failure = log.index("injected fault")
+    assert last.startswith("roi-node run: error: every frame failed for") and error in last, last
+    first_failure = log.index("injected")
     assert first_failure > 0 and stopped > 0
     status = [line for line in log.splitlines() if "status: frames in" in line]
     assert status and any("processing errors 0" not in line for line in status), "the periodic status counts the failures"
     summary = [line for line in log.splitlines() if "stopped: frames in" in line]
-    assert len(summary) == 1 and "processing errors: ZeroDivisionError" in summary[0], "the summary on a fatal stop"
+    assert len(summary) == 1 and f"processing errors: {error}" in summary[0], "the summary on a fatal stop"
 
 
 def test_a_urdf_that_would_crash_placo_on_robot_description_is_refused_and_reported(tmp_path: Path) -> None:
@@ -260,24 +282,18 @@ def test_a_slow_failing_compressed_decode_neither_starves_joint_states_nor_stops
 
     With the decode in the image callback, the executor took about one joint state per frame and the frames
     were paired with samples up to hundreds of milliseconds old (stale)."""
-    domain = next_domain()
-    env = ros_env(domain)
-    collector = Collector(domain, ARMS)
     spec = {"frames": 45, "rate_hz": 30.0, "joint_rate_hz": 200.0, "transport": "compressed"}
     # reliable, deep joint queue: a loaded machine (the other test worker) must not lose joint states in transport
     params = ("image_transport:=compressed", "sync.max_wait_ms:=250.0", "qos.subscription_reliability:=reliable",
               "qos.subscription_depth:=30", "qos.joint_state_depth:=2000")
     raise_every = 9
-    try:
-        node_cmd = ["-m", "test.live.slow_decoder_node", "10", str(raise_every), "--", *run_args(*params)[2:]]
-        with process(node_cmd, env, tmp_path / "node.log") as node:
-            collector.wait_for_node()
-            truth = publish(tmp_path, env, spec)
-            collector.wait_until(lambda: len(collector.metadata) >= 40, 10.0)
-            collector.wait_until(lambda: len(collector.diagnostics) >= 2, 5.0)
-            assert node.poll() is None, (tmp_path / "node.log").read_text()
-    finally:
-        collector.close()
+    node_cmd = ["-m", "test.live.slow_decoder_node", "10", str(raise_every), "--", *run_args(*params)[2:]]
+
+    def every_frame_accounted(collector: Collector) -> bool:  # in the newest /diagnostics, which comes once a second
+        totals = diagnostics_values(collector.diagnostics, "roi_node: input").get("totals", {})
+        return bool(totals) and totals["frames_in"] >= spec["frames"] - 1 and totals["frames_out"] == len(collector.metadata)
+
+    collector, truth = run_session(tmp_path, node_cmd, spec, records=40, diagnostics=2, settled=every_frame_accounted)
     inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
     totals, drops = inputs["totals"], inputs["dropped_by_reason"]
     assert totals["frames_in"] == totals["frames_out"] + sum(drops.values()), "every frame is published or counted"

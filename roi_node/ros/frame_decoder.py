@@ -54,6 +54,7 @@ class FrameDecoder:
         self._capacity = capacity
         self._ready = threading.Condition()
         self._stopping = False
+        self._discarded = 0  # decoded after close() began: counted by close(), never handed on
         self._on_frame, self._on_refused, self._on_error = on_frame, on_refused, on_error
         self._on_overflow, self._on_failure = on_overflow, on_failure
         self._thread = threading.Thread(target=self._run, name="roi_node_decoder", daemon=True)
@@ -71,14 +72,18 @@ class FrameDecoder:
             self._on_overflow()
 
     def close(self, timeout_s: float = 5.0) -> int:
-        """Stop after the frame in hand; returns how many queued frames were never decoded."""
+        """Stop; returns how many frames were never handed on (queued, or in hand when close began).
+
+        A frame still decoding when the join times out is counted here and discarded when its decode returns.
+        """
         with self._ready:
             self._stopping = True
             self._ready.notify_all()
         self._thread.join(timeout=timeout_s)
         with self._ready:
-            left = len(self._queue)
+            left = len(self._queue) + self._discarded + (1 if self._thread.is_alive() else 0)
             self._queue.clear()
+            self._discarded = 0
         return left
 
     def _run(self) -> None:
@@ -98,6 +103,10 @@ class FrameDecoder:
                 except Exception as exc:  # an unexpected failure on one frame: counted by the caller, next frame
                     self._on_error(frame, exc)
                     continue
+                with self._ready:
+                    if self._stopping:  # closing: close() counts it
+                        self._discarded += 1
+                        return
                 self._on_frame(frame, pixels)
         except BaseException as exc:  # the decoder must never die silently: the node stops and says why
             self._on_failure(f"the decoding thread failed: {type(exc).__name__}: {exc}")

@@ -228,16 +228,23 @@ class StreamNode(Node):
             self._decoder.offer(EncodedFrame(msg.header, msg.format, msg.data, arrival_ns))
 
     def _on_decoded(self, frame: EncodedFrame, pixels: Any) -> None:
-        """Decoder thread: the decoded frame goes to the engine with the time it arrived."""
+        """Decoder thread: the decoded frame goes to the engine with the time it arrived (unless deactivated meanwhile)."""
+        if not self.active:
+            with self._lock:
+                self.stats.frame_in()
+                self.stats.drop("inactive")
+            return
         self._offer_frame(frame.header, lambda: pixels, frame.arrival_ns)
 
     def _on_decode_error(self, frame: EncodedFrame, exc: Exception) -> None:
+        """Counted like a processing error; decoding that always fails stops the node after max_failure_s."""
         with self._lock:
             self.stats.frame_in()
             line = self.stats.processing_error(exc)
             self.stats.drop("processing_error")
         stamp = frame.header.stamp
         self._warn("processing", f"decoding the frame stamped {stamp.sec}.{stamp.nanosec:09d}: {line}", error_level=True)
+        self._check_persistent_failure(line)
 
     def _on_decode_overflow(self) -> None:
         with self._lock:
@@ -340,18 +347,21 @@ class StreamNode(Node):
             self._warn("processing", f"frame stamp {prepared.ready.payload.stamp_ns}: {line}", error_level=True)
             self._check_persistent_failure(line)
             return
-        self._failing_since = None
         process_ms = (time.perf_counter() - start) * 1000
         with self._lock:
+            self._failing_since = None
             self.stats.frame_out(result.record, latency_ms, process_ms)
 
     def _check_persistent_failure(self, line: str) -> None:
+        """Worker or decoder thread: a frame failed; stop the node if every frame failed for max_failure_s."""
         now = time.monotonic()
-        if self._failing_since is None:
-            self._failing_since = now
-        elif now - self._failing_since >= self.params.max_failure_s:
+        with self._lock:
+            if self._failing_since is None:
+                self._failing_since = now
+            failing_s = now - self._failing_since
+        if failing_s >= self.params.max_failure_s:
             limit = self.params.max_failure_s
-            self._fail(f"every frame failed for {now - self._failing_since:.1f} s (max_failure_s {limit:g}); last: {line}")
+            self._fail(f"every frame failed for {failing_s:.1f} s (max_failure_s {limit:g}); last: {line}")
 
     def _fail(self, message: str) -> None:
         """Stop the node: one line in the log, the context shut down, `roi-node run` exits non-zero."""

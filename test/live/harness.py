@@ -53,13 +53,13 @@ def ros_env(domain_id: int) -> dict[str, str]:
 def next_domain() -> int:
     """A domain for one test: distinct within the run across pytest-xdist workers, offset from the run's ROS_DOMAIN_ID.
 
-    Each worker numbers its own tests, so the k-th domain of worker w is k * workers + w: two workers never share a
-    domain, and a test on one never hears another's joint states.
+    Domains 1..200 are split into one block per worker and each worker takes its own block in turn: two workers
+    never share a domain, and a test on one never hears another's joint states.
     """
     base = int(os.environ.get("ROS_DOMAIN_ID", "71"))
     worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw"))
-    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-    return (base + next(_domains) * workers + worker) % 200 + 1
+    block = 200 // int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    return (base + worker * block + next(_domains) % block) % 200 + 1
 
 
 SHM_DIR = Path("/dev/shm")
