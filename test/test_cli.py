@@ -67,3 +67,13 @@ def test_record_sizes_and_bad_split_options() -> None:
         bad = subprocess.run([sys.executable, "-m", "roi_node.cli", "record", "-o", "x", "--all", option, value],
                              capture_output=True, text=True, timeout=60)
         assert bad.returncode == 2 and bad.stderr.strip().endswith(f"argument {option}: {why}"), bad.stderr
+
+
+def test_counts_below_their_minimum_are_one_argparse_line() -> None:
+    cases = ((["replay", "b", "-o", "o", "--config", "c", "--workers", "0"], "--workers", "must be at least 1, got 0"),
+             (["replay", "b", "-o", "o", "--config", "c", "--workers", "two"], "--workers", "invalid int value: 'two'"),
+             (["replay", "b", "-o", "o", "--config", "c", "--ray", "--ray-retries", "-1"], "--ray-retries", "must be at least 0, got -1"),
+             (["export", "lerobot", "b", "-o", "o", "--fps", "0"], "--fps", "must be at least 1, got 0"))
+    for args, option, why in cases:
+        bad = subprocess.run([sys.executable, "-m", "roi_node.cli", *args], capture_output=True, text=True, timeout=60)
+        assert bad.returncode == 2 and bad.stderr.strip().endswith(f"argument {option}: {why}"), bad.stderr

@@ -8,18 +8,13 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ..arg_types import int_at_least
+
 if TYPE_CHECKING:
     from .summary import ReplaySummary
 
 EXIT_FAILED = 2  # as cli.EXIT_ERROR: some input could not be used
 EXIT_INTERRUPTED = 130
-
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
-    return value
 
 
 def replay_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -163,7 +158,7 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     replay.add_argument("--jpeg-quality", type=int, default=90, metavar="Q",
                         help="JPEG quality 1..100 of the compressed outputs (default: 90)")
     replay.add_argument("--overlay", action="store_true", help="also write the node's roi/overlay ImageMarker per frame")
-    replay.add_argument("--workers", type=_positive_int, default=1, metavar="N", help="bags replayed in parallel processes (default: 1)")
+    replay.add_argument("--workers", type=int_at_least(1), default=1, metavar="N", help="bags replayed in parallel processes (default: 1)")
     replay.add_argument("--image-topic", metavar="T", help="camera topic (default: the one Image/CompressedImage topic)")
     replay.add_argument("--joint-topics", nargs="+", metavar="T", help="JointState topics (default: all, merged by joint name)")
     replay.add_argument("--camera-info-topic", metavar="T", help="take the intrinsics from this CameraInfo topic")

@@ -16,18 +16,12 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..arg_types import int_at_least
 from ..core.errors import UsageError
 
 EXIT_BAG_FAILED = 1
 EXIT_INTERRUPTED = 130
 DEFAULT_RETRIES = 3
-
-
-def _retries(text: str) -> int:
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be 0 or more, got {value}")
-    return value
 
 
 def add_ray_options(parser: argparse.ArgumentParser, unit: str) -> None:
@@ -37,7 +31,7 @@ def add_ray_options(parser: argparse.ArgumentParser, unit: str) -> None:
         "(auto, HOST:PORT, ray://HOST:PORT); needs the [cluster] extra. Put it after the inputs, or write --ray=ADDRESS",
     )
     parser.add_argument(
-        "--ray-retries", type=_retries, default=DEFAULT_RETRIES, metavar="N",
+        "--ray-retries", type=int_at_least(0), default=DEFAULT_RETRIES, metavar="N",
         help=f"with --ray: times a task is retried after its worker or node died or a transient I/O error (default: {DEFAULT_RETRIES})",
     )
 

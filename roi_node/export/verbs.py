@@ -6,12 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
-    return value
+from ..arg_types import int_at_least
 
 
 def _positive_float(text: str) -> float:
@@ -79,7 +74,7 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     lerobot.add_argument("bags", nargs="+", metavar="BAG", help="ROI bags (or raw recordings with --config), one episode each")
     lerobot.add_argument("-o", "--output", required=True, metavar="DATASET", help="dataset folder to write")
-    lerobot.add_argument("--fps", required=True, type=_positive_int, metavar="N", help="dataset frame rate (the grid)")
+    lerobot.add_argument("--fps", required=True, type=int_at_least(1), metavar="N", help="dataset frame rate (the grid)")
     lerobot.add_argument("--task", required=True, metavar="TEXT", help="task description of these episodes")
     lerobot.add_argument("--config", metavar="RIG", help="regenerate the ROIs of raw recordings with this rig config")
     lerobot.add_argument("--robot-type", metavar="NAME", help="info.json robot_type (default: the records' robot_id)")
