@@ -70,15 +70,26 @@ def test_frames_come_out_in_order_with_their_arrival_and_faults_are_reported_per
     assert calls.errors == ["KeyError 4"] and calls.failures == [] and calls.overflows == 0
 
 
-def test_a_full_queue_drops_the_oldest_undecoded_frames_and_close_reports_the_rest() -> None:
-    gate = threading.Event()
-    started = threading.Event()
+class GatedDecode:
+    """A decode that signals `started` and then holds its frame until `gate` is set."""
 
-    def decode(fmt: str, data: Any) -> np.ndarray:
-        started.set()
-        gate.wait(5.0)
+    def __init__(self) -> None:
+        self.started = threading.Event()
+        self.gate = threading.Event()
+
+    def __call__(self, fmt: str, data: Any) -> np.ndarray:
+        self.started.set()
+        self.gate.wait(5.0)
         return np.array([data])
 
+
+def gated_decode() -> tuple[GatedDecode, threading.Event, threading.Event]:
+    decode = GatedDecode()
+    return decode, decode.started, decode.gate
+
+
+def test_a_full_queue_drops_the_oldest_undecoded_frames_and_close_reports_the_rest() -> None:
+    decode, started, gate = gated_decode()
     calls = Calls()
     d = decoder(decode, calls, capacity=3, until=4)
     d.offer(encoded(0))
@@ -93,14 +104,7 @@ def test_a_full_queue_drops_the_oldest_undecoded_frames_and_close_reports_the_re
 
 
 def test_close_counts_the_queued_frames_and_the_one_in_hand_and_hands_on_neither() -> None:
-    gate = threading.Event()
-    started = threading.Event()
-
-    def decode(fmt: str, data: Any) -> np.ndarray:
-        started.set()
-        gate.wait(5.0)
-        return np.array([data])
-
+    decode, started, gate = gated_decode()
     calls = Calls()
     d = decoder(decode, calls, capacity=8, until=1)
     for i in range(3):
