@@ -107,8 +107,11 @@ def test_observer_reaches_a_namespaced_node_discovers_its_outputs_and_names_a_mi
         )
         try:
             found_out, _ = found.communicate(timeout=60)
-            missing = subprocess.run([*observer, "--count", "1", "--arms", "left", "lefty", "--timeout-s", "5", *ns],
-                                     cwd=REPO, env=env, capture_output=True, text=True, timeout=60)
+            # --diagnose-s leaves a busy machine time to discover the node's metadata before the first "waiting:".
+            missing = subprocess.run(
+                [*observer, "--count", "1", "--arms", "left", "lefty", "--diagnose-s", "6", "--timeout-s", "8", *ns],
+                cwd=REPO, env=env, capture_output=True, text=True, timeout=60,
+            )
         finally:
             pub.kill()
             pub.wait()
