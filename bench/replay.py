@@ -10,7 +10,8 @@ Generates a 720p bag (bundled bimanual rig, 30 Hz frames of the simulated rig,
   (c) two such bags with --workers 1 and --workers 2 (spawned processes, one
       OpenCV thread each); --workers 1 also with OpenCV limited to one thread,
       since by default OpenCV already spreads a single replay's resizes over the cores.
-Prints the rates and the ratios (targets: (b) >= 40% of (a); (c) near 2x).
+Prints the rates and the ratios (targets: (b) >= 40% of (a); (c) near 2x), and
+how many cores one replay keeps busy: two workers cannot beat 2 / that.
 `--profile` adds a cProfile of (b), sorted by own time.
 Run: `.venv/bin/python bench/replay.py [--frames 300] [--profile]`.
 """
@@ -85,8 +86,12 @@ def best(rates: list[float]) -> float:
     return max(rates)
 
 
-def _replay_rate(bag: Path, out: Path, rig: Path) -> float:
+def _replay_rate(bag: Path, out: Path, rig: Path, cores: list[float] | None = None) -> float:
+    """Frames/s of one replay; `cores` collects its CPU time over wall time (how much of the machine one worker uses)."""
+    cpu = time.process_time()
     summary = replay_bag(bag, out, rig, overwrite=True)
+    if cores is not None:
+        cores.append((time.process_time() - cpu) / summary.elapsed_s)
     return summary.frames_out / summary.elapsed_s
 
 
@@ -110,11 +115,12 @@ def main() -> None:
         for label, rig in (("area", RIG), ("area_pyramid", pyramid_rig(tmp))):
             pipeline = RoiPipeline(load_rig_config(rig))
             ceiling = best([floor_rate(bag, pipeline) for _ in range(args.repeats)])
-            replay = best([_replay_rate(bag, tmp / "out_a", rig) for _ in range(args.repeats)])
+            cores: list[float] = []
+            replay = best([_replay_rate(bag, tmp / "out_a", rig, cores) for _ in range(args.repeats)])
             print(f"[{label}]")
             print(f"(a') ceiling, (a) + RoiPipeline.process only:      {ceiling:7.1f} frames/s   = {100 * ceiling / floor:.0f}% of (a)")
             print(f"(b)  replay_bag, one worker:                        {replay:7.1f} frames/s   = {100 * replay / floor:.0f}% of (a),"
-                  f" {100 * replay / ceiling:.0f}% of (a')")
+                  f" {100 * replay / ceiling:.0f}% of (a'); it keeps {max(cores):.2f} cores busy (CPU time / wall)")
         shutil.copytree(bag, tmp / "bag_b", copy_function=os.link)
         times: dict[str, float] = {}
         for label, workers, threads in (("--workers 1", 1, cv2.getNumThreads()), ("--workers 1, OpenCV on 1 thread", 1, 1),

@@ -16,7 +16,7 @@ from typing import Any
 from rosbags.highlevel import AnyReader
 
 from ..core import topics
-from .reader import DESERIALIZE_ERRORS, bag_information, open_bag, read_messages, topic_stats
+from .reader import DESERIALIZE_ERRORS, bag_information, deserialize, open_bag, read_messages, topic_stats
 from .writer import STATUS_KEY
 
 METADATA_TOPIC = topics.absolute(topics.METADATA)
@@ -153,7 +153,7 @@ def _roi_contents(reader: AnyReader, path: Path) -> RoiContents:
     connections = [c for c in reader.connections if c.topic == METADATA_TOPIC]
     for connection, _, raw in read_messages(reader, connections, path):
         try:
-            msg: Any = reader.deserialize(raw, connection.msgtype)
+            msg: Any = deserialize(reader, raw, connection.msgtype)
             record = json.loads(msg.data)
             lineage = json.dumps(record["lineage"], sort_keys=True)
             lineage_of.setdefault(lineage, dict(record["lineage"]))

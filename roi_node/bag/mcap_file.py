@@ -47,6 +47,7 @@ from mcap.records import (
 )
 
 from .. import __version__
+from .crc import crc32
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 PROFILE = "ros2"
@@ -209,7 +210,7 @@ class McapFileWriter:
         compressed = raw if self._compress is None else self._compress(raw)
         name = self._compression.mcap_name.encode()
         # the Chunk record's fields (as mcap.records.Chunk writes them), then its data as is
-        fields = struct.pack("<QQQI", pending.start_ns, pending.end_ns, len(raw), zlib.crc32(raw))
+        fields = struct.pack("<QQQI", pending.start_ns, pending.end_ns, len(raw), crc32(raw))
         fields += struct.pack("<I", len(name)) + name + struct.pack("<Q", len(compressed))
         header = struct.pack("<BQ", Opcode.CHUNK, len(fields) + len(compressed)) + fields
         chunk_length = len(header) + len(compressed)

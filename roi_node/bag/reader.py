@@ -16,7 +16,7 @@ from collections.abc import Collection, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import yaml
 from mcap.exceptions import McapError
@@ -28,6 +28,7 @@ from rosbags.serde import SerdeError
 
 from ..core.errors import BagError
 from ..core.stamps import stamp_to_ns
+from .indexed_mcap import indexed_messages
 from .writer import RECORDING, STATUS_KEY, typestore
 
 try:
@@ -112,11 +113,27 @@ def open_bag(path: Path) -> Iterator[AnyReader]:
         reader.close()
 
 
-def read_messages(reader: AnyReader, connections: Collection[Connection], path: Path) -> Iterator[tuple[Connection, int, bytes]]:
-    """`reader.messages(connections)` in log-time order; a storage failure mid-bag is a BagError."""
+Cdr = bytes | memoryview  # one serialized message: rosbags yields bytes, the indexed MCAP reader views of a chunk
+
+
+def deserialize(reader: AnyReader, raw: Cdr, msgtype: str) -> Any:
+    """`reader.deserialize` of either kind of buffer (rosbags' CDR parser reads any buffer; its annotation says bytes)."""
+    return reader.deserialize(cast(bytes, raw), msgtype)
+
+
+def read_messages(
+    reader: AnyReader, connections: Collection[Connection], path: Path, *, crc_checked_later_by: Collection[str] = ()
+) -> Iterator[tuple[Connection, int, Cdr]]:
+    """`reader.messages(connections)` in its order; a storage failure mid-bag is a BagError.
+
+    An indexed MCAP bag is read through its indexes (indexed_mcap.py: the
+    same messages in the same order, fewer copies); `crc_checked_later_by`
+    names topics a later pass reads, whose chunks this pass need not check.
+    """
     if not connections:
         return
-    messages = reader.messages(connections=connections)
+    fast = indexed_messages(path, connections, bag_information(path), crc_checked_later_by)
+    messages: Iterator[tuple[Connection, int, Cdr]] = fast if fast is not None else reader.messages(connections=connections)
     while True:
         try:
             item = next(messages)

@@ -45,7 +45,7 @@ from .interrupt import DeferredInterrupt
 from .mcap_file import Compression
 from .messages import MessageFactory
 from .progress import Progress
-from .reader import DESERIALIZE_ERRORS, check_bag_path, open_bag, read_messages, stamp_ns, topic_stats
+from .reader import DESERIALIZE_ERRORS, Cdr, check_bag_path, deserialize, open_bag, read_messages, stamp_ns, topic_stats
 from .streams import BadMessages, Streams, read_streams
 from .summary import ReplaySummary, summary_from_stats
 from .writer import BagWriter, qos_profile
@@ -221,12 +221,12 @@ class _Replay:
             raise ReplayInterrupted(summary)
         return summary
 
-    def _frame(self, reader: AnyReader, raw: bytes, outputs: _OutputTopics) -> None:
+    def _frame(self, reader: AnyReader, raw: Cdr, outputs: _OutputTopics) -> None:
         index = self.frames_read
         self.frames_read += 1
         msgtype = self.selection.image_type
         try:
-            msg: Any = reader.deserialize(raw, msgtype)
+            msg: Any = deserialize(reader, raw, msgtype)
         except DESERIALIZE_ERRORS as exc:
             self._bad_frame(f"{self.frame_where}: message {index} cannot be deserialized as {msgtype} ({exc})")
             return

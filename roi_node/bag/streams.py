@@ -4,7 +4,9 @@ Offline, every joint sample is known before a frame is released, so a frame's
 sync result depends only on header stamps and never on where the recorder
 happened to log the samples; and the intrinsics are known before the pipeline
 is built, even when the first CameraInfo was logged after the first frame.
-The pass only touches these (small) messages.
+The pass only touches these (small) messages: in an indexed MCAP bag it
+reads their records alone and leaves checking the chunks that also hold
+frames to the second pass.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from rosbags.highlevel import AnyReader
 from ..core.camera import CameraModel
 from ..core.errors import CalibrationError
 from .inputs import InputSelection, camera_from_msg
-from .reader import DESERIALIZE_ERRORS, read_messages, stamp_ns
+from .reader import DESERIALIZE_ERRORS, deserialize, read_messages, stamp_ns
 
 MAX_REPORTED = 5  # bad messages quoted in full; the rest are counted
 
@@ -73,10 +75,12 @@ def read_streams(reader: AnyReader, selection: InputSelection, path: Path, recti
     streams = Streams([], [], [], BadMessages())
     calibration_errors: list[CalibrationError] = []
     cameras: dict[tuple[Any, ...], CameraModel] = {}  # a steady camera_info stream is one model
-    for connection, _, raw in read_messages(reader, connections, path):
+    # the second pass reads the frames, and checks the CRC of the chunks it reads
+    frames_later = (selection.image_topic,)
+    for connection, _, raw in read_messages(reader, connections, path, crc_checked_later_by=frames_later):
         where = f"{path}: {connection.topic}"
         try:
-            msg: Any = reader.deserialize(raw, connection.msgtype)
+            msg: Any = deserialize(reader, raw, connection.msgtype)
         except DESERIALIZE_ERRORS as exc:
             streams.bad.add(f"{where}: message cannot be deserialized as {connection.msgtype} ({exc})")
             continue

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..bag.reader import DESERIALIZE_ERRORS, open_bag, read_messages, stamp_ns, topic_stats
+from ..bag.reader import DESERIALIZE_ERRORS, deserialize, open_bag, read_messages, stamp_ns, topic_stats
 from ..core import topics
 from ..core.errors import BagError
 
@@ -53,7 +53,7 @@ class CommandStream:
             connections = [c for c in reader.connections if c.topic == self.topic]
             for connection, _, raw in read_messages(reader, connections, path):
                 try:
-                    msg: Any = reader.deserialize(raw, connection.msgtype)
+                    msg: Any = deserialize(reader, raw, connection.msgtype)
                 except DESERIALIZE_ERRORS as exc:
                     raise BagError(f"{path}: {self.topic}: a command cannot be deserialized ({exc})") from exc
                 samples.append((stamp_ns(msg.header), tuple(msg.name), np.asarray(msg.position, dtype=np.float64)))

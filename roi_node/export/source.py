@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..bag.inputs import decode_frame
-from ..bag.reader import DESERIALIZE_ERRORS, open_bag, read_messages, stamp_ns, topic_stats
+from ..bag.reader import DESERIALIZE_ERRORS, Cdr, deserialize, open_bag, read_messages, stamp_ns, topic_stats
 from ..core import topics
 from ..core.errors import BagError, ImageError
 from ..report.gates import GateParams
@@ -151,9 +151,9 @@ def _usable(columns: FrameColumns, stamps: dict[str, set[int]]) -> tuple[int, ..
     return tuple(usable)
 
 
-def _deserialize(bag: RoiBag, msgtype: str, raw: bytes, topic: str) -> Any:
+def _deserialize(bag: RoiBag, msgtype: str, raw: Cdr, topic: str) -> Any:
     try:
-        return bag.reader.deserialize(raw, msgtype)
+        return deserialize(bag.reader, raw, msgtype)
     except DESERIALIZE_ERRORS as exc:
         raise BagError(f"{bag.path}: {topic}: an image message cannot be deserialized ({exc})") from exc
 
@@ -170,7 +170,7 @@ def frames(path: Path, video_topics: dict[str, str], wanted: dict[str, set[int]]
                 continue
             wanted[key].discard(stamp)  # a repeated message of the frame is skipped, as in pass 1
             try:
-                msg: Any = reader.deserialize(raw, connection.msgtype)
+                msg: Any = deserialize(reader, raw, connection.msgtype)
             except DESERIALIZE_ERRORS as exc:
                 raise BagError(f"{path}: {connection.topic}: the image at stamp {stamp} cannot be deserialized ({exc})") from exc
             pixels = _decoded(msg, connection.msgtype, f"{path}: {connection.topic} (stamp {stamp_ns(msg.header)})")

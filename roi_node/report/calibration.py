@@ -28,7 +28,7 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 
 from ..bag.inputs import IMAGE_TYPES, OUTPUT_NAMESPACE, InputSelection, camera_from_msg, decode_frame, select_inputs
-from ..bag.reader import DESERIALIZE_ERRORS, TopicStats, open_bag, read_messages, stamp_ns, topic_stats
+from ..bag.reader import DESERIALIZE_ERRORS, Cdr, TopicStats, deserialize, open_bag, read_messages, stamp_ns, topic_stats
 from ..core import topics as topics_module
 from ..core.camera import CameraModel
 from ..core.config import RigConfig
@@ -288,7 +288,7 @@ class _FrameReader:
         """(header stamp, RGB pixels) of every frame that decodes."""
         for index, (_, _, raw) in enumerate(read_messages(self.reader, self.connections, self.path)):
             try:
-                msg: Any = self.reader.deserialize(raw, self.selection.image_type)
+                msg: Any = deserialize(self.reader, raw, self.selection.image_type)
                 image = decode_frame(msg, self.selection.image_type, f"{self.where}: message {index}")
             except SKIPPED_FRAME_ERRORS:
                 continue
@@ -320,7 +320,7 @@ class _FirstPass:
                     self._sample(reader, raw, selection.image_type, f"{where}: message {index}")
                 continue
             try:
-                msg: Any = reader.deserialize(raw, connection.msgtype)
+                msg: Any = deserialize(reader, raw, connection.msgtype)
                 if connection.topic == selection.camera_info_topic:
                     self.cameras.append((stamp_ns(msg.header), camera_from_msg(msg, rectified, f"{path}: {connection.topic}")))
                 else:
@@ -330,9 +330,9 @@ class _FirstPass:
         self.where = where
         self.frame_count = selection.frame_count
 
-    def _sample(self, reader: AnyReader, raw: bytes, msgtype: str, where: str) -> None:
+    def _sample(self, reader: AnyReader, raw: Cdr, msgtype: str, where: str) -> None:
         try:
-            msg: Any = reader.deserialize(raw, msgtype)
+            msg: Any = deserialize(reader, raw, msgtype)
             image = decode_frame(msg, msgtype, where)
         except SKIPPED_FRAME_ERRORS:
             return

@@ -19,7 +19,7 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 
 from ..bag.inputs import IMAGE_TYPES, decode_frame
-from ..bag.reader import DESERIALIZE_ERRORS, TopicStats, bag_information, open_bag, read_messages, stamp_ns, topic_stats
+from ..bag.reader import DESERIALIZE_ERRORS, Cdr, TopicStats, bag_information, deserialize, open_bag, read_messages, stamp_ns, topic_stats
 from ..core import topics
 from ..core.compressed_outputs import compressed_topic
 from ..core.errors import BagError, ImageError
@@ -119,7 +119,7 @@ class RoiBag:
         first_version: str | None = None
         for position, (connection, log_ns, raw) in enumerate(read_messages(self.reader, self._metadata, self.path)):
             try:
-                text: str = self.reader.deserialize(raw, connection.msgtype).data  # type: ignore[attr-defined]
+                text: str = deserialize(self.reader, raw, connection.msgtype).data
                 record = json.loads(text, parse_constant=_no_constants)
             except DESERIALIZE_ERRORS as exc:  # json.JSONDecodeError is a ValueError
                 raise BagError(f"{self.path}: message {position} on {METADATA_TOPIC} is not a JSON metadata record ({exc})") from exc
@@ -162,10 +162,10 @@ class RoiBag:
                         return None
         return None
 
-    def _image_msg(self, msgtype: str, raw: bytes, topic: str) -> Any:
+    def _image_msg(self, msgtype: str, raw: Cdr, topic: str) -> Any:
         if msgtype not in IMAGE_TYPES:
             return None
         try:
-            return self.reader.deserialize(raw, msgtype)
+            return deserialize(self.reader, raw, msgtype)
         except DESERIALIZE_ERRORS as exc:
             raise BagError(f"{self.path}: {topic}: an image message cannot be deserialized ({exc})") from exc
