@@ -26,7 +26,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from roi_node.bag.inputs import decode_frame, select_inputs  # noqa: E402
-from roi_node.bag.reader import open_bag, read_messages, topic_stats  # noqa: E402
+from roi_node.bag.reader import deserialize, open_bag, read_messages, topic_stats  # noqa: E402
 from roi_node.core.config import load_rig_config  # noqa: E402
 from roi_node.report.calibration import Tolerances, check_calibration  # noqa: E402
 from roi_node.sim.bag_sink import write_sim_bag  # noqa: E402
@@ -41,7 +41,7 @@ def read_and_decode(bag: Path) -> int:
         connections = [c for c in reader.connections if c.topic == selection.image_topic]
         frames = 0
         for _, _, raw in read_messages(reader, connections, bag):
-            decode_frame(reader.deserialize(raw, selection.image_type), selection.image_type, "bench")
+            decode_frame(deserialize(reader, raw, selection.image_type), selection.image_type, "bench")
             frames += 1
     return frames
 

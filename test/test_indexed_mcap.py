@@ -1,7 +1,7 @@
 """The indexed MCAP reader against rosbags' own reader, on real bags of every layout roi_node reads.
 
 `read_messages` takes the indexed path for MCAP bags; rosbags' AnyReader is
-the oracle: the same messages, bytes and order, for every topic subset, for
+the oracle: the same messages, bytes and order, for several topic subsets, for
 rosbags-written, roi_node-written (none / lz4 / zstd chunks), split and bare
 .mcap bags written by the mcap package. Damage is done to the bytes on disk.
 """
@@ -11,15 +11,22 @@ from __future__ import annotations
 import shutil
 import struct
 from pathlib import Path
+from typing import Any
 
 import pytest
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
 from mcap.reader import make_reader
+from mcap.records import MessageIndex
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapWriter
 from mcap_ros2.writer import Writer as Ros2McapWriter
 from rosbags.highlevel import AnyReader
 
-from roi_node.bag.indexed_mcap import IndexedMcapError, indexed_messages
+from roi_node.bag.indexed_mcap import CrcLedger, IndexedMcapError, indexed_messages
 from roi_node.bag.messages import MessageFactory
-from roi_node.bag.reader import bag_information, read_messages
+from roi_node.bag.reader import bag_information, read_messages, verify_chunks
+from roi_node.bag.replay import ReplayInterrupted, _Replay, replay_bag
 from roi_node.bag.writer import BagWriter, SplitPolicy, typestore
 from roi_node.core.config import load_rig_config
 from roi_node.core.errors import BagError
@@ -46,8 +53,13 @@ def _rosbags(path: Path, topics: set[str] | None) -> list[tuple[str, int, bytes]
 def _indexed(path: Path, topics: set[str] | None, later: tuple[str, ...] = ()) -> list[tuple[str, int, bytes]]:
     with AnyReader([path], default_typestore=typestore()) as reader:
         conns = [c for c in reader.connections if topics is None or c.topic in topics]
-        assert indexed_messages(path, conns, bag_information(path)) is not None, "the indexed path applies"
-        return [(c.topic, t, bytes(raw)) for c, t, raw in read_messages(reader, conns, path, crc_checked_later_by=later)]
+        assert indexed_messages(path, conns, _information(path)) is not None, "the indexed path applies"
+        ledger = CrcLedger()
+        return [(c.topic, t, bytes(raw)) for c, t, raw in read_messages(reader, conns, path, ledger=ledger, defer_crc_for=later)]
+
+
+def _information(path: Path) -> dict[str, Any]:
+    return bag_information(path) if path.is_dir() else {}
 
 
 def _assert_same(path: Path) -> None:
@@ -97,8 +109,8 @@ def test_a_bare_mcap_from_the_mcap_package_reads_like_rosbags(tmp_path: Path) ->
             stamp = {"sec": 0, "nanosec": 5_000_000 * k}
             writer.write_message(JOINTS, joints, {"header": {"stamp": stamp, "frame_id": ""}, "name": ["a"], "position": [k],
                                                   "velocity": [], "effort": []}, log_time=5_000_000 * k)
-            # logged out of order, 12 ms back: chunks overlap in time and are sorted inside
-            writer.write_message("/chatter", text, {"data": f"m{k}"}, log_time=max(0, 5_000_000 * k - 12_000_000) + (k % 3))
+            # logged out of order, 10 ms back: chunks overlap in time, are sorted inside, and tie with earlier chunks
+            writer.write_message("/chatter", text, {"data": f"m{k}"}, log_time=max(0, 5_000_000 * k - 10_000_000))
         writer.finish()
     _assert_same(path)
 
@@ -110,6 +122,29 @@ def test_a_bag_it_does_not_cover_is_left_to_rosbags(tmp_path: Path, rig: Path) -
         conns = list(reader.connections)
         assert indexed_messages(tmp_path / "db3", conns, bag_information(tmp_path / "db3")) is None
         assert len(list(read_messages(reader, conns, tmp_path / "db3"))) == sum(c.msgcount for c in conns)
+
+
+def _plain_mcap(path: Path) -> None:
+    """std_msgs/String messages on /chatter written by the mcap package's plain Writer."""
+    ts = typestore()
+    msg = ts.types["std_msgs/msg/String"]
+    with path.open("wb") as stream:
+        writer = McapWriter(stream, chunk_size=1024)
+        writer.start(profile="ros2")
+        schema = writer.register_schema("std_msgs/msg/String", "ros2msg", b"string data")
+        channel = writer.register_channel("/chatter", "cdr", schema)
+        for k in range(50):
+            writer.add_message(channel, k, bytes(ts.serialize_cdr(msg(data=f"m{k}"), "std_msgs/msg/String")), k)
+        writer.finish()
+
+
+def test_a_channel_of_another_type_than_the_connection_is_left_to_rosbags(tmp_path: Path) -> None:
+    path = tmp_path / "plain.mcap"
+    _plain_mcap(path)
+    with AnyReader([path], default_typestore=typestore()) as reader:
+        conns = list(reader.connections)
+        assert indexed_messages(path, conns, {}) is not None
+        assert indexed_messages(path, [c._replace(msgtype="std_msgs/msg/Int32") for c in conns], {}) is None
 
 
 def _chunk_with_frames(storage: Path) -> tuple[int, int]:
@@ -145,38 +180,168 @@ def test_damaged_pixels_fail_the_pass_that_reads_them_and_only_that_one(tmp_path
         joints = [c for c in reader.connections if c.topic == JOINTS]
         images = [c for c in reader.connections if c.topic == IMAGE]
         # the first replay pass leaves the frames' chunks to the second, which checks their CRC
-        assert [(c.topic, t, bytes(r)) for c, t, r in read_messages(reader, joints, bag, crc_checked_later_by=(IMAGE,))] == clean_joints
+        ledger = CrcLedger()
+        deferred = [(c.topic, t, bytes(r)) for c, t, r in read_messages(reader, joints, bag, ledger=ledger, defer_crc_for=(IMAGE,))]
+        assert deferred == clean_joints
+        assert (storage, chunk_at) in ledger.unchecked()
+        with pytest.raises(BagError, match=f"chunk at byte {chunk_at} is damaged"):
+            verify_chunks(ledger, None, bag)
         with pytest.raises(BagError, match=f"chunk at byte {chunk_at} is damaged"):
             list(read_messages(reader, joints, bag))
         with pytest.raises(BagError, match=f"chunk at byte {chunk_at} is damaged"):
-            list(read_messages(reader, images, bag))
+            list(read_messages(reader, images, bag, ledger=CrcLedger()))
     # rosbags agrees the bag is damaged there
     with AnyReader([bag], default_typestore=typestore()) as reader, pytest.raises(Exception, match="checksum"):
         list(reader.messages(connections=[c for c in reader.connections if c.topic == IMAGE]))
 
 
-def test_a_message_index_pointing_at_no_message_is_a_damaged_bag(tmp_path: Path, rig: Path) -> None:
+@pytest.mark.parametrize("compression", [CompressionType.NONE, CompressionType.ZSTD])
+def test_a_damaged_chunk_without_frames_fails_even_the_pass_that_defers_frame_chunks(tmp_path: Path, compression: CompressionType) -> None:
+    path = tmp_path / "bare.mcap"
+    with path.open("wb") as stream:  # small chunks: the first ones hold joint states only, the last ones images
+        writer = Ros2McapWriter(stream, chunk_size=2048, compression=compression)
+        joints = writer.register_msgdef("sensor_msgs/msg/JointState", _JOINT_STATE_DEF)
+        images = writer.register_msgdef("std_msgs/msg/String", "string data")
+        for k in range(100):
+            writer.write_message(JOINTS, joints, {"header": {"stamp": {"sec": 0, "nanosec": k}, "frame_id": ""}, "name": ["a"],
+                                                  "position": [k], "velocity": [], "effort": []}, log_time=k)
+        for k in range(100, 110):
+            writer.write_message(IMAGE, images, {"data": "x" * 5000}, log_time=k)
+        writer.finish()
+    with path.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    first = summary.chunk_indexes[0]
+    assert {summary.channels[c].topic for c in first.message_index_offsets} == {JOINTS}
+    _flip(path, first.chunk_start_offset + first.chunk_length - 40, 8)  # inside its records (the last joint state's data)
+    with AnyReader([path], default_typestore=typestore()) as reader:
+        conns = [c for c in reader.connections if c.topic == JOINTS]
+        with pytest.raises(BagError, match=f"chunk at byte {first.chunk_start_offset} is damaged"):
+            list(read_messages(reader, conns, path, ledger=CrcLedger(), defer_crc_for=(IMAGE,)))
+
+
+def test_an_interrupted_replay_keeps_its_output_only_if_the_chunks_its_frames_used_are_intact(
+    tmp_path: Path, rig: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C before the frame pass checked a chunk whose joint samples the released frames used: no output kept."""
+    bag = write_sim_bag(rig, tmp_path / "sim", duration_s=1.5, seed=3).path
+    storage = bag / "sim.mcap"
+    frame_chunk, sample_chunk = _chunks_by_log_time(storage)
+    stamps = _header_stamps(bag)
+    frames = [(log, stamp) for log, topic, stamp in stamps if topic == IMAGE]
+    samples = [(log, stamp) for log, topic, stamp in stamps if topic == JOINTS]
+    # a frame k whose interpolation partner (the first joint sample stamped after it) lies in a later chunk
+    k = next(k for k, (log, stamp) in enumerate(frames[:-2]) if sample_chunk[min(s for s in samples if s[1] > stamp)[0]] > frame_chunk[log])
+    after = min(s for s in samples if s[1] > frames[k][1])
+    used_chunk = sample_chunk[after[0]]
+    last_chunk = max(frame_chunk.values())
+    assert used_chunk < last_chunk
+    original = _Replay._frame
+
+    def stop_after_frame_k(self: _Replay, reader: Any, raw: Any, outputs: Any) -> None:
+        original(self, reader, raw, outputs)
+        if self.stats.frames_out == k + 1:
+            raise KeyboardInterrupt  # a second Ctrl-C, which interrupts at once
+
+    monkeypatch.setattr(_Replay, "_frame", stop_after_frame_k)
+    far = tmp_path / "far"
+    shutil.copytree(bag, far)
+    _flip(far / "sim.mcap", _pixel_in(storage, last_chunk))
+    with pytest.raises(ReplayInterrupted) as stopped:
+        replay_bag(far, tmp_path / "out_far", rig)
+    assert stopped.value.summary.frames_out == k + 1
+    assert (tmp_path / "out_far.interrupted").is_dir()
+    near = tmp_path / "near"
+    shutil.copytree(bag, near)
+    _flip(near / "sim.mcap", _pixel_in(storage, used_chunk))
+    with pytest.raises(BagError, match=f"chunk at byte {used_chunk} is damaged"):
+        replay_bag(near, tmp_path / "out_near", rig)
+    assert not list(tmp_path.glob("out_near*")) and not list(tmp_path.glob(".out_near*"))
+
+
+def _chunks_by_log_time(storage: Path) -> tuple[dict[int, int], dict[int, int]]:
+    """Log time -> chunk offset of every frame and of every joint state, from the message indexes (the mcap package)."""
+    frames: dict[int, int] = {}
+    joints: dict[int, int] = {}
+    with storage.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+        assert summary is not None
+        for chunk in summary.chunk_indexes:
+            for cid, offset in chunk.message_index_offsets.items():
+                stream.seek(offset)
+                data = ReadDataStream(stream)
+                assert data.read1() == Opcode.MESSAGE_INDEX
+                data.read8()
+                entries = MessageIndex.read(data).records
+                target = {IMAGE: frames, JOINTS: joints}.get(summary.channels[cid].topic)
+                if target is not None:
+                    target.update((log, chunk.chunk_start_offset) for log, _ in entries)
+    return frames, joints
+
+
+def _header_stamps(bag: Path) -> list[tuple[int, str, int]]:
+    with AnyReader([bag], default_typestore=typestore()) as reader:
+        conns = [c for c in reader.connections if c.topic in (IMAGE, JOINTS)]
+        out = []
+        for c, log, raw in reader.messages(connections=conns):
+            header = reader.deserialize(raw, c.msgtype).header  # type: ignore[attr-defined]
+            out.append((log, c.topic, header.stamp.sec * 1_000_000_000 + header.stamp.nanosec))
+        return out
+
+
+def _pixel_in(storage: Path, chunk_start: int) -> int:
+    """A byte inside the pixels of the frame in the chunk at `chunk_start`."""
+    with storage.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    image = next(cid for cid, ch in summary.channels.items() if ch.topic == IMAGE)
+    chunk = next(c for c in summary.chunk_indexes if c.chunk_start_offset == chunk_start)
+    with storage.open("rb") as stream:
+        stream.seek(chunk.message_index_offsets[image] + 1 + 8 + 2 + 4)
+        _, offset = struct.unpack("<QQ", stream.read(16))
+    return chunk_start + 1 + 8 + 8 + 8 + 8 + 4 + 4 + len(chunk.compression) + 8 + offset + 1 + 8 + 22 + 200
+
+
+# (what is changed in the first joint-state index entry of the second chunk, what the reader must say)
+INDEX_DAMAGE = {
+    "offset moved by 3 bytes": (lambda log, offset: (log, offset + 3), "points at no message"),
+    "offset past the chunk": (lambda log, offset: (log, offset + 2**40), "lists offset"),
+    "offset beyond what a file offset can be": (lambda log, offset: (log, offset | 2**63), "lists offset"),
+    "log time outside the chunk": (lambda log, offset: (log + 10**12, offset), "outside the chunk's time range"),
+    "the entry of another message": (None, "lists offset"),
+    "one entry fewer": ("drop", "the statistics"),
+}
+
+
+@pytest.mark.parametrize("damage", sorted(INDEX_DAMAGE))
+def test_a_damaged_message_index_is_a_damaged_bag_never_other_data(tmp_path: Path, rig: Path, damage: str) -> None:
+    """The chunk's CRC is intact (rosbags reads every message); only the index that points into it is wrong."""
     bag = write_sim_bag(rig, tmp_path / "sim", duration_s=0.5, seed=3).path
     storage = bag / "sim.mcap"
     with storage.open("rb") as stream:
         summary = make_reader(stream).get_summary()
     assert summary is not None
     joints = next(cid for cid, ch in summary.channels.items() if ch.topic == JOINTS)
-    chunk = summary.chunk_indexes[0]
-    entry_at = chunk.message_index_offsets[joints] + 1 + 8 + 2 + 4
-    with storage.open("r+b") as stream:  # the first entry's offset moved by 3 bytes
-        stream.seek(entry_at + 8)
-        (offset,) = struct.unpack("<Q", stream.read(8))
-        stream.seek(entry_at + 8)
-        stream.write(struct.pack("<Q", offset + 3))
-    copy = tmp_path / "copy"
-    shutil.copytree(bag, copy)
-    with AnyReader([copy], default_typestore=typestore()) as reader:
+    at = summary.chunk_indexes[1].message_index_offsets[joints]
+    change, said = INDEX_DAMAGE[damage]
+    with storage.open("r+b") as stream:
+        stream.seek(at + 1)
+        length, _, size = struct.unpack("<QHI", stream.read(14))
+        assert size >= 32
+        first, second = struct.unpack("<QQ", stream.read(16)), struct.unpack("<QQ", stream.read(16))
+        if change == "drop":  # the record and its entries one shorter; the rest of the bytes stay
+            stream.seek(at + 1)
+            stream.write(struct.pack("<QHI", length - 16, joints, size - 16))
+        else:
+            stream.seek(at + 1 + 14)
+            stream.write(struct.pack("<QQ", *(change(*first) if callable(change) else second)))
+    assert len(_rosbags(bag, {JOINTS})) == summary.statistics.channel_message_counts[joints]  # type: ignore[union-attr]
+    with AnyReader([bag], default_typestore=typestore()) as reader:
         conns = [c for c in reader.connections if c.topic == JOINTS]
-        with pytest.raises(IndexedMcapError, match=f"message index of channel {joints} points at no message"):
-            list(indexed_messages(copy, conns, bag_information(copy)) or [])
-        with pytest.raises(BagError, match=f"{copy}"):
-            list(read_messages(reader, conns, copy, crc_checked_later_by=(IMAGE,)))
+        with pytest.raises(IndexedMcapError, match=said):
+            list(indexed_messages(bag, conns, bag_information(bag)) or [])
+        with pytest.raises(BagError, match=f"{bag}: cannot read the bag"):
+            list(read_messages(reader, conns, bag, ledger=CrcLedger(), defer_crc_for=(IMAGE,)))
 
 
 _JOINT_STATE_DEF = """std_msgs/Header header

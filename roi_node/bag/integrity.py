@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
@@ -29,7 +30,10 @@ from ..core.errors import BagError
 from .progress import Progress
 from .writer import RECORDING, STATUS_KEY
 
-_CHUNK_ERRORS: tuple[type[BaseException], ...] = (McapError, ValueError, struct.error, EOFError, OSError, RuntimeError, IndexError)
+# zstandard.ZstdError: a damaged zstd chunk (it derives from Exception only)
+_CHUNK_ERRORS: tuple[type[BaseException], ...] = (
+    McapError, ValueError, struct.error, EOFError, OSError, RuntimeError, IndexError, zstandard.ZstdError
+)
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import sqlite3
 import struct
-from collections.abc import Collection, Iterator
+from collections.abc import Collection, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +28,7 @@ from rosbags.serde import SerdeError
 
 from ..core.errors import BagError
 from ..core.stamps import stamp_to_ns
-from .indexed_mcap import indexed_messages
+from .indexed_mcap import ChunkKey, CrcLedger, indexed_messages
 from .writer import RECORDING, STATUS_KEY, typestore
 
 try:
@@ -51,6 +51,7 @@ _READ_ERRORS: tuple[type[BaseException], ...] = (
     sqlite3.Error,
     *_APSW_ERRORS,
     MemoryError,
+    OverflowError,
     TypeError,
     ValueError,
     IndexError,
@@ -121,18 +122,34 @@ def deserialize(reader: AnyReader, raw: Cdr, msgtype: str) -> Any:
     return reader.deserialize(cast(bytes, raw), msgtype)
 
 
+def verify_chunks(ledger: CrcLedger, keys: Iterable[ChunkKey] | None, path: Path) -> None:
+    """Check chunks a pass left unchecked (default: all of them); a damaged one is a BagError naming it."""
+    try:
+        ledger.verify(keys)
+    except _READ_ERRORS as exc:
+        raise _unreadable(path, exc) from exc
+
+
 def read_messages(
-    reader: AnyReader, connections: Collection[Connection], path: Path, *, crc_checked_later_by: Collection[str] = ()
+    reader: AnyReader,
+    connections: Collection[Connection],
+    path: Path,
+    *,
+    ledger: CrcLedger | None = None,
+    defer_crc_for: Collection[str] = (),
 ) -> Iterator[tuple[Connection, int, Cdr]]:
     """`reader.messages(connections)` in its order; a storage failure mid-bag is a BagError.
 
     An indexed MCAP bag is read through its indexes (indexed_mcap.py: the
-    same messages in the same order, fewer copies); `crc_checked_later_by`
-    names topics a later pass reads, whose chunks this pass need not check.
+    same messages in the same order, fewer copies). With a ledger, uncompressed
+    chunks that also hold `defer_crc_for` topics are read record by record and
+    left unchecked in the ledger, for the pass reading those topics (or
+    `verify_chunks`) to check.
     """
     if not connections:
         return
-    fast = indexed_messages(path, connections, bag_information(path), crc_checked_later_by)
+    information = bag_information(path) if path.is_dir() else {}
+    fast = indexed_messages(path, connections, information, ledger=ledger, defer_crc_for=defer_crc_for)
     messages: Iterator[tuple[Connection, int, Cdr]] = fast if fast is not None else reader.messages(connections=connections)
     while True:
         try:

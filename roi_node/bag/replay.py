@@ -10,6 +10,11 @@ depends on header stamps only. Outputs use
 the live node's topic names, carry the source frame's header stamp, and are
 logged at that stamp, so a replay of a live recording matches the live output.
 
+The first pass leaves the CRC of uncompressed chunks holding frames to the
+second (indexed_mcap.py); before a failure that may stem from such a chunk
+is reported, and before an interrupted output is kept, the chunks it relied
+on are checked, so a damaged bag is reported as damaged.
+
 A bad frame mid-bag is counted and skipped (the live node flags and counts it
 too); a stream the rig cannot use at all fails before any output is kept.
 An interrupt (Ctrl-C) finalizes the output with what was done.
@@ -37,16 +42,17 @@ from ..core.compressed_outputs import (
 )
 from ..core.config import RigConfig, load_rig_config
 from ..core.engine import CameraInfoEvent, CommandEvent, Event, FrameEvent, JointStateEvent, StreamEngine
-from ..core.errors import BagError, BagWriteError, CalibrationError, ConfigError, ImageError, UsageError
+from ..core.errors import BagError, BagWriteError, CalibrationError, ConfigError, ImageError, RoiNodeError, UsageError
 from ..core.overlay_cdr import overlay_cdr
 from ..core.pipeline import FrameResult
+from .indexed_mcap import CrcLedger
 from .inputs import InputSelection, check_frame_stream, decode_frame, select_inputs
 from .interrupt import DeferredInterrupt
 from .mcap_file import Compression
 from .messages import MessageFactory
 from .progress import Progress
-from .reader import DESERIALIZE_ERRORS, Cdr, check_bag_path, deserialize, open_bag, read_messages, stamp_ns, topic_stats
-from .streams import BadMessages, Streams, read_streams
+from .reader import DESERIALIZE_ERRORS, Cdr, check_bag_path, deserialize, open_bag, read_messages, stamp_ns, topic_stats, verify_chunks
+from .streams import BadMessages, Streams, chunks_used_up_to, read_streams
 from .summary import ReplaySummary, summary_from_stats
 from .writer import BagWriter, qos_profile
 
@@ -121,10 +127,16 @@ def replay_bag(
             command_topic=command_topic,
             need_camera_info=from_bag,
         )
-        streams = read_streams(reader, selection, source, rig.camera.rectified)
-        replay = _Replay(rig, source, selection, streams, from_bag, progress)
-        return replay.run(reader, target, overwrite=overwrite, include_inputs=include_inputs, started=started,
-                          compression=Compression(compression), outputs=outputs)
+        ledger = CrcLedger()  # the first pass leaves the frames' chunks for the second to check
+        try:
+            streams = read_streams(reader, selection, source, rig.camera.rectified, ledger)
+            replay = _Replay(rig, source, selection, streams, ledger, from_bag, progress)
+            return replay.run(reader, target, overwrite=overwrite, include_inputs=include_inputs, started=started,
+                              compression=Compression(compression), outputs=outputs)
+        except RoiNodeError as exc:
+            if not isinstance(exc, BagWriteError | UsageError):  # a damaged chunk the frame pass never reached may be the cause
+                verify_chunks(ledger, None, source)
+            raise
 
 
 class _Replay:
@@ -135,10 +147,15 @@ class _Replay:
     only; frames then go through the same release rule as live, flushed.
     """
 
-    def __init__(self, rig: RigConfig, source: Path, selection: InputSelection, streams: Streams, from_bag: bool, progress: bool) -> None:
+    def __init__(
+        self, rig: RigConfig, source: Path, selection: InputSelection, streams: Streams, ledger: CrcLedger, from_bag: bool, progress: bool
+    ) -> None:
         self.rig = rig
         self.source = source
         self.selection = selection
+        self.streams = streams
+        self.ledger = ledger
+        self.last_released_ns: int | None = None
         self.bad: BadMessages = streams.bad
         if from_bag and not streams.cameras:
             raise BagError(f"{source}: {selection.camera_info_topic}: no usable CameraInfo message")
@@ -200,12 +217,16 @@ class _Replay:
                     out = _OutputTopics(writer, self.rig, self.engine.pipeline.arm_ids() if self.engine.pipeline else (), outputs)
                     if include_inputs:
                         _add_input_topics(writer, connections, out.names, self.source)
-                    for connection, log_ns, raw in read_messages(reader, connections, self.source):
-                        interrupt.check()
-                        if include_inputs:
-                            writer.write_cdr(connection.topic, log_ns, raw)
-                        if connection.topic == self.selection.image_topic:
-                            self._frame(reader, raw, out)
+                    try:
+                        for connection, log_ns, raw in read_messages(reader, connections, self.source, ledger=self.ledger):
+                            interrupt.check()
+                            if include_inputs:
+                                writer.write_cdr(connection.topic, log_ns, raw)
+                            if connection.topic == self.selection.image_topic:
+                                self._frame(reader, raw, out)
+                    except KeyboardInterrupt:  # the partial output is kept only if what its frames used is intact
+                        verify_chunks(self.ledger, chunks_used_up_to(self.streams, self.last_released_ns), self.source)
+                        raise
                     self.engine.finish()  # frames still held behind an unconfirmed stamp jump are refused
                     if self.stats.frames_out == 0:
                         first = self.bad.examples[0] if self.bad.examples else "no frame was released"
@@ -252,6 +273,7 @@ class _Replay:
             if result is None:
                 continue
             outputs.write(result, msg.header.frame_id)
+            self.last_released_ns = max(result.stamp_ns, self.last_released_ns or result.stamp_ns)
             self.stats.frame_out(result.record, None, (time.perf_counter() - started) * 1000)
         self.progress.update(self.frames_read)
 
