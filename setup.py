@@ -36,8 +36,10 @@ setup(
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]>=7.1", "ros-jazzy-common-interfaces>=5.3"],
-        # lz4 and zstandard: the chunk compressions roi_node's MCAP writer offers; zlib-ng: fast chunk CRCs (bag/crc.py)
-        "bag": ["rosbags>=0.10,<0.12", "mcap>=1.2", "mcap-ros2-support>=0.5", "lz4>=4", "zstandard>=0.22", "zlib-ng>=0.5"],
+        # lz4 and zstandard: the chunk compressions roi_node's MCAP writer offers; zlib-ng: fast chunk CRCs (bag/crc.py);
+        # backports.zstd: multi-frame zstd chunks, as rosbags reads them (bag/indexed_mcap.py)
+        "bag": ["rosbags>=0.10,<0.12", "mcap>=1.2", "mcap-ros2-support>=0.5", "lz4>=4", "zstandard>=0.22", "zlib-ng>=0.5",
+                "backports.zstd>=1.0; python_version<'3.14'"],
         "robots": ["example-robot-data>=4.1"],
         # `roi-node export lerobot`: parquet + video without torch (PyAV's wheels bundle SVT-AV1 and x264)
         "export": ["av>=14", "pyarrow>=15"],

@@ -14,22 +14,20 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from mcap.data_stream import ReadDataStream
-from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import MessageIndex
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 from mcap_ros2.writer import Writer as Ros2McapWriter
 from rosbags.highlevel import AnyReader
 
+from roi_node.bag.batch import replay_bags
 from roi_node.bag.indexed_mcap import CrcLedger, IndexedMcapError, indexed_messages
 from roi_node.bag.messages import MessageFactory
 from roi_node.bag.reader import bag_information, read_messages, verify_chunks
-from roi_node.bag.replay import ReplayInterrupted, _Replay, replay_bag
+from roi_node.bag.replay import PartialOutputDiscardedError, ReplayInterrupted, _Replay, replay_bag
 from roi_node.bag.writer import BagWriter, SplitPolicy, typestore
 from roi_node.core.config import load_rig_config
-from roi_node.core.errors import BagError
+from roi_node.core.errors import BagError, CalibrationError
 from roi_node.core.pipeline import RoiPipeline
 from roi_node.sim.bag_sink import write_sim_bag
 
@@ -185,7 +183,7 @@ def test_damaged_pixels_fail_the_pass_that_reads_them_and_only_that_one(tmp_path
         assert deferred == clean_joints
         assert (storage, chunk_at) in ledger.unchecked()
         with pytest.raises(BagError, match=f"chunk at byte {chunk_at} is damaged"):
-            verify_chunks(ledger, None, bag)
+            verify_chunks(ledger, bag)
         with pytest.raises(BagError, match=f"chunk at byte {chunk_at} is damaged"):
             list(read_messages(reader, joints, bag))
         with pytest.raises(BagError, match=f"chunk at byte {chunk_at} is damaged"):
@@ -220,73 +218,61 @@ def test_a_damaged_chunk_without_frames_fails_even_the_pass_that_defers_frame_ch
             list(read_messages(reader, conns, path, ledger=CrcLedger(), defer_crc_for=(IMAGE,)))
 
 
-def test_an_interrupted_replay_keeps_its_output_only_if_the_chunks_its_frames_used_are_intact(
+def test_an_interrupted_replay_keeps_its_output_only_if_the_chunks_it_left_unchecked_are_intact(
     tmp_path: Path, rig: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Ctrl-C before the frame pass checked a chunk whose joint samples the released frames used: no output kept."""
-    bag = write_sim_bag(rig, tmp_path / "sim", duration_s=1.5, seed=3).path
-    storage = bag / "sim.mcap"
-    frame_chunk, sample_chunk = _chunks_by_log_time(storage)
-    stamps = _header_stamps(bag)
-    frames = [(log, stamp) for log, topic, stamp in stamps if topic == IMAGE]
-    samples = [(log, stamp) for log, topic, stamp in stamps if topic == JOINTS]
-    # a frame k whose interpolation partner (the first joint sample stamped after it) lies in a later chunk
-    k = next(k for k, (log, stamp) in enumerate(frames[:-2]) if sample_chunk[min(s for s in samples if s[1] > stamp)[0]] > frame_chunk[log])
-    after = min(s for s in samples if s[1] > frames[k][1])
-    used_chunk = sample_chunk[after[0]]
-    last_chunk = max(frame_chunk.values())
-    assert used_chunk < last_chunk
+    """Its frames were paired with joint samples read from chunks the frame pass had not reached: those are checked first."""
+    bag = write_sim_bag(rig, tmp_path / "sim", duration_s=1.0, seed=3).path
+    frame_chunks = _frame_chunks(bag / "sim.mcap")
     original = _Replay._frame
 
-    def stop_after_frame_k(self: _Replay, reader: Any, raw: Any, outputs: Any) -> None:
+    def stop_after_five_frames(self: _Replay, reader: Any, raw: Any, outputs: Any) -> None:
         original(self, reader, raw, outputs)
-        if self.stats.frames_out == k + 1:
+        if self.stats.frames_out == 5:
             raise KeyboardInterrupt  # a second Ctrl-C, which interrupts at once
 
-    monkeypatch.setattr(_Replay, "_frame", stop_after_frame_k)
-    far = tmp_path / "far"
-    shutil.copytree(bag, far)
-    _flip(far / "sim.mcap", _pixel_in(storage, last_chunk))
+    monkeypatch.setattr(_Replay, "_frame", stop_after_five_frames)
     with pytest.raises(ReplayInterrupted) as stopped:
-        replay_bag(far, tmp_path / "out_far", rig)
-    assert stopped.value.summary.frames_out == k + 1
-    assert (tmp_path / "out_far.interrupted").is_dir()
-    near = tmp_path / "near"
-    shutil.copytree(bag, near)
-    _flip(near / "sim.mcap", _pixel_in(storage, used_chunk))
-    with pytest.raises(BagError, match=f"chunk at byte {used_chunk} is damaged"):
-        replay_bag(near, tmp_path / "out_near", rig)
-    assert not list(tmp_path.glob("out_near*")) and not list(tmp_path.glob(".out_near*"))
+        replay_bag(bag, tmp_path / "out_clean", rig)
+    assert stopped.value.summary.frames_out == 5 and (tmp_path / "out_clean.interrupted").is_dir()
+    damaged = tmp_path / "damaged"
+    shutil.copytree(bag, damaged)
+    _flip(damaged / "sim.mcap", _pixel_in(bag / "sim.mcap", frame_chunks[-1]))  # far beyond the stop
+    with pytest.raises(BaseException) as discarded:  # a kept output would be ReplayInterrupted, a KeyboardInterrupt
+        replay_bag(damaged, tmp_path / "out_damaged", rig)
+    assert isinstance(discarded.value, PartialOutputDiscardedError), repr(discarded.value)
+    assert f"chunk at byte {frame_chunks[-1]} is damaged" in str(discarded.value) and "no partial output kept" in str(discarded.value)
+    assert not list(tmp_path.glob("*out_damaged*"))
+    # several bags: the damaged one stops the batch like any interrupt, naming the chunk
+    result = replay_bags([damaged, bag], tmp_path / "batch", rig)
+    assert result.interrupted and len(result.outcomes) == 1
+    assert result.outcomes[0].interrupted and f"chunk at byte {frame_chunks[-1]} is damaged" in (result.outcomes[0].error or "")
+    assert not list((tmp_path / "batch").iterdir())
 
 
-def _chunks_by_log_time(storage: Path) -> tuple[dict[int, int], dict[int, int]]:
-    """Log time -> chunk offset of every frame and of every joint state, from the message indexes (the mcap package)."""
-    frames: dict[int, int] = {}
-    joints: dict[int, int] = {}
+def test_a_failure_before_the_frame_pass_reached_a_damaged_chunk_reports_the_damage(tmp_path: Path, rig: Path) -> None:
+    """Frames of another size than the rig's intrinsics fail at the first frame; the damaged chunk ahead is the real news."""
+    bag = write_sim_bag(rig, tmp_path / "sim", duration_s=1.0, seed=3).path
+    clean = tmp_path / "clean"
+    shutil.copytree(bag, clean)
+    frame_chunks = _frame_chunks(bag / "sim.mcap")
+    _flip(bag / "sim.mcap", _pixel_in(clean / "sim.mcap", frame_chunks[-1]))
+    (tmp_path / "bigger").mkdir()
+    bigger = small_rig(tmp_path / "bigger", width=640, height=360)
+    with pytest.raises(CalibrationError, match="frames are 320x180"):
+        replay_bag(clean, tmp_path / "out_clean", bigger)
+    with pytest.raises(BagError, match=f"chunk at byte {frame_chunks[-1]} is damaged"):
+        replay_bag(bag, tmp_path / "out", bigger)
+    assert not list(tmp_path.glob("*out*"))
+
+
+def _frame_chunks(storage: Path) -> list[int]:
+    """Byte offsets of the chunks holding a frame, in file order (the mcap package's summary)."""
     with storage.open("rb") as stream:
         summary = make_reader(stream).get_summary()
-        assert summary is not None
-        for chunk in summary.chunk_indexes:
-            for cid, offset in chunk.message_index_offsets.items():
-                stream.seek(offset)
-                data = ReadDataStream(stream)
-                assert data.read1() == Opcode.MESSAGE_INDEX
-                data.read8()
-                entries = MessageIndex.read(data).records
-                target = {IMAGE: frames, JOINTS: joints}.get(summary.channels[cid].topic)
-                if target is not None:
-                    target.update((log, chunk.chunk_start_offset) for log, _ in entries)
-    return frames, joints
-
-
-def _header_stamps(bag: Path) -> list[tuple[int, str, int]]:
-    with AnyReader([bag], default_typestore=typestore()) as reader:
-        conns = [c for c in reader.connections if c.topic in (IMAGE, JOINTS)]
-        out = []
-        for c, log, raw in reader.messages(connections=conns):
-            header = reader.deserialize(raw, c.msgtype).header  # type: ignore[attr-defined]
-            out.append((log, c.topic, header.stamp.sec * 1_000_000_000 + header.stamp.nanosec))
-        return out
+    assert summary is not None
+    image = next(cid for cid, ch in summary.channels.items() if ch.topic == IMAGE)
+    return sorted(c.chunk_start_offset for c in summary.chunk_indexes if image in c.message_index_offsets)
 
 
 def _pixel_in(storage: Path, chunk_start: int) -> int:

@@ -24,7 +24,7 @@ from ..core.errors import BagError, RoiNodeError
 from ..core.pipeline import overlap_global_view
 from .memory import tune_malloc_for_large_frames
 from .reader import BAG_FILE_SUFFIXES
-from .replay import ReplayInterrupted, replay_bag
+from .replay import PartialOutputDiscardedError, ReplayInterrupted, replay_bag
 from .summary import ReplaySummary
 
 OUTPUT_SUFFIX = "_roi"
@@ -78,6 +78,8 @@ def _replay_one(source: Path, target: Path, config_path: Path, options: dict[str
         return BagOutcome(source, target, summary=replay_bag(source, target, config_path, **options))
     except ReplayInterrupted as exc:
         return BagOutcome(source, target, summary=exc.summary, interrupted=True)
+    except PartialOutputDiscardedError as exc:
+        return BagOutcome(source, target, error=str(exc), interrupted=True)
     except RoiNodeError as exc:
         return BagOutcome(source, target, error=str(exc))
     except Exception as exc:  # a bug must not take the other bags down; say it is one

@@ -13,15 +13,16 @@ message indexes say where their records are:
   also holds messages of those topics is not read whole: only the wanted
   records are read, and the ledger lists the chunk as unchecked until a later
   pass that reads it whole (the one reading those topics) checks it, or the
-  caller asks the ledger to check it. Compressed chunks, and chunks holding
-  none of those topics, are read whole and checked at once.
+  caller asks the ledger to check what is left. Compressed chunks, and chunks
+  holding none of those topics, are read whole and checked at once.
 
 The order is rosbags': file by file as the bag lists them, and in a file by
 log time, then chunk offset, then record position. Every index entry is
 checked against the chunk it points into (bounds, time range, the record's
-channel and log time, no duplicates) and the entries per channel against the
-file's statistics, so a damaged index is an IndexedMcapError, never other
-data. `indexed_messages` returns None for what it does not cover: db3
+channel and log time, no duplicates), so a damaged index is an
+IndexedMcapError rather than other data; an entry missing from an index is
+found only where the file has statistics (per-channel counts, compared once
+the file's messages were read). `indexed_messages` returns None for what it does not cover: db3
 storage, rosbag2 message or file compression, a file without a summary,
 channel records or message indexes, a channel of a wanted topic with another
 type or encoding, several connections on one topic; the caller then reads
@@ -34,7 +35,7 @@ import heapq
 import os
 import struct
 from collections import Counter
-from collections.abc import Collection, Iterable, Iterator
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -82,27 +83,27 @@ class IndexedMcapError(ValueError):
 class CrcLedger:
     """The chunks a pass read record by record without checking their CRC, and those checked since.
 
-    `last` is the chunk the message just yielded came from when that chunk is
-    unchecked (else None): a caller keeping the message can say where it
-    came from, and later check just the chunks whose messages it used.
+    `damaged` is set once reading through the ledger hit a damaged chunk: the
+    bag is then known to be damaged and need not be checked again.
     """
 
     _unchecked: dict[ChunkKey, ChunkIndex] = field(default_factory=dict)
     _checked: set[ChunkKey] = field(default_factory=set)
-    last: ChunkKey | None = None
+    damaged: bool = False
 
     def unchecked(self) -> list[ChunkKey]:
         return [key for key in self._unchecked if key not in self._checked]
 
-    def verify(self, keys: Iterable[ChunkKey] | None = None) -> None:
-        """Check the CRC of these chunks (default: every unchecked one) unless a pass already did."""
-        for key in list(self._unchecked) if keys is None else keys:
-            if key in self._checked or key not in self._unchecked:
-                continue
+    def verify(self) -> None:
+        """Check the CRC of every chunk left unchecked that no later pass has checked yet."""
+        for key in self.unchecked():
             path, _ = key
             fd = os.open(path, os.O_RDONLY)
             try:
                 _chunk_records(path, fd, os.fstat(fd).st_size, self._unchecked[key])
+            except IndexedMcapError:
+                self.damaged = True
+                raise
             finally:
                 os.close(fd)
             self._checked.add(key)
@@ -197,10 +198,8 @@ def _messages(files: list[_File], ledger: CrcLedger | None) -> Iterator[tuple[Co
                 for chunk in file.chunks
                 if any(cid in chunk.message_index_offsets for cid in file.channels)
             ]
-            for log_ns, _, _, connection, data, key in heapq.merge(*sources):
+            for log_ns, _, _, connection, data in heapq.merge(*sources):
                 if connection is not None:
-                    if ledger is not None:
-                        ledger.last = key
                     yield connection, log_ns, data
             for cid in file.channels:
                 if file.counts and seen[cid] != (counted := file.counts.get(cid, 0)):
@@ -210,7 +209,7 @@ def _messages(files: list[_File], ledger: CrcLedger | None) -> Iterator[tuple[Co
             os.close(fd)
 
 
-_Item = tuple[int, int, int, Connection | None, memoryview, ChunkKey | None]
+_Item = tuple[int, int, int, Connection | None, memoryview]
 
 
 def _chunk_messages(file: _File, fd: int, chunk: ChunkIndex, ledger: CrcLedger | None, seen: Counter[int]) -> Iterator[_Item]:
@@ -219,7 +218,7 @@ def _chunk_messages(file: _File, fd: int, chunk: ChunkIndex, ledger: CrcLedger |
     The marker lets heapq.merge open a chunk only when its first message can be next, as rosbags does.
     """
     start = chunk.chunk_start_offset
-    yield (chunk.message_start_time, start, -1, None, memoryview(b""), None)
+    yield (chunk.message_start_time, start, -1, None, memoryview(b""))
     entries = sorted(
         (log_ns, offset, cid)
         for cid in file.channels
@@ -255,7 +254,7 @@ def _chunk_messages(file: _File, fd: int, chunk: ChunkIndex, ledger: CrcLedger |
             head = bytes(records[offset : offset + _MESSAGE_AT])
             length = _message_length(file.path, at, head, log_ns, cid, chunk.uncompressed_size - offset)
             data = records[offset + _MESSAGE_AT : offset + _MESSAGE_AT + length]
-        yield (log_ns, start, offset, file.channels[cid], data, key if sparse else None)
+        yield (log_ns, start, offset, file.channels[cid], data)
 
 
 def _check_entries(path: Path, chunk: ChunkIndex, entries: list[tuple[int, int, int]]) -> None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import sqlite3
 import struct
-from collections.abc import Collection, Iterable, Iterator
+from collections.abc import Collection, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +28,7 @@ from rosbags.serde import SerdeError
 
 from ..core.errors import BagError
 from ..core.stamps import stamp_to_ns
-from .indexed_mcap import ChunkKey, CrcLedger, indexed_messages
+from .indexed_mcap import CrcLedger, indexed_messages
 from .writer import RECORDING, STATUS_KEY, typestore
 
 try:
@@ -122,10 +122,10 @@ def deserialize(reader: AnyReader, raw: Cdr, msgtype: str) -> Any:
     return reader.deserialize(cast(bytes, raw), msgtype)
 
 
-def verify_chunks(ledger: CrcLedger, keys: Iterable[ChunkKey] | None, path: Path) -> None:
-    """Check chunks a pass left unchecked (default: all of them); a damaged one is a BagError naming it."""
+def verify_chunks(ledger: CrcLedger, path: Path) -> None:
+    """Check every chunk a pass left unchecked; a damaged one is a BagError naming it."""
     try:
-        ledger.verify(keys)
+        ledger.verify()
     except _READ_ERRORS as exc:
         raise _unreadable(path, exc) from exc
 
@@ -144,7 +144,7 @@ def read_messages(
     same messages in the same order, fewer copies). With a ledger, uncompressed
     chunks that also hold `defer_crc_for` topics are read record by record and
     left unchecked in the ledger, for the pass reading those topics (or
-    `verify_chunks`) to check.
+    `verify_chunks`) to check; a damaged chunk met here marks the ledger damaged.
     """
     if not connections:
         return
@@ -157,6 +157,8 @@ def read_messages(
         except StopIteration:
             return
         except _READ_ERRORS as exc:
+            if ledger is not None:
+                ledger.damaged = True
             raise _unreadable(path, exc) from exc
         yield item
 

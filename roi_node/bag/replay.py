@@ -12,8 +12,8 @@ logged at that stamp, so a replay of a live recording matches the live output.
 
 The first pass leaves the CRC of uncompressed chunks holding frames to the
 second (indexed_mcap.py); before a failure that may stem from such a chunk
-is reported, and before an interrupted output is kept, the chunks it relied
-on are checked, so a damaged bag is reported as damaged.
+is reported, and before an interrupted output is kept, the chunks the second
+pass has not read yet are checked, so a damaged bag is reported as damaged.
 
 A bad frame mid-bag is counted and skipped (the live node flags and counts it
 too); a stream the rig cannot use at all fails before any output is kept.
@@ -52,11 +52,11 @@ from .mcap_file import Compression
 from .messages import MessageFactory
 from .progress import Progress
 from .reader import DESERIALIZE_ERRORS, Cdr, check_bag_path, deserialize, open_bag, read_messages, stamp_ns, topic_stats, verify_chunks
-from .streams import BadMessages, Streams, chunks_used_up_to, read_streams
+from .streams import BadMessages, Streams, read_streams
 from .summary import ReplaySummary, summary_from_stats
 from .writer import BagWriter, qos_profile
 
-__all__ = ["ReplayInterrupted", "ReplaySummary", "check_output_path", "replay_bag"]
+__all__ = ["PartialOutputDiscardedError", "ReplayInterrupted", "ReplaySummary", "check_output_path", "replay_bag"]
 
 
 class ReplayInterrupted(KeyboardInterrupt):
@@ -70,6 +70,15 @@ class ReplayInterrupted(KeyboardInterrupt):
     def __init__(self, summary: ReplaySummary) -> None:
         super().__init__(summary)
         self.summary = summary
+
+
+class PartialOutputDiscardedError(BagError):
+    """Ctrl-C stopped a replay and its partial output was not kept.
+
+    A chunk the first pass had read without checking turned out damaged (the
+    message names it), or a second Ctrl-C came while those chunks were being
+    checked. replay_bags stops on it as on any interrupt.
+    """
 
 
 def check_output_path(source: Path, target: Path, overwrite: bool) -> None:
@@ -134,8 +143,9 @@ def replay_bag(
             return replay.run(reader, target, overwrite=overwrite, include_inputs=include_inputs, started=started,
                               compression=Compression(compression), outputs=outputs)
         except RoiNodeError as exc:
-            if not isinstance(exc, BagWriteError | UsageError):  # a damaged chunk the frame pass never reached may be the cause
-                verify_chunks(ledger, None, source)
+            # a damaged chunk the frame pass never reached may be the cause: then say that
+            if not isinstance(exc, BagWriteError | UsageError | PartialOutputDiscardedError) and not ledger.damaged:
+                verify_chunks(ledger, source)
             raise
 
 
@@ -153,9 +163,7 @@ class _Replay:
         self.rig = rig
         self.source = source
         self.selection = selection
-        self.streams = streams
         self.ledger = ledger
-        self.last_released_ns: int | None = None
         self.bad: BadMessages = streams.bad
         if from_bag and not streams.cameras:
             raise BagError(f"{source}: {selection.camera_info_topic}: no usable CameraInfo message")
@@ -224,8 +232,8 @@ class _Replay:
                                 writer.write_cdr(connection.topic, log_ns, raw)
                             if connection.topic == self.selection.image_topic:
                                 self._frame(reader, raw, out)
-                    except KeyboardInterrupt:  # the partial output is kept only if what its frames used is intact
-                        verify_chunks(self.ledger, chunks_used_up_to(self.streams, self.last_released_ns), self.source)
+                    except KeyboardInterrupt:
+                        self._check_before_keeping()
                         raise
                     self.engine.finish()  # frames still held behind an unconfirmed stamp jump are refused
                     if self.stats.frames_out == 0:
@@ -273,9 +281,24 @@ class _Replay:
             if result is None:
                 continue
             outputs.write(result, msg.header.frame_id)
-            self.last_released_ns = max(result.stamp_ns, self.last_released_ns or result.stamp_ns)
             self.stats.frame_out(result.record, None, (time.perf_counter() - started) * 1000)
         self.progress.update(self.frames_read)
+
+    def _check_before_keeping(self) -> None:
+        """A partial output is kept only if every chunk the first pass left unchecked is intact.
+
+        Its frames were paired with joint samples from anywhere in the bag (by
+        stamp), so all of those chunks are checked, not only the ones before
+        the stop: reading the rest of the bag once, without processing it.
+        """
+        try:
+            verify_chunks(self.ledger, self.source)
+        except BagError as exc:
+            raise PartialOutputDiscardedError(f"{exc}; interrupted, and no partial output kept") from None
+        except KeyboardInterrupt:  # a second Ctrl-C while checking
+            raise PartialOutputDiscardedError(
+                f"{self.source}: interrupted again while checking the bag's remaining chunks; no partial output kept"
+            ) from None
 
     def _check_size(self, width: int, height: int) -> None:
         """The first frame decides whether this stream fits the rig's camera at all."""

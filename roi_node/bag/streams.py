@@ -6,9 +6,9 @@ happened to log the samples; and the intrinsics are known before the pipeline
 is built, even when the first CameraInfo was logged after the first frame.
 The pass only touches these (small) messages: in an indexed MCAP bag it
 reads their records alone from uncompressed chunks that also hold frames and
-leaves those chunks' CRC to the frame pass (a CrcLedger lists them, and each
-sample read from one, so a replay that stops early can check the ones its
-frames used).
+leaves those chunks' CRC to the frame pass (a CrcLedger lists them, so a
+replay that fails or stops before the frame pass read them all checks the
+rest).
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ from rosbags.highlevel import AnyReader
 
 from ..core.camera import CameraModel
 from ..core.errors import CalibrationError
-from .indexed_mcap import ChunkKey, CrcLedger
+from .indexed_mcap import CrcLedger
 from .inputs import InputSelection, camera_from_msg
-from .reader import DESERIALIZE_ERRORS, deserialize, read_messages, stamp_ns, verify_chunks
+from .reader import DESERIALIZE_ERRORS, deserialize, read_messages, stamp_ns
 
 MAX_REPORTED = 5  # bad messages quoted in full; the rest are counted
 
@@ -51,22 +51,12 @@ class BadMessages:
             self.examples.append(message)
 
 
-@dataclass(frozen=True)
-class UncheckedSample:
-    """A joint state, command or camera info read from a chunk whose CRC the frame pass checks."""
-
-    topic: str
-    stamp_ns: int
-    chunk: ChunkKey
-
-
 @dataclass
 class Streams:
     joints: list[JointSample]
     commands: list[JointSample]
     cameras: list[tuple[int, CameraModel]]
     bad: BadMessages
-    unchecked: list[UncheckedSample] = field(default_factory=list)
 
     def joint_names(self) -> set[str]:
         return {name for sample in self.joints for name in sample.names}
@@ -83,9 +73,8 @@ class Streams:
 def read_streams(reader: AnyReader, selection: InputSelection, path: Path, rectified: bool, ledger: CrcLedger) -> Streams:
     """Read every joint state, command and camera info; malformed ones are counted, not fatal.
 
-    Chunks that also hold frames are left unchecked in `ledger` for the frame
-    pass; a message that does not deserialize has its chunk checked at once
-    (a damaged chunk is a BagError, not a bad message).
+    Uncompressed chunks that also hold frames are left unchecked in `ledger`
+    for the frame pass.
     """
     topics = set(selection.stream_topics)
     connections = [c for c in reader.connections if c.topic in topics]
@@ -96,17 +85,12 @@ def read_streams(reader: AnyReader, selection: InputSelection, path: Path, recti
     frames = (selection.image_topic,)
     for connection, _, raw in read_messages(reader, connections, path, ledger=ledger, defer_crc_for=frames):
         where = f"{path}: {connection.topic}"
-        chunk = ledger.last
         try:
             msg: Any = deserialize(reader, raw, connection.msgtype)
         except DESERIALIZE_ERRORS as exc:
-            if chunk is not None:
-                verify_chunks(ledger, [chunk], path)
             streams.bad.add(f"{where}: message cannot be deserialized as {connection.msgtype} ({exc})")
             continue
         stamp = stamp_ns(msg.header)
-        if chunk is not None:
-            streams.unchecked.append(UncheckedSample(connection.topic, stamp, chunk))
         if connection.topic == selection.camera_info_topic:
             key = _calibration_key(msg)
             try:
@@ -125,22 +109,6 @@ def read_streams(reader: AnyReader, selection: InputSelection, path: Path, recti
     if selection.camera_info_topic is not None and not streams.cameras and calibration_errors:
         raise calibration_errors[0]
     return streams
-
-
-def chunks_used_up_to(streams: Streams, stamp_ns: int | None) -> set[ChunkKey]:
-    """The unchecked chunks whose samples frames stamped up to `stamp_ns` may have used.
-
-    Every sample stamped at or before it, and on each topic the first one
-    after it (interpolation's upper bracket); None: no frame was released.
-    """
-    if stamp_ns is None:
-        return set()
-    used = {s.chunk for s in streams.unchecked if s.stamp_ns <= stamp_ns}
-    after: dict[str, UncheckedSample] = {}
-    for sample in streams.unchecked:
-        if sample.stamp_ns > stamp_ns and (sample.topic not in after or sample.stamp_ns < after[sample.topic].stamp_ns):
-            after[sample.topic] = sample
-    return used | {s.chunk for s in after.values()}
 
 
 def _calibration_key(msg: Any) -> tuple[Any, ...]:
