@@ -6,6 +6,7 @@ import json
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -40,15 +41,22 @@ def test_ros2_run_entry_point_with_ros_args_and_sigterm_shutdown(tmp_path: Path)
             [str(script), "--ros-args", "-p", f"config:={BIMANUAL}", "-p", "global_view:=false", "-r", "__ns:=/rig1"],
             cwd=tmp_path, env=ros_env(domain), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         )
+        lines: list[str] = []
+        reader = threading.Thread(target=lambda: lines.extend(iter(proc.stdout.readline, "")), daemon=True)  # type: ignore[union-attr]
+        reader.start()
         deadline = time.monotonic() + 30
-        while collector.node.count_publishers("/rig1/roi/metadata") < 1 and time.monotonic() < deadline:
+        # the node says it is up after creating its publishers: a SIGTERM in between (a busy core) stops it before that
+        while not (collector.node.count_publishers("/rig1/roi/metadata") >= 1 and any("rig demo_bimanual" in x for x in lines)):
+            assert time.monotonic() < deadline and proc.poll() is None, lines
             time.sleep(0.05)
         assert collector.node.count_publishers("/rig1/roi/metadata") == 1, "namespaced outputs"
         assert collector.node.count_publishers("/rig1/roi/global/image_raw") == 0, "global_view:=false"
         proc.send_signal(signal.SIGTERM)
-        out, _ = proc.communicate(timeout=15)
+        proc.wait(timeout=15)
+        reader.join(timeout=5)
     finally:
         collector.close()
+    out = "".join(lines)
     assert proc.returncode == 0, out
     assert "/rig1/roi/left/image_raw" in out and "rig demo_bimanual" in out
 
