@@ -175,7 +175,12 @@ def test_a_urdf_that_would_crash_placo_on_robot_description_is_refused_and_repor
         with process(run_args("robot_description_source:=topic", "silence_timeout_s:=30.0"), env, tmp_path / "node.log") as node:
             collector.wait_for_node()
             publish(tmp_path, env, {"frames": 20, "robot_description": str(urdf)})
-            collector.wait_until(lambda: len(collector.diagnostics) >= 3, 5.0)
+
+            def all_frames_counted() -> bool:  # a diagnostics array sent before the last frames arrived says fewer
+                waiting = diagnostics_values(collector.diagnostics, "roi_node: input").get("dropped_by_reason", {})
+                return len(collector.diagnostics) >= 3 and waiting.get("waiting_for_urdf", 0) >= 20
+
+            collector.wait_until(all_frames_counted, 10.0)
             assert node.poll() is None, (tmp_path / "node.log").read_text()
     finally:
         collector.close()

@@ -38,8 +38,8 @@ pytest.importorskip("ray")
 pytestmark = pytest.mark.ray
 
 GOOD = ("b0", "b1", "b2", "b3", "b4")
-VICTIM = "long"  # fifty times a short bag: still running when a test acts on the others finishing, or looks for it mid-bag
-VICTIM_S = 20.0
+VICTIM = "long"  # a hundred times a short bag: still running when a test acts on the others finishing, or looks for it mid-bag
+VICTIM_S = 40.0  # 20 s became too short once replay read bags through their indexes: all five bags ended before the Ctrl-C
 POLL_S = 0.005
 
 

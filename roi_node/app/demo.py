@@ -91,10 +91,10 @@ def _run_step(args: list[str], env: dict[str, str], log: Path, name: str) -> str
     return result.stdout
 
 
-RECORDING_PENDING_FRAMES = 30
+RECORDING_PENDING_FRAMES = 90
 RECORDING_MAX_WAIT_MS = 250.0
 RECORDING_JOINT_DEPTH = 2000
-RECORDING_IMAGE_DEPTH = 30  # 1 s of frames: a reliable KEEP_LAST reader whose executor stalls loses what overflows its queue
+RECORDING_IMAGE_DEPTH = 90  # 3 s of frames: a reliable KEEP_LAST reader whose executor stalls loses what overflows its queue
 
 
 def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed: int) -> int:
@@ -114,8 +114,9 @@ def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed
     procs: dict[str, tuple[subprocess.Popen[bytes], Path]] = {}
     try:
         # a recording run wants every frame, correctly paired: reliable subscriptions with a 10 s joint-state queue (a
-        # starved reader otherwise loses joint states: the 100-deep default is 0.5 s at 200 Hz) and a 1 s image queue (with
-        # the 5-deep default a core held busy lost 4 of 600 frames), a 1 s pending queue and a 250 ms wait for the joint
+        # starved reader otherwise loses joint states: the 100-deep default is 0.5 s at 200 Hz) and a 3 s image queue (with
+        # the 5-deep default a core held busy lost 4 of 600 frames), a 3 s pending queue (1 s overflowed once when the
+        # node stalled 1.4 s beside a busy core) and a 250 ms wait for the joint
         # sample ride out a busy moment (the live defaults favour latency)
         recording = ["qos.subscription_reliability:=reliable", f"qos.joint_state_depth:={RECORDING_JOINT_DEPTH}",
                      f"qos.subscription_depth:={RECORDING_IMAGE_DEPTH}",

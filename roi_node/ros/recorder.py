@@ -42,7 +42,10 @@ from .drain import draining_subscription
 from .msg_types import message_class, subscription_qos, to_bag_qos
 
 DISCOVERY_PERIOD_S = 0.5
-QUEUE_MESSAGES = 512
+# between the executor and the writer thread, to ride out a write stalled by the kernel's writeback (512 messages,
+# about 1 s of the demo's topics, lost messages in a demo run right after a make test had written GBs)
+QUEUE_MESSAGES = 8192
+QUEUE_BYTES = 256 * 1024 * 1024
 IDLE_FLUSH_S = 0.2  # an idle writer puts its open chunk into the file this often
 JOIN_TIMEOUT_S = 5.0  # the longest a stop waits for the writer thread
 
@@ -91,6 +94,8 @@ class Recorder(Node):
         self.failure: str | None = None
         self.stored_as: dict[str, str] = {}
         self._queue: queue.Queue[_Sample | _NewTopic | None] = queue.Queue(maxsize=QUEUE_MESSAGES)
+        self._queued_bytes = 0  # of the samples in the queue; under _queued_lock
+        self._queued_lock = threading.Lock()
         self._stop = threading.Event()
         self._recorded: dict[str, object] = {}
         self._thread = threading.Thread(target=self._drain, name="recorder_writer", daemon=True)
@@ -139,9 +144,16 @@ class Recorder(Node):
         def callback(data: bytes) -> None:
             if self._stop.is_set():
                 return
+            with self._queued_lock:
+                if self._queued_bytes + len(data) > QUEUE_BYTES:
+                    self.dropped[topic] += 1
+                    return
+                self._queued_bytes += len(data)
             try:
                 self._queue.put_nowait(_Sample(topic, time.time_ns(), data))
             except queue.Full:
+                with self._queued_lock:
+                    self._queued_bytes -= len(data)
                 self.dropped[topic] += 1
 
         return callback
@@ -157,6 +169,9 @@ class Recorder(Node):
                     continue
                 if item is None:
                     return
+                if isinstance(item, _Sample):
+                    with self._queued_lock:
+                        self._queued_bytes -= len(item.data)
                 self._store(item)
         except BagWriteError as exc:
             self.failure = str(exc)
