@@ -49,7 +49,9 @@ class RayCluster:
         return subprocess.run(self.cli(*args), env=self.env, capture_output=True, text=True, timeout=timeout_s)
 
     def start(self, *args: str) -> subprocess.Popen[str]:
-        return subprocess.Popen(self.cli(*args), env=self.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        """The CLI in the background; SIGINT at its default, since a test run started in the background inherits it ignored."""
+        return subprocess.Popen(self.cli(*args), env=self.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def _free_port() -> int:
