@@ -172,7 +172,10 @@ def test_a_urdf_that_would_crash_placo_on_robot_description_is_refused_and_repor
     env = ros_env(domain)
     collector = Collector(domain, ARMS)
     try:
-        with process(run_args("robot_description_source:=topic", "silence_timeout_s:=30.0"), env, tmp_path / "node.log") as node:
+        # it counts every frame: reliable input, so a busy machine cannot lose one (the default is best effort)
+        params = ("robot_description_source:=topic", "silence_timeout_s:=30.0", "qos.subscription_reliability:=reliable",
+                  "qos.subscription_depth:=30")
+        with process(run_args(*params), env, tmp_path / "node.log") as node:
             collector.wait_for_node()
             publish(tmp_path, env, {"frames": 20, "robot_description": str(urdf)})
 
@@ -180,7 +183,7 @@ def test_a_urdf_that_would_crash_placo_on_robot_description_is_refused_and_repor
                 waiting = diagnostics_values(collector.diagnostics, "roi_node: input").get("dropped_by_reason", {})
                 return len(collector.diagnostics) >= 3 and waiting.get("waiting_for_urdf", 0) >= 20
 
-            collector.wait_until(all_frames_counted, 10.0)
+            assert collector.wait_until(all_frames_counted, 10.0), diagnostics_values(collector.diagnostics, "roi_node: input")
             assert node.poll() is None, (tmp_path / "node.log").read_text()
     finally:
         collector.close()

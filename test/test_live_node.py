@@ -33,7 +33,7 @@ ARMS = ["left", "right"]
 # tests of what every frame carries (exact residuals, intrinsics) let a frame wait 250 ms for the joint sample after
 # it, so a busy core (the other test worker, a loaded CI machine) does not release it unpaired; latency is bench/live.py's
 PATIENT = ("sync.max_wait_ms:=250.0",)
-RELIABLE = ("qos.subscription_reliability:=reliable", "qos.joint_state_depth:=2000")
+RELIABLE = ("qos.subscription_reliability:=reliable", "qos.subscription_depth:=30", "qos.joint_state_depth:=2000")
 
 
 def run_session(tmp_path: Path, spec: dict[str, Any], *params: str, config: Path = BIMANUAL, arms: list[str] = ARMS,
@@ -169,7 +169,7 @@ def test_bad_input_is_flagged_counted_and_the_node_keeps_publishing(tmp_path: Pa
         "joint_faults_at_frame": {"20": "joint_nan", "24": "joint_unknown", "28": "joint_empty_positions"},
         "loop_at_frame": 40,  # stamps jump back 3 s, as when a bag loops
     }
-    collector, truth, log = run_session(tmp_path, spec, expect=56)
+    collector, truth, log = run_session(tmp_path, spec, *RELIABLE, expect=56)  # it counts every frame
     bad_frames = {f["stamp_ns"] for f in truth["frames"] if f["fault"]}
     good = {f["stamp_ns"] for f in truth["frames"] if not f["fault"]}
     records = {r["stamp_ns"]: r for r in collector.metadata}
@@ -205,7 +205,7 @@ def test_arm_behind_the_camera_is_flagged_and_the_other_arm_still_cropped(tmp_pa
     eye, target = [0.5, 0.0, 0.45], [0.5, 1.0, 0.3]
     doc["camera"]["extrinsics"] = {"parent": "world", "child": "cam", "translation": eye, "rotation_xyzw": look_at_quat_xyzw(eye, target)}
     config = write_rig(tmp_path, doc)
-    collector, _, _ = run_session(tmp_path, {"frames": 15}, config=config)
+    collector, _, _ = run_session(tmp_path, {"frames": 15}, *RELIABLE, config=config)
     assert len(collector.metadata) == 15
     for record in collector.metadata:
         left, right = record["arms"]

@@ -58,7 +58,10 @@ def test_overlay_boxes_equal_the_records_and_compressed_outputs_decode_close_to_
     log = tmp_path / "node.log"
     frames = round(DURATION_S * RATE_HZ)
     try:
-        with process(node_args(BIMANUAL, "output_transport:=both", f"jpeg_quality:={QUALITY}"), env, log) as node:
+        # it counts every frame: reliable input, so a busy machine cannot lose one (the default is best effort)
+        params = ("output_transport:=both", f"jpeg_quality:={QUALITY}", "qos.subscription_reliability:=reliable",
+                  "qos.subscription_depth:=30")
+        with process(node_args(BIMANUAL, *params), env, log) as node:
             collector.wait_for_node()
             # after wait_for_node (they have no publisher yet); the sim waits for two subscribers on both topics
             best_effort = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
