@@ -7,10 +7,13 @@ Generates a 720p bag (bundled bimanual rig, 30 Hz frames of the simulated rig,
        what replay would reach if its own bag handling cost nothing;
   (b) `replay_bag` on one worker (both passes, pipeline, MCAP writing), with
       the bundled rig (INTER_AREA) and with output.interpolation area_pyramid;
-  (c) two such bags with --workers 1 and --workers 2 (spawned processes, one
-      OpenCV thread each); --workers 1 also with OpenCV limited to one thread,
-      since by default OpenCV already spreads a single replay's resizes over the cores.
-Prints the rates and the ratios (targets: (b) >= 40% of (a); (c) near 2x), and
+  (c) two such bags through `replay_bags` as `roi-node replay` calls it, each
+      variant in a fresh process: --workers 1; --workers 1 with OpenCV limited
+      to one thread, since by default OpenCV already spreads a single replay's
+      resizes over the cores; --workers 2 (one OpenCV thread each) forked, as
+      from the single-threaded CLI; and --workers 2 spawned, as from a caller
+      that keeps another thread running.
+Prints the rates and the ratios (targets: (b) >= 40% of (a); (c) >= 1.8x), and
 how many cores one replay keeps busy: two workers cannot beat 2 / that.
 `--profile` adds a cProfile of (b), sorted by own time.
 Run: `.venv/bin/python bench/replay.py [--frames 300] [--profile]`.
@@ -20,9 +23,13 @@ from __future__ import annotations
 
 import argparse
 import cProfile
+import json
 import pstats
 import shutil
+import subprocess
+import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -94,12 +101,37 @@ def _replay_rate(bag: Path, out: Path, rig: Path, cores: list[float] | None = No
     return summary.frames_out / summary.elapsed_s
 
 
+def batch_child(workers: int, threads: int, keep_a_thread: bool, bags: list[Path], out: Path) -> None:
+    """(c) in this fresh process: time replay_bags and print its seconds and how its workers started, as JSON."""
+    tune_malloc_for_large_frames()
+    cv2.setNumThreads(threads)
+    if keep_a_thread:  # a caller with a thread of its own: forking would be unsafe, so the workers are spawned
+        threading.Thread(target=threading.Event().wait, daemon=True).start()
+    start = time.perf_counter()
+    result = replay_bags(bags, out, RIG, workers=workers)
+    seconds = time.perf_counter() - start
+    assert all(o.ok for o in result.outcomes), [o.error for o in result.outcomes]
+    print(json.dumps({"seconds": seconds, "worker_start": result.worker_start}))
+
+
+def run_batch(workers: int, threads: int, keep_a_thread: bool, bags: list[Path], out: Path) -> tuple[float, str | None]:
+    child = [sys.executable, __file__, "--batch-child", json.dumps([workers, threads, keep_a_thread, [str(b) for b in bags], str(out)])]
+    done = subprocess.run(child, capture_output=True, text=True, check=True)
+    report = json.loads(done.stdout.strip().splitlines()[-1])
+    return float(report["seconds"]), report["worker_start"]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--repeats", type=int, default=2, help="best of N for (a) and (b) on this shared, noisy machine")
     parser.add_argument("--profile", action="store_true", help="cProfile one single-worker replay")
+    parser.add_argument("--batch-child", help=argparse.SUPPRESS)  # (c) runs each variant in a fresh process
     args = parser.parse_args()
+    if args.batch_child:
+        workers, threads, keep_a_thread, bags, out = json.loads(args.batch_child)
+        batch_child(workers, threads, keep_a_thread, [Path(b) for b in bags], Path(out))
+        return
     tune_malloc_for_large_frames()  # as `roi-node replay` does: every measurement below runs with it
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
@@ -122,24 +154,20 @@ def main() -> None:
                   f" {100 * replay / ceiling:.0f}% of (a'); it keeps {max(cores):.2f} cores busy (CPU time / wall)")
         shutil.copytree(bag, tmp / "bag_b")  # two recordings are two files, not hard links to one
         times: dict[str, float] = {}
-        for label, workers, threads in (("--workers 1", 1, cv2.getNumThreads()), ("--workers 1, OpenCV on 1 thread", 1, 1),
-                                        ("--workers 2 (1 OpenCV thread each)", 2, cv2.getNumThreads())):
-            previous = cv2.getNumThreads()
-            cv2.setNumThreads(threads)
-            start = time.perf_counter()
-            result = replay_bags([bag, tmp / "bag_b"], tmp / f"out_{len(times)}", RIG, workers=workers)
-            times[label] = time.perf_counter() - start
-            cv2.setNumThreads(previous)
-            assert all(o.ok for o in result.outcomes), [o.error for o in result.outcomes]
+        variants = (("--workers 1", 1, cv2.getNumThreads(), False), ("--workers 1, OpenCV on 1 thread", 1, 1, False),
+                    ("--workers 2, forked", 2, cv2.getNumThreads(), False), ("--workers 2, spawned", 2, cv2.getNumThreads(), True))
         frames = 2 * args.frames
-        print(f"[area] (the bundled rig), two bags of {args.frames} frames; OpenCV default threads here: {cv2.getNumThreads()}")
-        for label, seconds in times.items():
-            print(f"(c)  {label:<36} {frames / seconds:7.1f} frames/s ({seconds:.2f} s wall)")
-        base = times["--workers 1"]
-        single = times["--workers 1, OpenCV on 1 thread"]
-        parallel = times["--workers 2 (1 OpenCV thread each)"]
-        print(f"     speed-up of --workers 2: {base / parallel:.2f}x over --workers 1, {single / parallel:.2f}x over one OpenCV thread"
-              " (spawning the workers included)")
+        print(f"[area] (the bundled rig), two bags of {args.frames} frames, each variant in a fresh process (its imports"
+              f" not timed); OpenCV default threads here: {cv2.getNumThreads()}")
+        for label, workers, threads, keep_a_thread in variants:
+            seconds, started = run_batch(workers, threads, keep_a_thread, [bag, tmp / "bag_b"], tmp / f"out_{len(times)}")
+            times[label] = seconds
+            how = f"workers started with {started}" if started else "in the calling process"
+            print(f"(c)  {label:<32} {frames / seconds:7.1f} frames/s ({seconds:.2f} s wall, {how})")
+        base, single = times["--workers 1"], times["--workers 1, OpenCV on 1 thread"]
+        for label in ("--workers 2, forked", "--workers 2, spawned"):
+            print(f"     speed-up of {label}: {base / times[label]:.2f}x over --workers 1,"
+                  f" {single / times[label]:.2f}x over one OpenCV thread (starting the workers included)")
         if args.profile:
             profiler = cProfile.Profile()
             profiler.enable()

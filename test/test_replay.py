@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import re
 import shutil
 import signal
@@ -437,9 +438,60 @@ def test_workers_2_one_bad_bag_fails_alone(
         f"roi-node replay: error: {bad}: cannot read the bag: {bad}: no readable footer (the file is truncated or was never finished); "
         f"`roi-node recover {bad}` finishes it"
     )
-    assert f"replayed 2 of 3 bags into {out}; 1 failed" in captured.out
+    assert re.search(rf"replayed 2 of 3 bags into {re.escape(str(out))} by workers started with (fork|spawn); 1 failed", captured.out)
     assert sorted(p.name for p in out.iterdir()) == ["mcap_rgb8_roi", "sqlite3_bgr8_split_roi"]
     for source in good:
         result = out / f"{source.name}_roi"
         assert inspect_bag(result).status == "complete"
         assert _roi_payloads(result) == _roi_payloads(replayed[source.name].output_path)
+
+
+# the CLI as a user runs it; with another thread alive (a library caller's), forking is unsafe and the workers are spawned
+KEEPS_A_THREAD = ("import sys, threading; threading.Thread(target=threading.Event().wait, daemon=True).start(); "
+                  "from roi_node.cli import main; sys.exit(main(sys.argv[1:]))")
+
+
+@pytest.mark.parametrize(("start", "launcher"), [("fork", ["-m", "roi_node.cli"]), ("spawn", ["-c", KEEPS_A_THREAD])])
+def test_forked_and_spawned_workers_give_the_bytes_of_a_replay_in_this_process(
+    tmp_path: Path, bags: dict[str, BagSpec], replayed: dict[str, ReplaySummary], bimanual_rig_path: Path, start: str,
+    launcher: list[str],
+) -> None:
+    sources = [bags["mcap_rgb8"].path, bags["sqlite3_bgr8_split"].path]
+    out = tmp_path / "out"
+    done = subprocess.run(
+        [sys.executable, *launcher, "replay", *map(str, sources), "-o", str(out), "--config", str(bimanual_rig_path), "--workers", "2"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert done.returncode == 0, done.stderr
+    assert f"replayed 2 of 2 bags into {out} by workers started with {start}" in done.stdout
+    for source in sources:
+        assert _roi_payloads(out / f"{source.name}_roi") == _roi_payloads(replayed[source.name].output_path)
+
+
+def test_a_killed_worker_fails_the_unfinished_bags_by_name_and_leaves_no_temporary_output(tmp_path: Path) -> None:
+    rig = small_rig(tmp_path)
+    pipeline = RoiPipeline(load_rig_config(rig))
+    sources = [write_bag(tmp_path / name, pipeline, frames=2000).path for name in ("long_a", "long_b")]
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "roi_node.cli", "replay", *map(str, sources), "-o", str(out), "--config", str(rig), "--workers", "2"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    deadline = time.monotonic() + 120
+    while len(partials := sorted(out.glob(".long_*_roi.partial-*"))) < 2:  # both workers are writing
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.01)
+    victim = int(partials[0].name.rpartition("-")[2])
+    assert victim != proc.pid  # a worker's, not the parent's
+    os.kill(victim, signal.SIGKILL)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 2, stderr
+    failed = [line for line in stderr.splitlines() if "worker failed" in line]
+    assert failed and all(line.startswith("roi-node replay: error: ") for line in failed), stderr
+    assert any(str(sources[0]) in line or str(sources[1]) in line for line in failed)
+    assert "Traceback" not in stderr
+    assert f"replayed {2 - len(failed)} of 2 bags into {out}" in stdout
+    assert not list(out.glob(".*partial*")), "the killed worker's temporary output is removed"
+    for source in sources:
+        result = out / f"{source.name}_roi"
+        assert not result.exists() or inspect_bag(result).status == "complete"

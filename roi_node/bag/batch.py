@@ -2,14 +2,13 @@
 
 Each bag is replayed by `replay_bag` on its own, so a failure in one (bad
 input, or even a bug) fails only that bag; every outcome is reported at the
-end. Workers are processes from a spawn context (no forked copies of a parent
-that may hold open files or threads); idle workers ignore SIGINT and a running
+end. Workers are processes, forked when this process has no other thread and
+spawned otherwise (`worker_start`); idle workers ignore SIGINT and a running
 replay takes it, so Ctrl-C finalizes the bags in progress and starts no more.
 """
 
 from __future__ import annotations
 
-import multiprocessing
 import signal
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed, wait
@@ -19,13 +18,14 @@ from typing import Any
 
 import cv2
 
-from ..core.atomic_output import ensure_parent
+from ..core.atomic_output import ensure_parent, remove_orphaned_partials
 from ..core.errors import BagError, RoiNodeError
 from ..core.pipeline import overlap_global_view
 from .memory import tune_malloc_for_large_frames
 from .reader import BAG_FILE_SUFFIXES
 from .replay import PartialOutputDiscardedError, ReplayInterrupted, replay_bag
 from .summary import ReplaySummary
+from .worker_start import WorkerStart, choose_worker_start, worker_context
 
 OUTPUT_SUFFIX = "_roi"
 
@@ -47,6 +47,7 @@ class BagOutcome:
 class BatchResult:
     outcomes: list[BagOutcome]  # in input order; bags never started are absent
     interrupted: bool
+    worker_start: WorkerStart | None = None  # None: the bags were replayed in this process
 
 
 def output_name(input_path: Path) -> str:
@@ -142,9 +143,9 @@ def _sequential(jobs: list[tuple[Path, Path, Path]], options: dict[str, Any], on
 def _parallel(
     jobs: list[tuple[Path, Path, Path]], options: dict[str, Any], workers: int, on_done: Callable[[BagOutcome], None] | None
 ) -> BatchResult:
-    context = multiprocessing.get_context("spawn")
+    start = choose_worker_start()
     interrupted = False
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_worker_init) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=worker_context(start), initializer=_worker_init) as pool:
         futures: dict[Future[BagOutcome], int] = {
             pool.submit(_replay_in_worker, source, target, config, options): i for i, (source, target, config) in enumerate(jobs)
         }
@@ -159,13 +160,14 @@ def _parallel(
             wait(futures)
     outcomes = [_collect(future, jobs[i]) for future, i in sorted(futures.items(), key=lambda item: item[1]) if not future.cancelled()]
     interrupted = interrupted or any(o.interrupted for o in outcomes)
-    return BatchResult(outcomes, interrupted)
+    return BatchResult(outcomes, interrupted, start)
 
 
 def _collect(future: Future[BagOutcome], job: tuple[Path, Path, Path]) -> BagOutcome:
-    """A worker that died (killed, out of memory) fails its bag only."""
+    """A worker that died (killed, out of memory) fails the bags the pool had not finished; their temporary outputs go."""
     source, target, _ = job
     exc = future.exception()
     if exc is None:
         return future.result()
+    remove_orphaned_partials(target)
     return BagOutcome(source, target, error=f"{source}: worker failed: {type(exc).__name__}: {exc}")

@@ -87,7 +87,8 @@ def _replay_many(inputs: list[Path], args: argparse.Namespace) -> int:
             failed += 1
             print(f"roi-node replay: error: {outcome.error}", file=sys.stderr)
     done = sum(o.ok for o in result.outcomes)
-    print(f"replayed {done} of {len(inputs)} bags into {out}" + (f"; {failed} failed" if failed else ""))
+    started = f" by workers started with {result.worker_start}" if result.worker_start else ""
+    print(f"replayed {done} of {len(inputs)} bags into {out}{started}" + (f"; {failed} failed" if failed else ""))
     if result.interrupted:
         print(f"roi-node replay: interrupted; {len(inputs) - len(result.outcomes)} bags not started", file=sys.stderr)
         return EXIT_INTERRUPTED

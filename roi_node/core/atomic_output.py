@@ -54,6 +54,27 @@ def temporary_sibling(target: Path) -> Path:
     return target.with_name(f".{target.name}{PARTIAL_TAG}{os.getpid()}")
 
 
+def remove_orphaned_partials(target: Path) -> list[Path]:
+    """Delete the temporary siblings of `target` whose writing process is gone (a worker killed mid-write)."""
+    removed = []
+    for partial in target.parent.glob(f".{target.name}{PARTIAL_TAG}*"):
+        pid = partial.name.rpartition(PARTIAL_TAG)[2]
+        if pid.isdigit() and not _running(int(pid)):
+            remove_path(partial)
+            removed.append(partial)
+    return removed
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
 def remove_path(path: Path) -> None:
     """Delete a file or folder if it is there."""
     if path.is_dir() and not path.is_symlink():
