@@ -60,8 +60,10 @@ def wait_for_log(log: Path, needles: list[str], timeout_s: float = 30.0) -> None
 
 
 # live == offline is about determinism, not latency: like the demo's recording node, a frame may wait 250 ms for the
-# joint sample after it, so a busy moment (the other test worker, a loaded CI machine) does not release it unpaired
-RECORDING = ("sync.max_wait_ms:=250.0",)
+# joint sample after it, so a busy moment (the other test worker, a loaded CI machine) does not release it unpaired,
+# and the node takes every frame (reliable, a 3 s queue: the best-effort default with 5 lost 3 of 30 on a busy machine)
+RECORDING = ("sync.max_wait_ms:=250.0", "qos.subscription_reliability:=reliable", "qos.subscription_depth:=90",
+             "qos.joint_state_depth:=2000")
 
 
 def record_session(
