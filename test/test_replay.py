@@ -471,7 +471,8 @@ def test_forked_and_spawned_workers_give_the_bytes_of_a_replay_in_this_process(
 def test_a_killed_worker_fails_the_unfinished_bags_by_name_and_leaves_no_temporary_output(tmp_path: Path) -> None:
     rig = small_rig(tmp_path)
     pipeline = RoiPipeline(load_rig_config(rig))
-    sources = [write_bag(tmp_path / name, pipeline, frames=2000).path for name in ("long_a", "long_b")]
+    first = write_bag(tmp_path / "long_a", pipeline, frames=800).path  # a few seconds per bag: both workers are writing
+    sources = [first, Path(shutil.copytree(first, tmp_path / "long_b"))]
     out = tmp_path / "out"
     proc = subprocess.Popen(
         [sys.executable, "-m", "roi_node.cli", "replay", *map(str, sources), "-o", str(out), "--config", str(rig), "--workers", "2"],
