@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
-from roi_node.core.atomic_output import OutputExistsError, atomic_output, interrupted_name, keep_interrupted
+from roi_node.core.atomic_output import OutputExistsError, atomic_output, interrupted_name, keep_interrupted, remove_orphaned_partials
 from roi_node.core.errors import BagWriteError
 
 
@@ -64,3 +66,15 @@ def test_missing_parents_are_created_and_a_file_in_the_way_is_named(tmp_path: Pa
     with pytest.raises(BagWriteError, match=f"cannot create its parent folder {tmp_path / 'file' / 'sub'}"), \
             atomic_output(tmp_path / "file" / "sub" / "out", overwrite=False):
         pass
+
+
+def test_orphaned_partials_of_dead_writers_go_and_only_the_target_s_own(tmp_path: Path) -> None:
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True, check=True)
+    dead_pid = int(dead.stdout)  # exited and reaped: no process has this pid (short of reuse)
+    target = tmp_path / "run[1]_roi"  # glob metacharacters in the name match only themselves
+    own_dead, own_live = tmp_path / f".run[1]_roi.partial-{dead_pid}", tmp_path / f".run[1]_roi.partial-{os.getpid()}"
+    other = tmp_path / f".run1_roi.partial-{dead_pid}"
+    for path in (own_dead, own_live, other):
+        path.mkdir()
+    assert remove_orphaned_partials(target) == [own_dead]
+    assert not own_dead.exists() and own_live.exists() and other.exists()

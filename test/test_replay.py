@@ -496,3 +496,36 @@ def test_a_killed_worker_fails_the_unfinished_bags_by_name_and_leaves_no_tempora
     for source in sources:
         result = out / f"{source.name}_roi"
         assert not result.exists() or inspect_bag(result).status == "complete"
+        kept = out / f"{source.name}_roi.interrupted"  # the pool stops the other worker with SIGTERM: it finalizes
+        assert not kept.exists() or any(line.endswith(f"its finalized partial output is {kept}") for line in failed), stderr
+
+
+def test_an_early_ctrl_c_starts_no_bag_and_fails_none(tmp_path: Path) -> None:
+    """Ctrl-C to the whole process group as the workers start (before any bag's output exists): exit 130, no bag
+    replayed to the end, none reported failed, and the third bag, already queued to a worker, never starts."""
+    import psutil
+
+    rig = small_rig(tmp_path)
+    first = write_bag(tmp_path / "long_a", RoiPipeline(load_rig_config(rig)), frames=800).path
+    sources = [first, *(Path(shutil.copytree(first, tmp_path / name)) for name in ("long_b", "long_c"))]
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "roi_node.cli", "replay", *map(str, sources), "-o", str(out), "--config", str(rig), "--workers", "2"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as from a shell (see the Ctrl-C test above)
+    )
+    parent = psutil.Process(proc.pid)
+    deadline = time.monotonic() + 60
+    while len(parent.children()) < 2:  # both workers exist
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.002)
+    os.killpg(proc.pid, signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr
+    assert "worker failed" not in stderr and "Traceback" not in stderr, stderr
+    assert re.search(r"interrupted; [1-3] bags not started", stderr), stderr
+    assert f"replayed 0 of 3 bags into {out}" in stdout
+    complete = [p.name for p in out.glob("*_roi") if inspect_bag(p).status == "complete"]
+    assert complete == [], f"replayed to the end after the Ctrl-C: {complete}"
+    assert not (out / "long_c_roi").exists() and not (out / "long_c_roi.interrupted").exists()
+    assert not list(out.glob(".*partial*"))

@@ -9,16 +9,19 @@ replay takes it, so Ctrl-C finalizes the bags in progress and starts no more.
 
 from __future__ import annotations
 
+import os
 import signal
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed, wait
 from dataclasses import dataclass
+from multiprocessing.synchronize import Event
 from pathlib import Path
 from typing import Any
 
 import cv2
 
-from ..core.atomic_output import ensure_parent, remove_orphaned_partials
+from ..core.atomic_output import ensure_parent, interrupted_name, remove_orphaned_partials
 from ..core.errors import BagError, RoiNodeError
 from ..core.pipeline import overlap_global_view
 from .memory import tune_malloc_for_large_frames
@@ -87,21 +90,46 @@ def _replay_one(source: Path, target: Path, config_path: Path, options: dict[str
         return BagOutcome(source, target, error=f"{source}: unexpected {type(exc).__name__}: {exc} (a bug in roi_node; please report it)")
 
 
-def _worker_init() -> None:
-    """Idle workers ignore Ctrl-C; parallelism is across processes, so OpenCV stays on one thread each and the
-    global view is resampled inline."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+_stop: Event | None = None  # the batch's: set once any bag of it was interrupted
+_interrupted = False  # this worker's: a Ctrl-C arrived while it was starting or idle
+
+
+def _note_interrupt(signum: int, frame: Any) -> None:
+    global _interrupted
+    _interrupted = True
+
+
+def _worker_init(stop: Event) -> None:
+    """A starting or idle worker only notes a Ctrl-C (its next bag then does not start); parallelism is across
+    processes, so OpenCV stays on one thread each and the global view is resampled inline."""
+    global _stop
+    _stop = stop
+    signal.signal(signal.SIGINT, _note_interrupt)
+    if hasattr(signal, "pthread_sigmask"):  # started with Ctrl-C blocked (_parallel): one that came meanwhile is noted now
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     cv2.setNumThreads(1)
     overlap_global_view(False)
     tune_malloc_for_large_frames()
 
 
-def _replay_in_worker(source: Path, target: Path, config_path: Path, options: dict[str, Any]) -> BagOutcome:
+def _replay_in_worker(source: Path, target: Path, config_path: Path, options: dict[str, Any]) -> BagOutcome | None:
+    """One bag in a worker, or None (not started) once the batch was interrupted: a job already queued to a worker
+    cannot be cancelled, so the worker drops it."""
+    assert _stop is not None, "set by _worker_init"
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        return _replay_one(source, target, config_path, options)
+        if _interrupted or _stop.is_set():
+            _stop.set()
+            return None
+        outcome = _replay_one(source, target, config_path, options)
+    except KeyboardInterrupt:  # before replay_bag took the interrupt over: no output was started
+        _stop.set()
+        return None
     finally:
         signal.signal(signal.SIGINT, previous)
+    if outcome.interrupted:
+        _stop.set()
+    return outcome
 
 
 def replay_bags(
@@ -144,30 +172,51 @@ def _parallel(
     jobs: list[tuple[Path, Path, Path]], options: dict[str, Any], workers: int, on_done: Callable[[BagOutcome], None] | None
 ) -> BatchResult:
     start = choose_worker_start()
+    context = worker_context(start)
+    stop = context.Event()
+    started_s = time.time()
     interrupted = False
-    with ProcessPoolExecutor(max_workers=workers, mp_context=worker_context(start), initializer=_worker_init) as pool:
-        futures: dict[Future[BagOutcome], int] = {
-            pool.submit(_replay_in_worker, source, target, config, options): i for i, (source, target, config) in enumerate(jobs)
-        }
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_worker_init, initargs=(stop,)) as pool:
+        futures: dict[Future[BagOutcome | None], int] = {}
         try:
+            # the workers start (at the first submit) with Ctrl-C blocked, so one that comes before their initializer
+            # ran neither kills them nor is lost: they note it then, and this process takes it once all are submitted
+            _block_ctrl_c(True)
+            try:
+                for i, (source, target, config) in enumerate(jobs):
+                    futures[pool.submit(_replay_in_worker, source, target, config, options)] = i
+            finally:
+                _block_ctrl_c(False)
             for future in as_completed(futures):
-                if on_done is not None:
-                    on_done(_collect(future, jobs[futures[future]]))
+                outcome = _collect(future, jobs[futures[future]], started_s)
+                if on_done is not None and outcome is not None:
+                    on_done(outcome)
         except KeyboardInterrupt:
             interrupted = True
+            stop.set()  # a job already queued to a worker is dropped there
             for future in futures:
                 future.cancel()  # not started: never started; running: finalize and report
             wait(futures)
-    outcomes = [_collect(future, jobs[i]) for future, i in sorted(futures.items(), key=lambda item: item[1]) if not future.cancelled()]
-    interrupted = interrupted or any(o.interrupted for o in outcomes)
+    collected = [_collect(future, jobs[i], started_s) for future, i in sorted(futures.items(), key=lambda item: item[1])
+                 if not future.cancelled()]
+    outcomes = [o for o in collected if o is not None]
+    interrupted = interrupted or len(outcomes) < len(collected) or any(o.interrupted for o in outcomes)
     return BatchResult(outcomes, interrupted, start)
 
 
-def _collect(future: Future[BagOutcome], job: tuple[Path, Path, Path]) -> BagOutcome:
-    """A worker that died (killed, out of memory) fails the bags the pool had not finished; their temporary outputs go."""
+def _block_ctrl_c(block: bool) -> None:
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_BLOCK if block else signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+def _collect(future: Future[BagOutcome | None], job: tuple[Path, Path, Path], started_s: float) -> BagOutcome | None:
+    """A worker that died (killed, out of memory) fails the bags the pool had not finished; their temporary outputs
+    go, and a bag whose worker the pool stopped with SIGTERM (it finalizes what it did) says where that is."""
     source, target, _ = job
     exc = future.exception()
     if exc is None:
         return future.result()
     remove_orphaned_partials(target)
-    return BagOutcome(source, target, error=f"{source}: worker failed: {type(exc).__name__}: {exc}")
+    kept = interrupted_name(target)
+    note = f"; its finalized partial output is {kept}" if kept.exists() and os.stat(kept).st_mtime >= started_s else ""
+    return BagOutcome(source, target, error=f"{source}: worker failed: {type(exc).__name__}: {exc}{note}")

@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 import threading
+import time
 from enum import StrEnum
 from multiprocessing.context import BaseContext
 from pathlib import Path
@@ -24,6 +26,8 @@ from pathlib import Path
 from ..core import area_resample
 
 _TASKS = Path("/proc/self/task")
+WARM_UP_WAIT_S = 60.0  # compiling (or loading) the kernels takes seconds; longer means it is stuck: spawn instead
+PROBE_WAIT_S = 5.0  # the probe child only runs the fork handlers; one that has not exited by then hangs in one
 
 
 class WorkerStart(StrEnum):
@@ -47,13 +51,27 @@ def _only_the_main_thread() -> bool:
     probe = os.fork()  # lets the pools with fork handlers stop; the child runs nothing of ours
     if probe == 0:
         os._exit(0)
-    os.waitpid(probe, 0)
+    if not _reaped(probe, PROBE_WAIT_S):
+        return False
     return _native_thread_count() == 1
+
+
+def _reaped(pid: int, timeout_s: float) -> bool:
+    """Wait for a child; one still running after `timeout_s` is killed and reaped, and the answer is False."""
+    deadline = time.monotonic() + timeout_s
+    while os.waitpid(pid, os.WNOHANG) == (0, 0):
+        if time.monotonic() > deadline:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            return False
+        time.sleep(0.001)
+    return True
 
 
 def choose_worker_start() -> WorkerStart:
     """Fork when safe; the compiled kernels are finished first, so every worker inherits them."""
-    area_resample.warm_up()  # joins the warm-up thread, which would otherwise count as a thread
+    if not area_resample.warm_up(WARM_UP_WAIT_S):  # the warm-up thread would otherwise count as a thread
+        return WorkerStart.SPAWN
     return WorkerStart.FORK if _only_the_main_thread() else WorkerStart.SPAWN
 
 

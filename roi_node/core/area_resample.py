@@ -86,6 +86,8 @@ _warm_up_thread = threading.Thread(target=_compile_variants, name="roi_node-jit-
 _warm_up_thread.start()
 
 
-def warm_up() -> None:
-    """Return once the kernels are compiled (RoiPipeline calls it: the first frame is not slow)."""
-    _warm_up_thread.join()
+def warm_up(timeout_s: float | None = None) -> bool:
+    """Wait until the kernels are compiled (RoiPipeline calls it: the first frame is not slow); False if `timeout_s`
+    passed first."""
+    _warm_up_thread.join(timeout_s)
+    return not _warm_up_thread.is_alive()

@@ -14,6 +14,7 @@ Pure Python (no ROS, no bag libraries): bag/ and report/ both use it.
 
 from __future__ import annotations
 
+import glob
 import os
 import shutil
 from collections.abc import Iterator
@@ -57,7 +58,7 @@ def temporary_sibling(target: Path) -> Path:
 def remove_orphaned_partials(target: Path) -> list[Path]:
     """Delete the temporary siblings of `target` whose writing process is gone (a worker killed mid-write)."""
     removed = []
-    for partial in target.parent.glob(f".{target.name}{PARTIAL_TAG}*"):
+    for partial in target.parent.glob(f".{glob.escape(target.name)}{PARTIAL_TAG}*"):
         pid = partial.name.rpartition(PARTIAL_TAG)[2]
         if pid.isdigit() and not _running(int(pid)):
             remove_path(partial)
@@ -66,13 +67,18 @@ def remove_orphaned_partials(target: Path) -> list[Path]:
 
 
 def _running(pid: int) -> bool:
+    """Whether `pid` is a live process (a zombie, dead but not yet reaped, is not)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:  # someone else's process
         return True
-    return True
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0]
+    except (OSError, IndexError):  # no /proc: a zombie counts as running, and its partial stays
+        return True
+    return state != "Z"
 
 
 def remove_path(path: Path) -> None:
