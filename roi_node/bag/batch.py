@@ -29,6 +29,7 @@ from .reader import BAG_FILE_SUFFIXES
 from .replay import PartialOutputDiscardedError, ReplayInterrupted, replay_bag
 from .summary import ReplaySummary
 from .worker_start import WorkerStart, choose_worker_start, worker_context
+from .writer import typestore
 
 OUTPUT_SUFFIX = "_roi"
 
@@ -172,6 +173,8 @@ def _parallel(
     jobs: list[tuple[Path, Path, Path]], options: dict[str, Any], workers: int, on_done: Callable[[BagOutcome], None] | None
 ) -> BatchResult:
     start = choose_worker_start()
+    if start is WorkerStart.FORK:
+        typestore()  # imports rosbags' message stores once here, for every forked worker to inherit
     context = worker_context(start)
     stop = context.Event()
     started_s = time.time()
