@@ -303,7 +303,7 @@ def test_a_slow_failing_compressed_decode_neither_starves_joint_states_nor_stops
         totals = inputs.get("totals", {})
         return bool(totals) and inputs["frame_rate_in_hz"] == 0.0 and totals["frames_out"] == len(collector.metadata)
 
-    collector, truth = run_session(tmp_path, node_cmd, spec, records=40, diagnostics=2, settled=every_frame_accounted)
+    collector, truth = run_session(tmp_path, node_cmd, spec, records=5, diagnostics=2, settled=every_frame_accounted)
     inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
     totals, drops = inputs["totals"], inputs["dropped_by_reason"]
     assert totals["frames_in"] == totals["frames_out"] + sum(drops.values()), "every frame is published or counted"
