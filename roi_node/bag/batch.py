@@ -3,13 +3,13 @@
 Each bag is replayed by `replay_bag` on its own, so a failure in one (bad
 input, or even a bug) fails only that bag; every outcome is reported at the
 end. Workers are processes, forked when this process has no other thread and
-spawned otherwise (`worker_start`); idle workers ignore SIGINT and a running
-replay takes it, so Ctrl-C finalizes the bags in progress and starts no more.
+spawned otherwise (`worker_start`); a starting or idle worker only notes a
+Ctrl-C and a running replay takes it, so Ctrl-C finalizes the bags in progress
+and starts no more.
 """
 
 from __future__ import annotations
 
-import os
 import signal
 import time
 from collections.abc import Callable, Sequence
@@ -221,5 +221,5 @@ def _collect(future: Future[BagOutcome | None], job: tuple[Path, Path, Path], st
         return future.result()
     remove_orphaned_partials(target)
     kept = interrupted_name(target)
-    note = f"; its finalized partial output is {kept}" if kept.exists() and os.stat(kept).st_mtime >= started_s else ""
+    note = f"; its finalized partial output is {kept}" if kept.exists() and kept.stat().st_mtime >= started_s else ""
     return BagOutcome(source, target, error=f"{source}: worker failed: {type(exc).__name__}: {exc}{note}")

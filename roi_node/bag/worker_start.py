@@ -44,9 +44,10 @@ def _native_thread_count() -> int | None:
 
 def _only_the_main_thread() -> bool:
     """True when no thread but this one would be running at a fork."""
-    if threading.active_count() != 1 or _native_thread_count() is None:
+    threads = _native_thread_count()
+    if threading.active_count() != 1 or threads is None:
         return False
-    if _native_thread_count() == 1:
+    if threads == 1:
         return True
     probe = os.fork()  # lets the pools with fork handlers stop; the child runs nothing of ours
     if probe == 0:
