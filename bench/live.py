@@ -44,13 +44,14 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 
-from roi_node.bag.memory import tune_malloc_for_large_frames
 from roi_node.core.camera import calibration_yaml_text, camera_from_info
 from roi_node.core.config import load_rig_config
+from roi_node.process_memory import prefault_heap, tune_malloc_for_large_frames
 
 REPO = Path(__file__).resolve().parents[1]
 RIG = REPO / "config" / "rig_demo_bimanual.yaml"
 SIZES = {720: (1280, 720), 1080: (1920, 1080)}
+PREFAULT_FRAMES = 11  # the node's: sync.max_pending_frames (8) + the frames in conversion (3)
 TARGETS_MS = {720: (4.0, None), 1080: (6.0, 12.0)}  # node-added latency: (median, p99)
 
 
@@ -83,9 +84,13 @@ def rig_at(width: int, height: int, tmp: Path, interpolation: str) -> Path:
 
 
 class Receiver:
-    """Records time.time_ns() - header stamp for every message of one Image topic, in this process."""
+    """Records time.time_ns() - header stamp for every message of one Image topic, in this process.
 
-    def __init__(self, domain: int, topic: str) -> None:
+    `frame_bytes`: pre-fault the spinning thread's heap for frames of that size before the first one, as the
+    node does (roi_node/process_memory.py), so that the baseline's first frames are not slower than the node's.
+    """
+
+    def __init__(self, domain: int, topic: str, frame_bytes: int = 0) -> None:
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain)
         self.node = Node("bench_receiver", context=self.context)
@@ -96,8 +101,11 @@ class Receiver:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._stop = threading.Event()
+        self._frame_bytes = frame_bytes
+        self._prefaulted = threading.Event()
         self._thread = threading.Thread(target=self._spin)
         self._thread.start()
+        self._prefaulted.wait()
 
     def _on_image(self, msg: Image) -> None:
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
@@ -105,6 +113,9 @@ class Receiver:
         self.stamps.add(stamp)
 
     def _spin(self) -> None:
+        if self._frame_bytes:
+            prefault_heap(self._frame_bytes, PREFAULT_FRAMES)
+        self._prefaulted.set()
         while not self._stop.is_set():
             self.executor.spin_once(timeout_sec=0.05)
 
@@ -130,7 +141,7 @@ def run_case(size: int, duration_s: float, tmp: Path, domain: int, interpolation
     env = env_for(domain)
     os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = env["FASTRTPS_DEFAULT_PROFILES_FILE"]
 
-    bare = Receiver(domain, "image_raw")
+    bare = Receiver(domain, "image_raw", frame_bytes=width * height * 3)
     truth = publish(spec, tmp / "truth_a.json", env)
     time.sleep(0.5)
     bare.close()

@@ -35,8 +35,8 @@ sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__)
 sys.path.insert(0, str(REPO))
 
 from roi_node.bag.batch import replay_bags  # noqa: E402
-from roi_node.bag.memory import tune_malloc_for_large_frames  # noqa: E402
 from roi_node.cluster.tasks import ReplayJob, replay_task  # noqa: E402
+from roi_node.process_memory import tune_malloc_for_large_frames  # noqa: E402
 from roi_node.sim.bag_sink import write_sim_bag  # noqa: E402
 from test.raycluster import ray_cluster  # noqa: E402
 from test.simrig import scaled_camera_rig  # noqa: E402

@@ -24,7 +24,7 @@ import cv2
 from ..core.atomic_output import ensure_parent, interrupted_name, remove_orphaned_partials
 from ..core.errors import BagError, RoiNodeError
 from ..core.pipeline import overlap_global_view
-from .memory import tune_malloc_for_large_frames
+from ..process_memory import tune_malloc_for_large_frames
 from .reader import BAG_FILE_SUFFIXES
 from .replay import PartialOutputDiscardedError, ReplayInterrupted, replay_bag
 from .summary import ReplaySummary

@@ -41,7 +41,7 @@ def _interrupted_note(summary: ReplaySummary) -> str:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from .memory import tune_malloc_for_large_frames
+    from ..process_memory import tune_malloc_for_large_frames
 
     tune_malloc_for_large_frames()  # this process is ours: keep frame buffers in the heap
     inputs = [Path(p) for p in args.inputs]

@@ -118,8 +118,8 @@ def _guarded(job: ReplayJob, *, with_entry: bool) -> TaskResult:
     """`replay_bag` on the job; input errors become a failed result, what a retry may cure is raised."""
     import cv2
 
-    from ..bag.memory import tune_malloc_for_large_frames
     from ..bag.replay import replay_bag
+    from ..process_memory import tune_malloc_for_large_frames
 
     started = time.perf_counter()
     tune_malloc_for_large_frames()

@@ -58,6 +58,7 @@ from ..core.resources import resolve_config_file
 from ..core.stamps import NS_PER_MS, NS_PER_S
 from ..core.status_line import StatusWindow
 from ..core.stream_stats import StreamStats
+from ..process_memory import prefault_heap
 from .compressed import CompressedPublishers
 from .conversions import camera_from_msg, camera_info_msg, image_msg, stamp_ns
 from .diagnostics import StreamHealth, diagnostics_msg
@@ -69,6 +70,7 @@ from .runtime_params import RuntimePolicy, declare_policy, refusal, undeclare_po
 NODE_NAME = "roi_node"
 IDLE_WAIT_S = 0.1
 PENDING_POLL_S = 0.002
+FRAMES_IN_CONVERSION = 3  # beyond the pending ones: the message being taken, its Python copy, the frame in processing
 
 
 class StreamNode(Node):
@@ -121,6 +123,7 @@ class StreamNode(Node):
             self.engine.warm_up()
         except Exception as exc:  # counted and logged; the real frames will show whether processing works
             self.get_logger().error(f"warm-up frame failed: {self.stats.processing_error(exc)}")
+        self._prefault_receive_heap()
         self._create_endpoints()
         if self.params.status_period_s > 0:
             self.create_timer(self.params.status_period_s, self._log_status)
@@ -136,6 +139,19 @@ class StreamNode(Node):
         self._stream_entities = tuple(e for e in self._entities() if e not in before)
         self.policy = policy  # streaming from here on
         self._log_start()
+
+    def _prefault_receive_heap(self) -> None:
+        """Make the heap that raw frames arrive in resident before the first one (process_memory.py says why).
+
+        The executor takes every Image on this thread (`_start_stream` runs on it, at construction or in
+        configure), and each frame is allocated there: the message rclpy takes, its Python copy, and up to
+        `max_pending_frames` of those held until their joint state comes. A compressed stream is decoded on
+        the decoder's thread and a streamed calibration gives the size only with the first frames: neither
+        is pre-faulted."""
+        camera = self.engine.first_camera()
+        if self.params.image_transport == "raw" and camera is not None:
+            prefault_heap(camera.width_px * camera.height_px * 3,  # rgb8 or bgr8, the usual camera encodings
+                          self.params.max_pending_frames + FRAMES_IN_CONVERSION)
 
     def _entities(self) -> list[Any]:
         return [*self.subscriptions, *self.publishers, *self.timers]

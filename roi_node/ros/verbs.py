@@ -13,7 +13,10 @@ from pathlib import Path
 def _cmd_run(args: argparse.Namespace) -> int:
     from rclpy.parameter import Parameter
 
+    from ..process_memory import tune_malloc_for_large_frames
     from .spin import spin_node
+
+    tune_malloc_for_large_frames()  # this process is ours: frame buffers stay in the heap (and can be pre-faulted)
 
     overrides = [Parameter("config", value=str(args.config))] if args.config else []
     if args.lifecycle:
