@@ -32,7 +32,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import psutil
@@ -47,11 +47,13 @@ from sensor_msgs.msg import Image
 from roi_node.core.camera import calibration_yaml_text, camera_from_info
 from roi_node.core.config import load_rig_config
 from roi_node.process_memory import prefault_heap, tune_malloc_for_large_frames
+from roi_node.ros.node import FRAMES_IN_CONVERSION
+from roi_node.ros.params import DEFAULTS
 
 REPO = Path(__file__).resolve().parents[1]
 RIG = REPO / "config" / "rig_demo_bimanual.yaml"
 SIZES = {720: (1280, 720), 1080: (1920, 1080)}
-PREFAULT_FRAMES = 11  # the node's: sync.max_pending_frames (8) + the frames in conversion (3)
+PREFAULT_FRAMES = cast(int, DEFAULTS["sync.max_pending_frames"]) + FRAMES_IN_CONVERSION  # as many as the node's, by default
 TARGETS_MS = {720: (4.0, None), 1080: (6.0, 12.0)}  # node-added latency: (median, p99)
 
 

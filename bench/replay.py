@@ -15,9 +15,9 @@ Generates a 720p bag (bundled bimanual rig, 30 Hz frames of the simulated rig,
       that keeps another thread running.
 (c) runs in interleaved rounds (--repeats), each round into a removed output:
 on a VM whose memory was never touched since boot the first writes into fresh
-page-cache pages cost far more kernel time (perf: copy_folio_from_iter_atomic
-22% of the samples against 2% when the pages were recycled), and the bags'
-own writeback is flushed (sync) before anything is measured.
+page-cache pages cost far more kernel time than recycled ones (perf shows it
+in copy_folio_from_iter_atomic), and the bags' own writeback is flushed
+(sync) before anything is measured.
 Prints the rates and the ratios (targets: (b) >= 40% of (a); (c) >= 1.8x), and
 how many cores one replay keeps busy: two workers cannot beat 2 / that.
 `--profile` adds a cProfile of (b), sorted by own time.
@@ -168,8 +168,8 @@ def main() -> None:
         print(f"[area] (the bundled rig), two bags of {args.frames} frames, each variant in a fresh process (its imports"
               f" not timed); OpenCV default threads here: {cv2.getNumThreads()}")
         for round_ in range(args.repeats):  # interleaved rounds; each output is removed before the next round writes it
-            for label, workers, threads, keep_a_thread in variants:
-                out = tmp / f"out_c{variants.index((label, workers, threads, keep_a_thread))}"
+            for i, (label, workers, threads, keep_a_thread) in enumerate(variants):
+                out = tmp / f"out_c{i}"
                 shutil.rmtree(out, ignore_errors=True)
                 seconds, started = run_batch(workers, threads, keep_a_thread, [bag, tmp / "bag_b"], out)
                 times.setdefault(label, []).append(seconds)

@@ -14,9 +14,8 @@ processes), never library code.
 
 Kept buffers still fault once, when the heap first grows to hold them: a
 live node's first frames each touched fresh pages while the ones behind them
-queued, so the first second of a camera stream came out a hundred
-milliseconds late or more (the faults and the kernel's page clearing showed
-in `perf`). `prefault_heap` pays that at start instead.
+queued, so the first second of a camera stream came out late (the faults
+and the kernel's page clearing showed in `perf`). `prefault_heap` pays that at start instead.
 """
 
 from __future__ import annotations
