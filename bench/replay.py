@@ -16,8 +16,9 @@ Generates a 720p bag (bundled bimanual rig, 30 Hz frames of the simulated rig,
 (c) runs in interleaved rounds (--repeats), each round into a removed output:
 on a VM whose memory was never touched since boot the first writes into fresh
 page-cache pages cost far more kernel time than recycled ones (perf shows it
-in copy_folio_from_iter_atomic), and the bags' own writeback is flushed
-(sync) before anything is measured.
+in copy_folio_from_iter_atomic). Everything written before a measurement (the
+bags, earlier variants' outputs) is flushed (sync) first, so the kernel's
+writeback of one variant's output does not run during another's.
 Prints the rates and the ratios (targets: (b) >= 40% of (a); (c) >= 1.8x), and
 how many cores one replay keeps busy: two workers cannot beat 2 / that.
 `--profile` adds a cProfile of (b), sorted by own time.
@@ -171,6 +172,7 @@ def main() -> None:
             for i, (label, workers, threads, keep_a_thread) in enumerate(variants):
                 out = tmp / f"out_c{i}"
                 shutil.rmtree(out, ignore_errors=True)
+                os.sync()
                 seconds, started = run_batch(workers, threads, keep_a_thread, [bag, tmp / "bag_b"], out)
                 times.setdefault(label, []).append(seconds)
                 how = f"workers started with {started}" if started else "in the calling process"

@@ -110,7 +110,7 @@ def test_every_record_validates_and_same_inputs_give_identical_bytes(bimanual_ri
                 out.append((result.record_json, [r.image.tobytes() for r in result.rois], result.global_view.tobytes()))
             runs.append(out)
         finally:
-            overlap_global_view(True)  # the process-wide default, whatever happened
+            overlap_global_view(False)  # the process-wide default, whatever happened
     assert runs[0] == runs[1]
 
 

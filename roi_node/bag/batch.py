@@ -102,7 +102,8 @@ def _note_interrupt(signum: int, frame: Any) -> None:
 
 def _worker_init(stop: Event) -> None:
     """A starting or idle worker only notes a Ctrl-C (its next bag then does not start); parallelism is across
-    processes, so OpenCV stays on one thread each and the global view is resampled inline."""
+    processes, so OpenCV stays on one thread each and the global view is resampled inline, whatever the parent
+    chose."""
     global _stop
     _stop = stop
     signal.signal(signal.SIGINT, _note_interrupt)

@@ -363,20 +363,20 @@ def _pose_record(base_T_ee: Transform) -> PoseRecord:
     return PoseRecord((xyz[0], xyz[1], xyz[2]), (quat[0], quat[1], quat[2], quat[3]))
 
 
-
 _T = TypeVar("_T")
 
 
 class _GlobalViewThread:
     """The thread that resamples the global view while the ROIs are cut (the area kernels release the GIL).
 
-    It lowers a frame's latency when a second core is free, at some CPU per
-    frame for the hand-off (bench/core.py prints both). Processes that already
-    run one pipeline per core (replay workers, cluster tasks) turn it off with
-    `overlap_global_view(False)`, as they keep OpenCV on one thread.
+    It lowers a frame's latency when a second core is free, for more CPU per
+    frame than it saves in wall time (the hand-off and the GIL; bench/core.py
+    prints both). Latency is what the live node is for, so `roi-node run`
+    turns it on; offline work (replay, its workers, cluster tasks, export) is
+    measured in frames per CPU second and keeps the default, inline.
     """
 
-    enabled = True
+    enabled = False
     _executor: ThreadPoolExecutor | None = None
 
     @classmethod
@@ -396,5 +396,5 @@ os.register_at_fork(after_in_child=_GlobalViewThread.forget_after_fork)
 
 
 def overlap_global_view(enabled: bool) -> None:
-    """Process-wide: resample the global view on its own thread beside the ROIs (the default) or inline."""
+    """Process-wide: resample the global view on its own thread beside the ROIs, or inline (the default)."""
     _GlobalViewThread.enabled = enabled
