@@ -92,8 +92,7 @@ class CameraModel:
         Used for the ROI virtual camera: distortion acts in normalised
         coordinates before K, so only K and P change; D and R carry over.
         """
-        a = np.vstack([np.asarray(image_from_new, dtype=np.float64).reshape(2, 3), [0.0, 0.0, 1.0]])
-        new_from_image = np.linalg.inv(a)
+        new_from_image = _inverse_affine(np.asarray(image_from_new, dtype=np.float64).reshape(2, 3))
         return CameraModel(
             width_px=width_px,
             height_px=height_px,
@@ -132,6 +131,18 @@ class CameraModel:
 
 
 
+
+
+def _inverse_affine(image_from_new: Float64Array) -> Float64Array:
+    """The 3x3 inverse of a 2x3 pixel affine, in closed form.
+
+    Not np.linalg.inv, which runs once per ROI per frame: for a 3x3 matrix
+    LAPACK's call costs a few times the arithmetic and wakes OpenBLAS's
+    thread pool on the other core.
+    """
+    (a, b, c), (d, e, f) = image_from_new.tolist()
+    det = a * e - b * d
+    return np.array([[e / det, -b / det, (b * f - c * e) / det], [-d / det, a / det, (c * d - a * f) / det], [0.0, 0.0, 1.0]])
 
 
 def _in_range(uv: Float64Array, valid: NDArray[np.bool_]) -> tuple[Float64Array, NDArray[np.bool_]]:
