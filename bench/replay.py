@@ -16,13 +16,14 @@ Generates a 720p bag (bundled bimanual rig, 30 Hz frames of the simulated rig,
 (c) runs in interleaved rounds (--repeats), each round into a removed output:
 on a VM whose memory was never touched since boot the first writes into fresh
 page-cache pages cost far more kernel time than recycled ones (perf shows it
-in copy_folio_from_iter_atomic). Everything written before a measurement (the
+in copy_folio_from_iter_atomic), so the first round is the slow one; each
+round's ratio is printed besides the best-of-rounds one. Everything written before a measurement (the
 bags, earlier variants' outputs) is flushed (sync) first, so the kernel's
 writeback of one variant's output does not run during another's.
 Prints the rates and the ratios (targets: (b) >= 40% of (a); (c) >= 1.8x), and
 how many cores one replay keeps busy: two workers cannot beat 2 / that.
 `--profile` adds a cProfile of (b), sorted by own time.
-Run: `.venv/bin/python bench/replay.py [--frames 300] [--repeats 2] [--profile]`.
+Run: `.venv/bin/python bench/replay.py [--frames 300] [--repeats 3] [--profile]`.
 """
 
 from __future__ import annotations
@@ -131,7 +132,7 @@ def run_batch(workers: int, threads: int, keep_a_thread: bool, bags: list[Path],
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=300)
-    parser.add_argument("--repeats", type=int, default=2, help="best of N for (a), (b) and (c) on this shared, noisy machine")
+    parser.add_argument("--repeats", type=int, default=3, help="best of N for (a), (b) and (c) on this shared, noisy machine")
     parser.add_argument("--profile", action="store_true", help="cProfile one single-worker replay")
     parser.add_argument("--batch-child", help=argparse.SUPPRESS)  # (c) runs each variant in a fresh process
     args = parser.parse_args()
@@ -180,6 +181,8 @@ def main() -> None:
         best_s = {label: min(runs) for label, runs in times.items()}
         base, single = best_s["--workers 1"], best_s["--workers 1, OpenCV on 1 thread"]
         for label in ("--workers 2, forked", "--workers 2, spawned"):
+            rounds = ", ".join(f"{a / b:.2f}x" for a, b in zip(times["--workers 1"], times[label], strict=True))
+            print(f"     speed-up of {label} per round over --workers 1: {rounds}")
             print(f"     speed-up of {label} (best of {args.repeats} each): {base / best_s[label]:.2f}x over --workers 1,"
                   f" {single / best_s[label]:.2f}x over one OpenCV thread (starting the workers included)")
         if args.profile:

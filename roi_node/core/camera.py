@@ -130,9 +130,6 @@ class CameraModel:
         return content_hash(self.canonical())
 
 
-
-
-
 def _inverse_affine(image_from_new: Float64Array) -> Float64Array:
     """The 3x3 inverse of a 2x3 pixel affine, in closed form.
 
