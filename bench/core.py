@@ -98,7 +98,7 @@ def opencv_area_path() -> Iterator[None]:
 
 
 class Samples:
-    """Wall-clock and thread-CPU times (ms) of repeated calls: on a shared machine the CPU time is the steadier one."""
+    """Wall-clock and process-CPU times (ms) of repeated calls: on a shared machine the CPU time is the steadier one."""
 
     def __init__(self) -> None:
         self.wall_ms: list[float] = []

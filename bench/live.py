@@ -10,10 +10,13 @@ shared-memory FastDDS profile and the malloc settings in every process):
 Prints medians, p99, frames dropped, the node's CPU per frame and share of a
 core, and the node-added latency (b - a, at the median and at p99), marked
 against the targets (720p: <= 4 ms median; 1080p: <= 6 ms median, <= 12 ms p99;
-no drops). A case is INVALID, not met or not, when its baseline is not a
-transport measurement: the publisher sent a frame more than one frame period
-after its stamp (it fell behind; both latencies then include its backlog), or
-the bare transport's median exceeds a frame period.
+no drops). Latencies run from each frame's stamp, so a publisher that sends
+late adds its lateness to them; it is printed per run (median), and a case is
+INVALID, neither met nor not, when the two runs' median lateness differs by
+more than 1 ms (the difference would pass for the node's), when the publisher
+sent any frame more than one frame period late (it fell behind: both
+latencies include its backlog), or when the bare transport's median exceeds a
+frame period.
 
 Under the default `interpolate` sync policy a frame waits for the first joint
 sample after its capture time (at 200 Hz up to 5 ms); `--sync-policies
@@ -58,6 +61,7 @@ RIG = REPO / "config" / "rig_demo_bimanual.yaml"
 SIZES = {720: (1280, 720), 1080: (1920, 1080)}
 PREFAULT_FRAMES = cast(int, DEFAULTS["sync.max_pending_frames"]) + FRAMES_IN_CONVERSION  # as many as the node's, by default
 TARGETS_MS = {720: (4.0, None), 1080: (6.0, 12.0)}  # node-added latency: (median, p99)
+LATENESS_TOLERANCE_MS = 1.0  # between the two runs' median publisher lateness
 
 
 def env_for(domain: int) -> dict[str, str]:
@@ -169,7 +173,7 @@ def run_case(size: int, duration_s: float, tmp: Path, domain: int, interpolation
 
     sent_a = len(truth["frames"])  # type: ignore[arg-type]
     sent_b = len(truth_b["frames"])  # type: ignore[arg-type]
-    late_ms = [(f["sent_ns"] - f["stamp_ns"]) / 1e6 for t in (truth, truth_b) for f in t["frames"]]  # type: ignore[attr-defined]
+    late_a, late_b = ([(f["sent_ns"] - f["stamp_ns"]) / 1e6 for f in t["frames"]] for t in (truth, truth_b))  # type: ignore[attr-defined]
     a, b = np.asarray(bare.latency_ms), np.asarray(through.latency_ms)
     run_s = frames / 30.0
     return {
@@ -178,13 +182,17 @@ def run_case(size: int, duration_s: float, tmp: Path, domain: int, interpolation
         "b_median_ms": float(np.median(b)), "b_p99_ms": float(np.percentile(b, 99)), "b_dropped": sent_b - len(through.stamps),
         "node_cpu_ms_per_frame": cpu_s * 1000 / max(1, len(through.stamps)),
         "node_cpu_share": cpu_s / run_s,
-        "publisher_late_max_ms": max(late_ms),
+        "a_late_median_ms": float(np.median(late_a)), "b_late_median_ms": float(np.median(late_b)),
+        "publisher_late_max_ms": max(late_a + late_b),
     }
 
 
 def invalid_because(row: dict[str, Any]) -> str | None:
-    """Why a case measured no transport baseline (see the module docstring), or None."""
+    """Why a case's two runs cannot be compared (see the module docstring), or None."""
     period_ms = 1000.0 / 30.0
+    if abs(row["a_late_median_ms"] - row["b_late_median_ms"]) > LATENESS_TOLERANCE_MS:
+        late = f"{row['a_late_median_ms']:.2f} / {row['b_late_median_ms']:.2f} ms"
+        return f"the publisher's median lateness differs between the runs ({late})"
     if row["publisher_late_max_ms"] > period_ms:
         return f"the publisher fell behind: a frame went out {row['publisher_late_max_ms']:.1f} ms after its stamp"
     if row["a_median_ms"] > period_ms:
@@ -210,7 +218,7 @@ def main() -> int:
             rows.append(run_case(size, args.duration_s, Path(tmp), args.domain + 2 * i, args.interpolation, policy))
     print(f"output.interpolation: {args.interpolation}")
     print(f"{'stream':>14} | {'sync':>11} | {'(a) transport p50/p99 ms':>25} | {'(b) via node p50/p99 ms':>24} | {'b-a p50/p99 ms':>14} | "
-          f"{'dropped a/b':>11} | {'node CPU ms/frame':>17} | {'node CPU % core':>15} | target")
+          f"{'dropped a/b':>11} | {'sent late p50 a/b ms':>20} | {'node CPU ms/frame':>17} | {'node CPU % core':>15} | target")
     for r in rows:
         size = int(r["size"])
         w, h = SIZES[size]
@@ -223,6 +231,7 @@ def main() -> int:
         print(f"{w}x{h}@30 | {r['sync_policy']:>11} | {r['a_median_ms']:11.2f} / {r['a_p99_ms']:11.2f} | "
               f"{r['b_median_ms']:10.2f} / {r['b_p99_ms']:11.2f} | "
               f"{added_p50:6.2f} / {added_p99:5.2f} | {r['a_dropped']:5.0f} / {r['b_dropped']:3.0f} | "
+              f"{r['a_late_median_ms']:9.2f} / {r['b_late_median_ms']:8.2f} | "
               f"{r['node_cpu_ms_per_frame']:17.2f} | {100 * r['node_cpu_share']:15.1f} | {verdict}")
     print(f"load average at end: {os.getloadavg()[0]:.2f} ({os.cpu_count()} CPUs)")
     return 0

@@ -29,6 +29,7 @@ from typing import Any
 from ..bag.summary import ReplaySummary
 from ..core.atomic_output import PARTIAL_TAG, remove_path
 from ..core.errors import RoiNodeError
+from ..core.pipeline import overlap_global_view
 from .errors import TransientIOError
 
 TRANSIENT_ERRNOS = frozenset({errno.EIO, errno.EAGAIN, errno.EINTR, errno.EBUSY, errno.ETIMEDOUT, errno.ESTALE, errno.ECONNRESET})
@@ -123,6 +124,7 @@ def _guarded(job: ReplayJob, *, with_entry: bool) -> TaskResult:
     started = time.perf_counter()
     tune_malloc_for_large_frames()
     cv2.setNumThreads(1)  # parallelism is across tasks
+    overlap_global_view(False)
     stale = remove_stale_partials(job.target)
 
     def failed(error: str) -> TaskResult:

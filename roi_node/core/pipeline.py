@@ -369,11 +369,12 @@ _T = TypeVar("_T")
 class _GlobalViewThread:
     """The thread that resamples the global view while the ROIs are cut (the area kernels release the GIL).
 
-    It lowers a frame's latency when a second core is free, for more CPU per
-    frame than it saves in wall time (the hand-off and the GIL; bench/core.py
-    prints both). Latency is what the live node is for, so `roi-node run`
-    turns it on; offline work (replay, its workers, cluster tasks, export) is
-    measured in frames per CPU second and keeps the default, inline.
+    It lowers a frame's latency when a second core is free, for extra CPU per
+    frame (the hand-off and the GIL; bench/core.py prints both). Latency is
+    what the live node is for, so `roi-node run` turns it on; offline work
+    (replay, its workers, cluster tasks, export) is measured in frames per CPU
+    second, gains little wall time from it beside its own reading and writing,
+    and keeps the default, inline.
     """
 
     enabled = False

@@ -7,7 +7,8 @@ are never starved by image work; a joint callback takes every joint state
 already queued (ros/drain.py); a CompressedImage is only queued there and
 decoded on a decoder thread (ros/frame_decoder.py); one worker thread pops
 frames in stamp order, runs the pipeline outside the lock and publishes (see
-ros/spin.py for why one executor thread). Every rule about what is used, flagged or refused
+ros/spin.py for why one executor thread), the pipeline resampling the global
+view on a thread of its own meanwhile (`roi-node run` turns that on). Every rule about what is used, flagged or refused
 is the engine's; this file only moves messages.
 
 The node never runs on pretending: a bad message is counted by kind, logged
