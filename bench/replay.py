@@ -17,10 +17,11 @@ Generates a 720p bag (bundled bimanual rig, 30 Hz frames of the simulated rig,
 on a VM whose memory was never touched since boot the first writes into fresh
 page-cache pages cost far more kernel time than recycled ones (perf shows it
 in copy_folio_from_iter_atomic), so the first round is the slow one. The
-two-worker speed-up is each round's (the variants of a round run back to
-back), its median marked against the target, and the best of rounds. Everything written before a measurement (the
-bags, earlier variants' outputs) is flushed (sync) first, so the kernel's
-writeback of one variant's output does not run during another's.
+two-worker speed-up is printed per round (the variants of a round run back
+to back), its median marked against the target, and the best of rounds.
+Everything written before a measurement (the bags, earlier variants' outputs)
+is flushed (sync) first, so the kernel's writeback of one variant's output
+does not run during another's.
 Prints the rates and the ratios (targets: (b) >= 40% of (a); (c) >= 1.8x), and
 how many cores one replay keeps busy: two workers cannot beat 2 / that.
 `--profile` adds a cProfile of (b), sorted by own time.
@@ -136,7 +137,7 @@ def run_batch(workers: int, threads: int, keep_a_thread: bool, bags: list[Path],
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=300)
-    parser.add_argument("--repeats", type=int, default=3, help="best of N for (a), (b) and (c) on this shared, noisy machine")
+    parser.add_argument("--repeats", type=int, default=3, help="best of N for (a) and (b); N interleaved rounds for (c)")
     parser.add_argument("--profile", action="store_true", help="cProfile one single-worker replay")
     parser.add_argument("--batch-child", help=argparse.SUPPRESS)  # (c) runs each variant in a fresh process
     args = parser.parse_args()
