@@ -15,7 +15,6 @@ import subprocess
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +25,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from roi_node.core.robot_models import resolve_robot_reference
 
 from .conftest import CONFIG, REPO
-from .live.harness import Collector, diagnostics_values, next_domain, process, ros_env
+from .live.harness import PATIENT_SYNC, RELIABLE_INPUT, Collector, diagnostics_values, every_frame_accounted, next_domain, process, ros_env
 
 pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
 
@@ -51,10 +50,10 @@ def publish(tmp_path: Path, env: dict[str, str], spec: dict[str, Any]) -> dict[s
     return truth
 
 
-def run_session(tmp_path: Path, node_cmd: list[str], spec: dict[str, Any], *, records: int, diagnostics: int,
-                settled: Callable[[Collector], bool] | None = None) -> tuple[Collector, dict[str, Any]]:
+def run_session(tmp_path: Path, node_cmd: list[str], spec: dict[str, Any], *, records: int, diagnostics: int
+                ) -> tuple[Collector, dict[str, Any]]:
     """Start the node (`node_cmd`, python arguments) and a collector, publish `spec`, wait for `records` records
-    and `diagnostics` arrays (and, given `settled`, until it holds: it must within 10 s)."""
+    and `diagnostics` arrays, then until the diagnostics count every record (it must within 10 s)."""
     domain = next_domain()
     env = ros_env(domain)
     collector = Collector(domain, ARMS)
@@ -64,8 +63,8 @@ def run_session(tmp_path: Path, node_cmd: list[str], spec: dict[str, Any], *, re
             truth = publish(tmp_path, env, spec)
             collector.wait_until(lambda: len(collector.metadata) >= records, 10.0)
             collector.wait_until(lambda: len(collector.diagnostics) >= diagnostics, 5.0)
-            if settled is not None:
-                assert collector.wait_until(lambda: settled(collector), 10.0), diagnostics_values(collector.diagnostics, "roi_node: input")
+            settled = collector.wait_until(lambda: every_frame_accounted(collector), 10.0)
+            assert settled, diagnostics_values(collector.diagnostics, "roi_node: input")
             assert node.poll() is None, (tmp_path / "node.log").read_text()
     finally:
         collector.close()
@@ -91,9 +90,9 @@ def test_node_keeps_publishing_through_injected_exceptions_absurd_camera_info_an
         "absurd_camera_info_at_frames": [10, 11],
         "wild_joints_between_frames": [30, 36],
     }
-    # reliable, deep queues: on a loaded machine transport loss and overflow would hide what is tested here
-    params = ("use_camera_info:=true", "qos.subscription_reliability:=reliable", "qos.subscription_depth:=30",
-              "sync.max_pending_frames:=64")
+    # on a loaded machine transport loss, overflow or a frame released before its camera info would hide what is
+    # tested here
+    params = ("use_camera_info:=true", *RELIABLE_INPUT, *PATIENT_SYNC)
     collector, truth = run_session(tmp_path, run_args(*params, faulty_every=7), spec, records=50, diagnostics=3)
     log = (tmp_path / "node.log").read_text()
     records = {r["frame_index"]: r for r in collector.metadata}
@@ -297,13 +296,7 @@ def test_a_slow_failing_compressed_decode_neither_starves_joint_states_nor_stops
     raise_every = 9
     node_cmd = ["-m", "test.live.slow_decoder_node", "10", str(raise_every), "--", *run_args(*params)[2:]]
 
-    def every_frame_accounted(collector: Collector) -> bool:
-        """The newest /diagnostics (once a second) saw the stream end and counts every record that arrived."""
-        inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
-        totals = inputs.get("totals", {})
-        return bool(totals) and inputs["frame_rate_in_hz"] == 0.0 and totals["frames_out"] == len(collector.metadata)
-
-    collector, truth = run_session(tmp_path, node_cmd, spec, records=5, diagnostics=2, settled=every_frame_accounted)
+    collector, truth = run_session(tmp_path, node_cmd, spec, records=5, diagnostics=2)
     inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
     totals, drops = inputs["totals"], inputs["dropped_by_reason"]
     assert totals["frames_in"] == totals["frames_out"] + sum(drops.values()), "every frame is published or counted"

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from .conftest import CONFIG, REPO
-from .live.harness import Collector, next_domain, node_args, process, ros_env
+from .live.harness import RELIABLE_INPUT, Collector, next_domain, node_args, process, ros_env
 
 pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
 
@@ -65,7 +65,7 @@ def test_vla_example_prints_observations_from_the_running_node(tmp_path: Path) -
     domain = next_domain()
     env = ros_env(domain)
     (tmp_path / "spec.json").write_text(json.dumps({"rig": str(BIMANUAL), "frames": 40, "settle_s": 1.5}))
-    with process(node_args(BIMANUAL), env, tmp_path / "node.log"):
+    with process(node_args(BIMANUAL, *RELIABLE_INPUT), env, tmp_path / "node.log"):  # consecutive frames: none lost
         every = subprocess.Popen(
             [sys.executable, "examples/vla_observer.py", "--count", "5"], cwd=REPO, env=env, stdout=subprocess.PIPE, text=True
         )

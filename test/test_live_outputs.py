@@ -16,7 +16,7 @@ from visualization_msgs.msg import ImageMarker
 from roi_node.ros.consumer import Observation, ObservationClient
 
 from .conftest import CONFIG, REPO
-from .live.harness import Collector, next_domain, node_args, process, ros_env
+from .live.harness import RELIABLE_INPUT, Collector, next_domain, node_args, process, ros_env
 from .test_live_node import observations
 from .test_overlay import box_edges, segments_by_colour
 
@@ -58,9 +58,8 @@ def test_overlay_boxes_equal_the_records_and_compressed_outputs_decode_close_to_
     log = tmp_path / "node.log"
     frames = round(DURATION_S * RATE_HZ)
     try:
-        # it counts every frame: reliable input, so a busy machine cannot lose one (the default is best effort)
-        params = ("output_transport:=both", f"jpeg_quality:={QUALITY}", "qos.subscription_reliability:=reliable",
-                  "qos.subscription_depth:=30")
+        # it counts every frame: reliable input and a deep pending queue, so a busy machine cannot lose one
+        params = ("output_transport:=both", f"jpeg_quality:={QUALITY}", *RELIABLE_INPUT)
         with process(node_args(BIMANUAL, *params), env, log) as node:
             collector.wait_for_node()
             # after wait_for_node (they have no publisher yet); the sim waits for two subscribers on both topics

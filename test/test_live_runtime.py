@@ -192,8 +192,10 @@ def test_runtime_offset_moves_the_next_centres_and_changes_crop_offset_ver(tmp_p
     assert set(versions) == {before, changed_ver}
     assert versions[first_new : last_new + 1] == [changed_ver] * (last_new + 1 - first_new), "from one frame on, until restored"
     assert versions[last_new + 1 :] and first_new > 0, "the rig's value again: the rig's version again"
-    assert first_new <= count_at_change + 5, "within the frames already in hand when the change arrived"
-    assert count_at_restore - 5 <= last_new < count_at_restore + 5
+    # the counts are what this test had received when a call returned; on a loaded machine the node may have published
+    # a few more by then (half a second at 30 Hz is allowed), and a frame in hand when a change arrives keeps the old value
+    assert first_new <= count_at_change + 15, "within the frames already in hand when the change arrived"
+    assert count_at_restore - 5 <= last_new < count_at_restore + 15
     # the version is the one a rig file saying offset_px: 40.0 gets
     oracle = RoiPipeline(load_rig_config(rig_variant(tmp_path, "offset40.yaml", {"offset_px": 40.0})))
     assert oracle.lineage is not None and oracle.lineage.crop_offset_ver == changed_ver

@@ -20,7 +20,7 @@ from roi_node.bag.replay import replay_bag
 from roi_node.bag.writer import typestore
 
 from .conftest import CONFIG, REPO
-from .live.harness import Collector, next_domain, node_args, process, ros_env
+from .live.harness import PATIENT_SYNC, RELIABLE_INPUT, Collector, next_domain, node_args, process, ros_env
 
 pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
 
@@ -59,11 +59,10 @@ def wait_for_log(log: Path, needles: list[str], timeout_s: float = 30.0) -> None
     time.sleep(1.5)
 
 
-# live == offline is about determinism, not latency: like the demo's recording node, a frame may wait 250 ms for the
-# joint sample after it, so a busy moment (the other test worker, a loaded CI machine) does not release it unpaired,
-# and the node takes every frame (reliable, a 3 s queue: the best-effort default with 5 lost 3 of 30 on a busy machine)
-RECORDING = ("sync.max_wait_ms:=250.0", "qos.subscription_reliability:=reliable", "qos.subscription_depth:=90",
-             "qos.joint_state_depth:=2000")
+# live == offline is about determinism, not latency: a frame may wait 1 s for the joint sample after it, so a busy
+# moment (the other test worker, a loaded CI machine) does not release it unpaired, and the node takes and keeps every
+# frame (the best-effort default with a queue of 5 lost 3 of 30 on a busy machine); see test/live/harness.py
+RECORDING = (*PATIENT_SYNC, *RELIABLE_INPUT)
 
 
 def record_session(
@@ -143,8 +142,8 @@ def test_recorded_live_session_equals_offline_replay_and_both_readers_agree(tmp_
 def test_live_equals_offline_when_the_calibration_changes_and_the_stamps_loop(tmp_path: Path) -> None:
     """CameraInfo changes mid-stream and the stamps jump back 3 s (a looped bag): replay still gives the live bytes."""
     spec = {"camera_info": True, "recalibrate_at_frame": 12, "loop_at_frame": 24, "fingers": True}
-    # a deep pending queue: on a loaded machine overflow drops would hide what is tested (the loop itself costs no frame)
-    params = ("use_camera_info:=true", "sync.max_pending_frames:=64", *RECORDING)
+    # RECORDING keeps every frame: on a loaded machine overflow drops would hide what is tested (the loop costs none)
+    params = ("use_camera_info:=true", *RECORDING)
     bag, truth = record_session(tmp_path, frames=36, spec=spec, params=params, inputs=[*INPUTS, "/camera_info"])
     live = read_rosbags(bag)
     offline_bag = tmp_path / "offline"
