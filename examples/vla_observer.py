@@ -54,7 +54,8 @@ def main() -> int:
     args = parser.parse_args(remove_ros_args(sys.argv)[1:])
     rclpy.init(args=sys.argv)
     node = Node("vla_observer")
-    client = ObservationClient(node, args.arms, with_global=False if args.no_global else None)
+    # every-frame mode keeps up to a second of complete observations (at 30 Hz) while this loop prints
+    client = ObservationClient(node, args.arms, with_global=False if args.no_global else None, max_buffer=4 if args.latest else 30)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     stop = threading.Event()

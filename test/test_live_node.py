@@ -94,16 +94,15 @@ def assert_markers_where_metadata_says(obs: Any, frame: dict[str, Any], tol_px: 
 def test_bimanual_720p_every_frame_with_stamps_sizes_residual_and_markers(tmp_path: Path) -> None:
     offset_ms = 1.7
     spec = {"frames": 45, "rate_hz": 30.0, "joint_rate_hz": 200.0, "joint_offset_ms": offset_ms}
-    collector, truth, log = run_session(tmp_path, spec, *PATIENT_SYNC)
+    collector, truth, log = run_session(tmp_path, spec, *PATIENT_SYNC, *RELIABLE_INPUT)
     sent = {f["stamp_ns"]: f for f in truth["frames"]}
     assert "rig demo_bimanual" in log and "/roi/left/image_raw" in log and "lineage" in log
-    # image_raw is best effort (the default sensor QoS), so a busy core may lose a frame in transport; every frame the
-    # node received comes out, once, with its own stamp
+    # every frame comes out, once, with its own stamp (reliable input: the exact residuals below need every sample)
     stopped = re.search(r"stopped: frames in (\d+), out (\d+); dropped: none", log)
-    assert stopped is not None and stopped[1] == stopped[2], log
+    assert stopped is not None and int(stopped[1]) == int(stopped[2]) == len(sent), log
     stamps = [r["stamp_ns"] for r in collector.metadata]
-    assert len(stamps) == len(set(stamps)) == int(stopped[2]) >= len(sent) - 1 and set(stamps) <= set(sent), "one record per frame"
-    out = sorted(stamps)  # what the checks below expect: the frames the node received
+    assert len(stamps) == len(set(stamps)) == len(sent) and set(stamps) == set(sent), "one record per frame"
+    out = sorted(sent)
     schema = metadata_schema()
     period_ms = 1000 / 200
     for record in collector.metadata:
@@ -173,7 +172,7 @@ def test_bad_input_is_flagged_counted_and_the_node_keeps_publishing(tmp_path: Pa
     spec = {
         "frames": 60,
         # the first frames see no joint state at all. Frame 4 is released 50 ms (max_wait) after it arrives, at 183 ms;
-        # the first joint state goes out at 835 ms, so a node stalled for over half a second still finds none (with 6
+        # the first joint state goes out at 837 ms, so a node stalled for over half a second still finds none (with 6
         # it had 18 ms, and a busy CI machine paired frame 4 with frame 6's joints: stale, not missing)
         "no_joints_before_frame": 25,
         "frame_faults": {"10": "bad_step", "12": "truncated", "14": "bad_encoding", "16": "wrong_size"},

@@ -58,7 +58,7 @@ def test_overlay_boxes_equal_the_records_and_compressed_outputs_decode_close_to_
     log = tmp_path / "node.log"
     frames = round(DURATION_S * RATE_HZ)
     try:
-        # it counts every frame: reliable input and a deep pending queue, so a busy machine cannot lose one
+        # it counts every frame: reliable input and a deep pending queue, so a busy machine does not lose one
         params = ("output_transport:=both", f"jpeg_quality:={QUALITY}", *RELIABLE_INPUT)
         with process(node_args(BIMANUAL, *params), env, log) as node:
             collector.wait_for_node()

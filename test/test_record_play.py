@@ -71,7 +71,9 @@ def record_session(
     domain = next_domain()
     env = ros_env(domain)
     bag = tmp_path / "session"
-    full_spec = {"rig": str(BIMANUAL), "frames": frames, "min_subscribers": 2, "settle_s": 1.0, **(spec or {})}
+    # the recorder and the node stop when the publisher exits: it lingers 3 s, so a node a loaded machine held back
+    # (RECORDING lets it keep 2 s of frames) has published and the recorder written every output by then
+    full_spec = {"rig": str(BIMANUAL), "frames": frames, "min_subscribers": 2, "settle_s": 1.0, "linger_s": 3.0, **(spec or {})}
     (tmp_path / "spec.json").write_text(json.dumps(full_spec))
     with process(node_args(BIMANUAL, *params), env, tmp_path / "node.log"):
         with process(["-m", "roi_node.cli", "record", "-o", str(bag), "--topics", *inputs, *OUTPUTS], env, tmp_path / "rec.log") as rec:

@@ -39,8 +39,9 @@ _domains = itertools.count(1)
 # What the tests that count every frame give the node. A loaded CI machine (the other test worker) can starve the
 # node or the publisher for hundreds of milliseconds; these tests check what each frame carries, not the live
 # overload policy (test_live_node's overload test has that), so they let nothing depend on such a stall.
-# RELIABLE_INPUT: reliable subscriptions with 3 s queues take every message, and up to 64 frames (2 s at 30 Hz) may
-# wait in the pending queue before the oldest is dropped as overflow (the default 8 is 267 ms).
+# RELIABLE_INPUT: reliable subscriptions with 3 s queues take every message the publisher still holds (its history:
+# test/live/publisher.py), and up to 64 frames (2 s at 30 Hz) may wait in the pending queue before the oldest is
+# dropped as overflow (the default 8 is 267 ms).
 RELIABLE_INPUT = ("qos.subscription_reliability:=reliable", "qos.subscription_depth:=90", "qos.joint_state_depth:=2000",
                   "sync.max_pending_frames:=64")
 # PATIENT_SYNC: a frame waits up to 1 s for the joint sample after it (and its camera info), so a stall between
@@ -196,7 +197,7 @@ def every_frame_accounted(collector: Collector) -> bool:
     reads from it then is final (the node sends no last report when it is stopped)."""
     inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
     totals = inputs.get("totals", {})
-    return bool(totals) and inputs["frame_rate_in_hz"] == 0.0 and totals["frames_out"] == len(collector.metadata)
+    return bool(totals) and inputs["frame_rate_in_hz"] == 0.0 and totals.get("frames_out", 0) == len(collector.metadata)
 
 
 def diagnostics_values(arrays: list[DiagnosticArray], status_name: str) -> dict[str, Any]:

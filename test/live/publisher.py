@@ -87,12 +87,15 @@ def main(spec_path: str, truth_path: str) -> int:
 
     rclpy.init()
     node = rclpy.create_node("test_camera_publisher")
+    # reliable writers keep the last N samples for a reader that has not acknowledged them: 10 frames (333 ms), and
+    # 1000 joint states (5 s at 200 Hz), so a subscriber process stalled by a loaded machine does not lose a sample
     sensor = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    deep = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
     compressed = spec.get("transport", "raw") == "compressed"
     image_type, image_topic = (CompressedImage, "image_raw/compressed") if compressed else (Image, "image_raw")
     image_pub = node.create_publisher(image_type, image_topic, sensor)
-    joint_pub = node.create_publisher(JointState, "joint_states", sensor)
-    info_pub = node.create_publisher(CameraInfo, "camera_info", sensor)
+    joint_pub = node.create_publisher(JointState, "joint_states", deep)
+    info_pub = node.create_publisher(CameraInfo, "camera_info", deep)
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
     description_pub = node.create_publisher(String, "robot_description", latched)
     if spec.get("robot_description"):
