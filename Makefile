@@ -10,7 +10,7 @@ DEMO_OUT ?= demo_out
 
 # Everything that starts DDS keeps it on this machine, on its own domain.
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
-# glibc settings that cut page faults for large image messages (shared/PERF_NOTES.md)
+# glibc settings that cut page faults for large image messages (roi_node/process_memory.py says why)
 export MALLOC_MMAP_THRESHOLD_ := 33554432
 export MALLOC_TRIM_THRESHOLD_ := 4000000000
 

@@ -3,7 +3,7 @@
 With glibc's defaults, every multi-megabyte frame buffer is a fresh mmap that
 is returned to the kernel when freed, so each frame pays its page faults
 again: a fresh replay process ran 720p at about half the speed of a warmed-up
-one (shared/PERF_NOTES.md measured the same for the live subscriber). Raising
+one (the live subscriber showed the same). Raising
 the mmap threshold and the trim threshold together keeps the buffers in the
 heap for reuse (setting only one is worse). This is what the environment
 variables MALLOC_MMAP_THRESHOLD_ / MALLOC_TRIM_THRESHOLD_ do, applied at run

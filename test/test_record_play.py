@@ -115,7 +115,7 @@ def test_recorded_live_session_equals_offline_replay_and_both_readers_agree(tmp_
         assert b.log_time_ns == t_ns and bytes(b.ros_msg.data) == bytes(a.data) and b.ros_msg.encoding == a.encoding
     assert [m.ros_msg.data for m in via_mcap["/roi/metadata"]] == [m.data for _, m in live["/roi/metadata"]]
 
-    # offline replay of the recorded inputs reproduces the live outputs (DESIGN.md "Determinism")
+    # offline replay of the recorded inputs reproduces the live outputs (docs/design.md, "Determinism")
     offline_bag = tmp_path / "offline"
     replay_bag(bag, offline_bag, BIMANUAL, image_topic="/image_raw", joint_topics=["/joint_states"], overlay=True)
     offline = read_rosbags(offline_bag)

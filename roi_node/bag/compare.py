@@ -1,11 +1,11 @@
-"""Live == offline: compare the ROI outputs of two bags frame by frame (DESIGN.md "Determinism").
+"""Live == offline: compare the ROI outputs of two bags frame by frame (docs/design.md, "Determinism").
 
 Metadata records must be equal as JSON except the live-only fields
 (`teleop.latency_ms`). Frames the live node released without their joint
 sample (it came later than `max_wait_ms`, so live says `stale`,
 `extrapolated` or `missing` where the full bag says `ok`) and frames synced
 with the `latest` policy are counted as exempt, not compared: live had less
-information, by design (DESIGN.md "Determinism"). ROI images must be equal
+information, by design. ROI images must be equal
 byte for byte.
 """
 

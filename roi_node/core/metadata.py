@@ -1,4 +1,4 @@
-"""The per-frame metadata record and its lineage tuple (DESIGN.md "Metadata record").
+"""The per-frame metadata record and its lineage tuple.
 
 The record itself is typed (core/records.py) and serialised there; this module
 holds the lineage tuple, the content hashes and the rounding every record

@@ -1,6 +1,6 @@
 """The ROI policy: projected wrist -> inward-offset centre -> scaled integer window.
 
-DESIGN.md "The ROI policy", steps 3-4:
+The crop centre and size, from the projected wrist and tip:
   d_in = unit image direction from the projected wrist to the projected tip;
   (u_c, v_c) = (u, v) + beta * d_in;
   l = clip(alpha * f_x * r / Z_c, l_min, l_max) (depth) or fixed;
