@@ -1,0 +1,231 @@
+"""The README and docs/ say what the code does: their tables, lists, links and command lines are held to the code.
+
+Each test reads a claim out of the Markdown and checks it against an independent source: the argparse parser
+the CLI runs, the JSON Schemas in config/, the node's parameter defaults, the gates file, the record's flag enum
+and the rig loader. The other claims of the pages are covered by the behavioural tests they name or describe.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shlex
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from roi_node.cli import build_parser
+from roi_node.core.config import load_rig_config
+from roi_node.core.records import ArmFlag
+from roi_node.core.robot_models import EXAMPLE_ROBOT_URDFS
+from roi_node.core.roi_policy import scale_px
+from roi_node.ros.params import DEFAULTS, RCLPY_PARAMETERS
+
+REPO = Path(__file__).resolve().parents[1]
+DOCS = REPO / "docs"
+CONFIG = REPO / "config"
+PAGES = ("install", "live-node", "offline", "rig-config", "metadata", "quality", "lerobot-export", "ray", "performance", "design")
+MARKDOWN = (REPO / "README.md", *(DOCS / f"{page}.md" for page in PAGES))
+README_MAX_LINES = 200
+
+
+def _text(path: Path) -> str:
+    return path.read_text(encoding="utf-8")
+
+
+def _table_rows(path: Path, header: str) -> list[list[str]]:
+    """Cells of the Markdown table whose header row starts with `| <header> |`."""
+    lines = _text(path).splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(f"| {header} |"))
+    rows = []
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        rows.append([cell.strip() for cell in line.strip().strip("|").split(" | ")])
+    return rows
+
+
+def _code_name(cell: str) -> str:
+    """The first `code` span of a cell."""
+    match = re.search(r"`([^`]+)`", cell)
+    assert match, f"no `name` in table cell {cell!r}"
+    return match.group(1)
+
+
+def _slug(heading: str) -> str:
+    """GitHub's anchor for a heading: lower case, punctuation but - and _ dropped, spaces to -."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def _anchors(path: Path) -> set[str]:
+    return {_slug(line.lstrip("#")) for line in _text(path).splitlines() if line.startswith("#") and " " in line}
+
+
+def test_readme_is_a_short_front_page_with_the_two_commands_and_every_page() -> None:
+    readme = _text(REPO / "README.md")
+    assert len(readme.splitlines()) <= README_MAX_LINES
+    assert "make demo" in readme and "make test" in readme
+    makefile = _text(REPO / "Makefile")
+    assert re.search(r"^demo: \$\(STAMP\)", makefile, re.M) and re.search(r"^test: \$\(STAMP\)", makefile, re.M)
+    for page in PAGES:
+        assert f"](docs/{page}.md)" in readme, page
+    assert (REPO / "docs" / "contact_sheet.jpg").is_file()
+
+
+@pytest.mark.parametrize("page", MARKDOWN, ids=lambda p: p.name)
+def test_every_relative_link_and_anchor_resolves(page: Path) -> None:
+    for target in re.findall(r"\]\(([^)\s]+)\)", _text(page)):
+        if target.startswith(("http://", "https://")):
+            continue
+        file_part, _, anchor = target.partition("#")
+        linked = (page.parent / file_part).resolve() if file_part else page
+        assert linked.exists(), f"{page.name}: link {target} names no file"
+        if anchor:
+            assert anchor in _anchors(linked), f"{page.name}: link {target}: no such heading in {linked.name}"
+
+
+def _documented_command_lines() -> list[tuple[str, list[str]]]:
+    """Every `roi-node ...` line of a sh code block, continuations joined, comments and `[ ]` marks removed."""
+    found = []
+    for page in MARKDOWN:
+        for block in re.findall(r"```sh\n(.*?)```", _text(page), re.S):
+            for line in block.replace("\\\n", " ").splitlines():
+                line = line.split(" # ")[0].strip().rstrip("&").strip()
+                if line.startswith("roi-node "):
+                    words = shlex.split(line.replace("[", " ").replace("]", " "))[1:]
+                    if "--ros-args" in words:  # rclpy's, as cli.main cuts them
+                        words = words[: words.index("--ros-args")]
+                    found.append((f"{page.name}: {line}", words))
+    return found
+
+
+@pytest.mark.parametrize(("where", "words"), _documented_command_lines(), ids=lambda v: v if isinstance(v, str) else "")
+def test_every_documented_command_line_parses(where: str, words: list[str]) -> None:
+    try:
+        build_parser().parse_args(words)
+    except SystemExit as exc:
+        pytest.fail(f"{where}: the CLI refuses it (exit {exc.code})")
+
+
+def test_every_verb_is_documented_on_a_page() -> None:
+    parser = build_parser()
+    verbs = next(a for a in parser._actions if a.dest == "verb").choices
+    assert verbs is not None
+    pages = "\n".join(_text(page) for page in MARKDOWN)
+    missing = [verb for verb in verbs if f"roi-node {verb}" not in pages]
+    assert not missing
+
+
+def _schema_leaves(node: dict[str, Any], defs: dict[str, Any], prefix: str) -> dict[str, dict[str, Any]]:
+    """Key path -> the schema of every leaf key (objects are walked, arrays of objects get `[]`)."""
+    if "$ref" in node:
+        node = {**defs[node["$ref"].split("/")[-1]], **{k: v for k, v in node.items() if k != "$ref"}}
+    if "properties" in node:
+        leaves: dict[str, dict[str, Any]] = {}
+        for key, child in node["properties"].items():
+            leaves.update(_schema_leaves(child, defs, f"{prefix}.{key}" if prefix else key))
+        return leaves
+    items = node.get("items")
+    if node.get("type") == "array" and isinstance(items, dict) and ("properties" in items or "$ref" in items):
+        resolved = defs[items["$ref"].split("/")[-1]] if "$ref" in items else items
+        if "properties" in resolved:
+            return _schema_leaves(resolved, defs, prefix + "[]")
+    return {prefix: node}
+
+
+def test_the_rig_config_table_has_the_schemas_keys_and_defaults() -> None:
+    schema = json.loads(_text(CONFIG / "rig.schema.json"))
+    leaves = _schema_leaves(schema, schema.get("$defs", {}), "")
+    rows = {_code_name(row[0]): row for row in _table_rows(DOCS / "rig-config.md", "key")}
+    assert set(rows) == set(leaves)
+    for key, leaf in leaves.items():
+        if "default" in leaf:  # the cell's `value` read as YAML, as a rig file would say it
+            assert yaml.safe_load(_code_name(rows[key][2])) == leaf["default"], (key, leaf["default"], rows[key][2])
+        for choice in leaf.get("enum", ()):
+            assert f"`{choice}`" in rows[key][1], (key, choice)
+
+
+def test_the_documented_urdf_short_names_are_the_known_ones_and_the_named_rigs_load() -> None:
+    row = next(r for r in _table_rows(DOCS / "rig-config.md", "key") if _code_name(r[0]) == "robots[].urdf")
+    listed = re.search(r"short name of example-robot-data: ([a-z0-9_, ]+)", row[3])
+    assert listed and set(listed.group(1).replace(" ", "").split(",")) == set(EXAMPLE_ROBOT_URDFS)
+    named = re.findall(r"\(\.\./config/(rig_[a-z_]+\.yaml)\)", _text(DOCS / "rig-config.md"))
+    assert named
+    for name in named:
+        rig = load_rig_config(CONFIG / name)
+        assert rig.robots and all(r.urdf_path.name == "panda.urdf" for r in rig.robots), name
+    bimanual = load_rig_config(CONFIG / "rig_demo_bimanual.yaml")
+    assert sorted(r.joint_prefix for r in bimanual.robots) == ["left_", "right_"]
+    single = load_rig_config(CONFIG / "rig_panda_single.yaml")
+    assert len(single.arms) == 1 and yaml.safe_load(_text(CONFIG / "rig_panda_single.yaml"))["arms"][0]["tip"].keys() == {"offset_m"}
+
+
+def test_the_parameter_table_is_the_nodes_parameters_with_their_defaults() -> None:
+    rows = {_code_name(row[0]): row for row in _table_rows(DOCS / "live-node.md", "parameter")}
+    assert set(rows) == set(DEFAULTS) | set(RCLPY_PARAMETERS)
+    for name, default in DEFAULTS.items():
+        cell = rows[name][1]
+        if name == "config":
+            assert "required" in cell and default == ""
+            continue
+        shown = json.dumps(default) if isinstance(default, bool) else str(default)
+        if isinstance(default, list):
+            shown = "[" + ", ".join(default) + "]"
+        if default == "":
+            shown = '""'
+        assert cell == f"`{shown}`", (name, default, cell)
+    params_file = yaml.safe_load(_text(CONFIG / "roi_node.params.yaml"))["roi_node"]["ros__parameters"]
+    assert params_file["config"] in rows["config"][2]
+
+
+def test_the_metadata_tables_are_the_schemas_keys() -> None:
+    schema = json.loads(_text(CONFIG / "metadata.schema.json"))
+    frame_keys = {_code_name(row[0]) for row in _table_rows(DOCS / "metadata.md", "key") if row}
+    arm_table = _text(DOCS / "metadata.md").split("## Arm keys")[1]
+    arm_keys = set(re.findall(r"^\| `([a-z_]+)` \|", arm_table, re.M))
+    assert frame_keys == set(schema["properties"])
+    assert arm_keys == set(schema["$defs"]["arm"]["properties"])
+    interpolation = next(line for line in arm_table.splitlines() if line.startswith("| `interpolation` |"))
+    for choice in schema["$defs"]["arm"]["properties"]["interpolation"]["enum"]:
+        assert f"`{choice}`" in interpolation, choice
+
+
+def test_the_documented_flags_are_the_ones_the_pipeline_emits() -> None:
+    flags_section = _text(DOCS / "metadata.md").split("## Flags")[1].split("##")[0]
+    documented = set(re.findall(r"`([a-z_]+)`", flags_section))
+    rig = load_rig_config(CONFIG / "rig_demo_bimanual.yaml")
+    arm = rig.arms[0]
+    clip_flags = {scale_px(arm, 1000.0, depth_m)[1] for depth_m in (1e-3, 1e3)}
+    assert None not in clip_flags
+    assert documented == {f.value for f in ArmFlag} | clip_flags
+
+
+def test_the_listed_gates_are_the_bundled_gates() -> None:
+    section = _text(DOCS / "quality.md").split("The bundled\ngates, by concern:")[1].split("A gates file naming")[0]
+    listed = set(re.findall(r"`([a-z0-9_]+)`", section))
+    bundled = yaml.safe_load(_text(CONFIG / "gates.yaml"))["gates"]
+    assert listed == set(bundled)
+    off = {name for name, bound in bundled.items() if bound is None}
+    assert "out_of_frame_longest_run" in off and {n for n in off if n.startswith("window_")} == off - {"out_of_frame_longest_run"}
+
+
+def test_design_sections_cited_by_the_code_exist() -> None:
+    headings = [line.lstrip("#").strip() for line in _text(DOCS / "design.md").splitlines() if line.startswith("#")]
+    cited = []
+    for path in (*REPO.glob("roi_node/**/*.py"), *REPO.glob("test/*.py")):
+        cited += [(path.name, m) for m in re.findall(r'docs/design\.md,? "([^"]+)"', _text(path))]
+    assert cited
+    for where, section in cited:
+        assert any(h.startswith(section) for h in headings), f"{where} cites docs/design.md {section!r}"
+
+
+def test_the_where_a_change_goes_section_names_real_files_and_names() -> None:
+    section = _text(DOCS / "design.md").split("## Where a change goes")[1]
+    for path in re.findall(r"`((?:[a-z_]+/)+[a-z_]+\.(?:py|yaml|json))`", section):
+        assert (REPO / "roi_node" / path).exists() or (REPO / path).exists(), path
+    sources = "\n".join(_text(p) for p in REPO.glob("roi_node/**/*.py"))
+    for name in ("ARM_METRICS", "BAG_METRICS", "DRIFT_METRICS", "CALIBRATION_METRICS", "VERB_MODULES", "EXAMPLE_ROBOT_URDFS",
+                 "SYNC_POLICIES", "_resolve_one", "_OutputTopics", "output_topics", "_publish"):
+        assert name in section and re.search(rf"\b{name}\b", sources), name
