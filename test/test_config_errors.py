@@ -212,9 +212,8 @@ def test_unknown_ee_frame_fails_pipeline_construction_with_similar_frames(tmp_pa
     with pytest.raises(KinematicsError) as info:
         RoiPipeline(rig)
     message = str(info.value)
-    _assert_error(message, path.resolve(), "<file>: arms[hand].ee_frame: ", "frame 'panda_hnd' is not in panda.urdf", "similar frames: ")
-    hints = message.split("similar frames: ", 1)[1].split(", ")
-    assert "panda_hand" in hints
+    _assert_error(message, path.resolve(), "<file>: arms[hand].ee_frame: ", "frame 'panda_hnd' is not in panda.urdf",
+                  "did you mean the link 'panda_hand'?")
 
 
 def test_unknown_tip_frame_fails_pipeline_construction(tmp_path: Path) -> None:
@@ -224,8 +223,7 @@ def test_unknown_tip_frame_fails_pipeline_construction(tmp_path: Path) -> None:
     with pytest.raises(KinematicsError) as info:
         RoiPipeline(rig)
     message = str(info.value)
-    _assert_error(message, rig.path, "<file>: arms[hand].tip.frame: ", "'panda_hand_tpc'", "similar frames: ")
-    assert "panda_hand_tcp" in message.split("similar frames: ", 1)[1].split(", ")
+    _assert_error(message, rig.path, "<file>: arms[hand].tip.frame: ", "'panda_hand_tpc'", "did you mean the link 'panda_hand_tcp'?")
 
 
 # --- calibration ---------------------------------------------------------------------------

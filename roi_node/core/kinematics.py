@@ -29,6 +29,7 @@ import numpy as np
 import placo
 
 from .errors import KinematicsError
+from .frame_suggestions import unknown_frame_hint
 from .transforms import Transform
 from .urdf_check import MAX_URDF_BYTES, check_urdf_structure
 
@@ -127,8 +128,8 @@ class RobotKinematics:
 
     def check_frame(self, frame: str, where: str) -> None:
         if frame not in self.frame_names:
-            close = sorted(f for f in self.frame_names if _similar(f, frame))[:8]
-            hint = f"; similar frames: {', '.join(close)}" if close else ""
+            links = dict.fromkeys(name for j in self._joints.values() for name in (j.parent, j.child))
+            hint = unknown_frame_hint(frame, list(links), list(self._joints), self.urdf_path)
             raise KinematicsError(f"{where}: frame {frame!r} is not in {self.urdf_path.name}{hint}")
 
     def chain_joints(self, frame: str) -> tuple[str, ...]:
@@ -199,11 +200,6 @@ def _load_placo(urdf_text: str, where: str) -> placo.RobotWrapper:
             raise KinematicsError(f"{where}: placo could not load the URDF: {exc}") from exc
     robot.update_kinematics()
     return robot
-
-
-def _similar(candidate: str, wanted: str) -> bool:
-    a, b = candidate.lower(), wanted.lower()
-    return a in b or b in a or any(part and part in a for part in re.split(r"[_\-/]", b) if len(part) > 2)
 
 
 def wrap_angle(angle_rad: float) -> float:
