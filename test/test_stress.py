@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import itertools
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -51,3 +53,14 @@ def test_figures_are_written_and_readable(stress: tuple[Path, dict]) -> None:  #
         image = cv2.imread(str(out / f"stress_{name}.png"))
         assert image is not None and image.shape[0] > 300 and image.shape[1] > 800
         assert (image < 128).any()  # something is drawn
+
+
+@pytest.mark.parametrize("verb", [["stress", "-o"], ["demo", "--out"], ["sim", "--bag"]])
+def test_a_negative_seed_is_one_argparse_line_and_exit_2(tmp_path: Path, verb: list[str]) -> None:
+    """numpy refuses negative seeds with a ValueError deep in the simulator; the argument is checked first."""
+    out = tmp_path / "out"
+    result = subprocess.run([sys.executable, "-m", "roi_node.cli", *verb, str(out), "--seed", "-1"],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines()[-1] == f"roi-node {verb[0]}: error: argument --seed: must be at least 0, got -1"
+    assert "Traceback" not in result.stderr and not out.exists()

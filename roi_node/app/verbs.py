@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..arg_types import int_at_least
 from ..core.errors import UsageError
 
 
@@ -84,7 +85,7 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     sim.add_argument("--duration", type=float, default=20.0, help="seconds (default: 20)")
     sim.add_argument("--rate-hz", type=float, default=30.0, help="camera rate (default: 30)")
     sim.add_argument("--joint-rate-hz", type=float, default=200.0, help="joint state rate (default: 200)")
-    sim.add_argument("--seed", type=int, default=0, help="trajectory and scene seed (default: 0)")
+    sim.add_argument("--seed", type=int_at_least(0), default=0, help="trajectory and scene seed (default: 0)")
     sim.add_argument("--min-subscribers", type=int, default=1, help="live: wait for this many subscribers first (default: 1)")
     sim.set_defaults(func=_cmd_sim)
 
@@ -99,7 +100,7 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     demo.add_argument("--config", help="rig config (default: the bundled demo_bimanual rig)")
     demo.add_argument("--duration", type=float, default=20.0, help="seconds of simulated time (default: 20)")
     demo.add_argument("--rate-hz", type=float, default=30.0, help="camera rate (default: 30)")
-    demo.add_argument("--seed", type=int, default=7, help="trajectory seed (default: 7)")
+    demo.add_argument("--seed", type=int_at_least(0), default=7, help="trajectory seed (default: 7)")
     demo.set_defaults(func=_cmd_demo)
 
     stress = verbs.add_parser(
@@ -115,5 +116,5 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     stress.add_argument("-o", "--output", required=True, metavar="DIR", help="folder for stress.json and the figures")
     stress.add_argument("--quick", action="store_true", help="fewer sizes, every 10th frame of the 20 s trajectory (under a minute)")
     stress.add_argument("--gates", metavar="FILE", help="gates YAML the taxonomy checks (default: the bundled config/gates.yaml)")
-    stress.add_argument("--seed", type=int, default=0, help="trajectory and scene seed (default: 0)")
+    stress.add_argument("--seed", type=int_at_least(0), default=0, help="trajectory and scene seed (default: 0)")
     stress.set_defaults(func=_cmd_stress)
