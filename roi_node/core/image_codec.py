@@ -14,6 +14,7 @@ from typing import Any, Protocol
 import cv2
 import numpy as np
 
+from .compressed_header import check_declared_size, read_declared_image
 from .errors import ImageError
 
 # encoding -> (channels, cv2 conversion to RGB or None)
@@ -66,14 +67,20 @@ def image_from_msg(msg: ImageFields, where: str = "image_raw") -> np.ndarray:
     return pixels if step == row_bytes else np.ascontiguousarray(pixels)
 
 
-def image_from_compressed(fmt: str, data: Any, where: str = "image_raw/compressed") -> np.ndarray:
-    """Decode a sensor_msgs/CompressedImage (jpeg or png; image_transport's "<enc>; jpeg compressed <fmt>" too)."""
+def image_from_compressed(fmt: str, data: Any, where: str = "image_raw/compressed",
+                          expected_size_px: tuple[int, int] | None = None) -> np.ndarray:
+    """Decode a sensor_msgs/CompressedImage (jpeg or png; image_transport's "<enc>; jpeg compressed <fmt>" too).
+
+    The size the data's header declares is checked before anything is decoded (core/compressed_header.py):
+    it must be `expected_size_px` (width, height) when given, and within UNCALIBRATED_MAX_PIXELS when not.
+    """
     kind = str(fmt).lower()
     if not any(f in kind for f in COMPRESSED_FORMATS):
         raise ImageError(f"{where}: unsupported format {fmt!r}; expected jpeg or png")
     buf = np.frombuffer(data, dtype=np.uint8)
     if buf.size == 0:
         raise ImageError(f"{where}: empty data")
+    check_declared_size(read_declared_image(buf.data, where), expected_size_px, where)
     decoded = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if decoded is None:
         raise ImageError(f"{where}: data is not a decodable {fmt!r} image ({buf.size} bytes)")
