@@ -1,4 +1,16 @@
-"""Build rosbags messages (the ROS 2 Jazzy types) for roi_node's topics."""
+"""Build rosbags messages (the ROS 2 Jazzy types) for roi_node's topics.
+
+The ROI CameraInfo is also serialized here, for both drivers: the live node
+publishes these bytes as they are (`Publisher.publish(bytes)`) and replay
+writes them as they are, so a recorded live session and its replay store the
+same bytes. Why padded: a DDS transport carries a serialized payload padded
+with zeros to a multiple of 4 bytes (Fast DDS does, and a recorder stores
+what it receives), while a serializer (rosbags, or rclpy's
+`serialize_message`) stops at the message's last byte. Bytes that are already
+a multiple of 4 travel unchanged, and every CDR reader (rclpy, rosbags, the
+mcap readers) ignores up to 3 trailing bytes, as rosbag2 recordings always
+carry them.
+"""
 
 from __future__ import annotations
 
@@ -10,12 +22,21 @@ from rosbags.typesys.store import Typestore
 from ..core.camera import CameraModel, camera_info_fields
 from ..core.image_codec import output_pixels
 from ..core.stamps import ns_to_stamp
+from ..core.topics import CAMERA_INFO_TYPE
+
+TRANSPORT_ALIGNMENT = 4  # bytes: a DDS payload's length is a multiple of this
+
+
+def transport_padded(cdr: bytes | memoryview) -> bytes:
+    """`cdr` with zero bytes appended up to a multiple of TRANSPORT_ALIGNMENT: what DDS delivers for it."""
+    return bytes(cdr) + bytes(-len(cdr) % TRANSPORT_ALIGNMENT)
 
 
 class MessageFactory:
     """Messages of one typestore; images from RGB/mono numpy pixels."""
 
     def __init__(self, typestore: Typestore) -> None:
+        self._typestore = typestore
         types = typestore.types
         self._time = types["builtin_interfaces/msg/Time"]
         self._header = types["std_msgs/msg/Header"]
@@ -61,6 +82,11 @@ class MessageFactory:
             binning_y=0,
             roi=self._roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
         )
+
+    def camera_info_cdr(self, stamp_ns: int, frame_id: str, camera: CameraModel | None, width_px: int, height_px: int) -> bytes:
+        """`camera_info(...)` serialized and padded as DDS delivers it: the bytes both drivers publish or write."""
+        message = self.camera_info(stamp_ns, frame_id, camera, width_px, height_px)
+        return transport_padded(self._typestore.serialize_cdr(message, CAMERA_INFO_TYPE))
 
     def joint_state(self, stamp_ns: int, names: list[str], positions: list[float], frame_id: str = "") -> Any:
         empty = np.zeros(0, dtype=np.float64)

@@ -379,7 +379,7 @@ class _OutputTopics:
         for roi in result.rois:
             image_topic, info_topic = self.arm_topics[roi.arm_id]
             self._image(image_topic, stamp, frame_id, roi.image)
-            writer.write(info_topic, stamp, factory.camera_info(stamp, frame_id, roi.camera, out_w, out_h))
+            writer.write_cdr(info_topic, stamp, factory.camera_info_cdr(stamp, frame_id, roi.camera, out_w, out_h))
         if result.global_view is not None:
             self._image(self.global_topic, stamp, frame_id, result.global_view)
         writer.write(self.metadata_topic, stamp, factory.string(result.record_json))

@@ -3,12 +3,15 @@
 Incoming pixels go through core.image_codec (a zero-copy view of `msg.data`).
 Outgoing images are built through the message constructor from an
 `array('B')` filled with one copy: assigning an ndarray or memoryview to
-`Image.data` is copied element by element, orders of magnitude slower
-(shared/PERF_NOTES.md).
+`Image.data` is copied element by element, orders of magnitude slower.
+The ROI CameraInfo is published as the bytes replay writes
+(`camera_info_cdr`, serialized in bag/messages.py), so a recording of the
+live node and its replay hold the same bytes.
 """
 
 from __future__ import annotations
 
+import functools
 from array import array
 
 import numpy as np
@@ -16,6 +19,8 @@ from builtin_interfaces.msg import Time
 from sensor_msgs.msg import CameraInfo, Image, RegionOfInterest
 from std_msgs.msg import Header
 
+from ..bag.messages import MessageFactory
+from ..bag.writer import typestore
 from ..core.camera import CameraModel, camera_from_info, camera_info_fields
 from ..core.image_codec import output_pixels
 from ..core.stamps import ns_to_stamp, stamp_to_ns
@@ -69,6 +74,16 @@ def camera_info_msg(t_ns: int, frame_id: str, camera: CameraModel | None, width_
         binning_y=0,
         roi=RegionOfInterest(),
     )
+
+
+@functools.cache
+def _bag_messages() -> MessageFactory:
+    return MessageFactory(typestore())
+
+
+def camera_info_cdr(t_ns: int, frame_id: str, camera: CameraModel | None, width_px: int, height_px: int) -> bytes:
+    """An ROI's CameraInfo as the bytes to publish (`Publisher.publish(bytes)`): exactly what replay writes."""
+    return _bag_messages().camera_info_cdr(t_ns, frame_id, camera, width_px, height_px)
 
 
 def camera_from_msg(msg: CameraInfo, rectified: bool, where: str) -> CameraModel:

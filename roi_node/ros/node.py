@@ -61,7 +61,7 @@ from ..core.status_line import StatusWindow
 from ..core.stream_stats import StreamStats
 from ..process_memory import prefault_heap
 from .compressed import CompressedPublishers
-from .conversions import camera_from_msg, camera_info_msg, image_msg, stamp_ns
+from .conversions import camera_from_msg, camera_info_cdr, image_msg, stamp_ns
 from .diagnostics import StreamHealth, diagnostics_msg
 from .drain import draining_subscription
 from .frame_decoder import EncodedFrame, FrameDecoder
@@ -400,7 +400,8 @@ class StreamNode(Node):
         if self._compressed_pubs is not None:
             self._compressed_pubs.publish_rois(result, frame_id)
         for roi in result.rois:
-            self._roi_pubs[roi.arm_id][1].publish(camera_info_msg(result.stamp_ns, frame_id, roi.camera, out_w, out_h))
+            # the bytes replay writes (bag/messages.py): live and offline store the same CameraInfo
+            self._roi_pubs[roi.arm_id][1].publish(camera_info_cdr(result.stamp_ns, frame_id, roi.camera, out_w, out_h))
         self._metadata_pub.publish(String(data=result.record_json))
         if self._overlay_pub is not None:
             self._overlay_pub.publish(overlay_cdr(result.record, frame_id))  # CDR packed directly: core/overlay_cdr.py
