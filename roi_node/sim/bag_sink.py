@@ -1,6 +1,6 @@
 """Drain a SimRig into a rosbag2 MCAP bag: the input of offline replay, made from nothing.
 
-Topics are what a camera driver and a robot publish (DESIGN.md "Topics"):
+Topics are what a camera driver and a robot publish (docs/design.md "Topics"):
 `/image_raw` (sensor_msgs/Image rgb8) or `/image_raw/compressed` (png or
 jpeg), `/camera_info`, `/joint_states`. The bag's log time of every message
 is its header stamp, so replaying by log time or by header stamp agrees. The

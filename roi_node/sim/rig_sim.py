@@ -4,12 +4,14 @@ What a real rig delivers, with realistic timing: joint states faster than the
 camera and out of phase with it, each stamped at its measurement time with a
 small seeded jitter; for every frame a CameraInfo and an RGB image at the
 calibrated size, rendered from the robots' pose at capture time, whose header
-stamp is capture time + the camera delay (DESIGN.md: capture time =
-header.stamp - delay). Every image carries its ground truth (joint positions
+stamp is capture time + the camera delay (the pipeline's capture time is
+header.stamp - camera.delay_ms). Every image carries its ground truth (joint positions
 at capture, each gripper's drawn polygon and visibility).
 
-Pull-based: `events()` is a lazy iterator in stamp order, so a live publisher
-paces it with a wall clock and a bag writer drains it as fast as it renders.
+Pull-based: `events()` is a lazy iterator in stamp order, so a bag writer
+drains it as fast as it renders; `timeline()` is the same order with frame
+slots in place of rendered frames, so a live publisher paces it on a wall
+clock and renders only the frames it can still send in time.
 Everything is a function of (rig, seed, parameters): no clock, no global
 random state, the same events on every run.
 """
@@ -76,11 +78,24 @@ class ImageEvent:
     topic: ClassVar[str] = topics.IMAGE
 
 
+@dataclass(frozen=True)
+class FrameSlot:
+    """A frame's place on the timeline, not rendered yet: `SimRig.image_event(frame_index)` renders it.
+
+    A live publisher paces the timeline and renders (or takes a pre-rendered
+    frame) only for the slots it can still send in time.
+    """
+
+    stamp_ns: int  # header stamp of the frame's CameraInfo and Image
+    frame_index: int
+
+
 SimEvent = JointStateEvent | CameraInfoEvent | ImageEvent
-_RANK: dict[type, int] = {JointStateEvent: 0, CameraInfoEvent: 1, ImageEvent: 2}
+TimelineItem = JointStateEvent | FrameSlot
+_RANK: dict[type, int] = {JointStateEvent: 0, CameraInfoEvent: 1, FrameSlot: 1, ImageEvent: 2}
 
 
-def event_order(event: SimEvent) -> tuple[int, int]:
+def event_order(event: SimEvent | FrameSlot) -> tuple[int, int]:
     """Stamp order; at equal stamps joint states, then camera_info, then the image."""
     return event.stamp_ns, _RANK[type(event)]
 
@@ -206,10 +221,18 @@ class SimRig:
     def events(self, duration_s: float) -> Iterator[SimEvent]:
         """Every message of `duration_s` seconds of the rig, lazily, in stamp order.
 
+        The timeline with each frame slot rendered: its CameraInfo, then its
+        Image. Parameters are checked here, before the first event is pulled.
+        """
+        return self._rendered(self.timeline(duration_s))
+
+    def timeline(self, duration_s: float) -> Iterator[TimelineItem]:
+        """Joint states and frame slots of `duration_s` seconds, lazily, in stamp order; nothing is rendered.
+
         Frames are captured at start + k/rate for k = 1 .. floor(duration * rate);
         joint states run from start + phase until one joint period past the
         last capture, so every frame has a joint sample on both sides.
-        Parameters are checked here, before the first event is pulled.
+        Parameters are checked here, before the first item is pulled.
         """
         if not duration_s > 0:
             raise ConfigError(f"sim: duration must be > 0 s, got {duration_s}")
@@ -218,7 +241,14 @@ class SimRig:
         n_frames = self.frame_count(duration_s)
         last_capture = self.capture_ns(n_frames - 1) if n_frames else self.start_ns
         joints_until = max(last_capture, self.start_ns + round(duration_s * NS_PER_S)) + round(NS_PER_S / self.joint_rate_hz)
-        return heapq.merge(self._joint_events(joints_until), self._frame_events(n_frames), key=event_order)
+        slots = (FrameSlot(self.capture_ns(k) + self.delay_ns, k) for k in range(n_frames))
+        return heapq.merge(self._joint_events(joints_until), slots, key=event_order)
+
+    def image_event(self, frame_index: int) -> ImageEvent:
+        """Frame k rendered: the Image `events()` yields for its slot (header stamp = capture + camera delay)."""
+        capture = self.capture_ns(frame_index)
+        image, truth = self.render(capture, frame_index)
+        return ImageEvent(capture + self.delay_ns, capture, frame_index, self.frame_id, image, truth)
 
     def _joint_events(self, until_ns: int) -> Iterator[JointStateEvent]:
         j = 0
@@ -226,13 +256,13 @@ class SimRig:
             yield self.joint_state(self.joint_stamp_ns(j))
             j += 1
 
-    def _frame_events(self, n_frames: int) -> Iterator[CameraInfoEvent | ImageEvent]:
-        for k in range(n_frames):
-            capture = self.capture_ns(k)
-            stamp = capture + self.delay_ns
-            yield CameraInfoEvent(stamp, self.frame_id, self.camera)
-            image, truth = self.render(capture, k)
-            yield ImageEvent(stamp, capture, k, self.frame_id, image, truth)
+    def _rendered(self, timeline: Iterator[TimelineItem]) -> Iterator[SimEvent]:
+        for item in timeline:
+            if isinstance(item, FrameSlot):
+                yield CameraInfoEvent(item.stamp_ns, self.frame_id, self.camera)
+                yield self.image_event(item.frame_index)
+            else:
+                yield item
 
 
 def _unit_noise(seed: int, index: int) -> float:
