@@ -1,125 +1,210 @@
 """`roi-node sim ... live`: a simulated rig publishing like a camera driver and a robot.
 
-A real camera delivers a frame every period whatever the machine is doing;
-a renderer does not: on a busy machine it falls behind and then sends the
-late frames in a burst, which a real-time consumer rightly sheds (the ROI
-node drops the oldest pending frames). So the whole run is rendered before
-the clock starts when it fits in `PRERENDER_BYTES`; only longer runs render
-ahead in a thread into a bounded queue while publishing. The publishing loop
-sends each event when the wall clock reaches its stamp. Stamps are wall-clock
-times (the timeline starts at "now"), so latency downstream is measured
-against them. Publishers are reliable (best-effort subscribers receive them
-too); the loop starts once `min_subscribers` subscribers matched.
+A real camera delivers a frame every period whatever the machine is doing,
+stamped on the wall clock; when it cannot deliver a frame in time it drops
+it, it never falls behind its clock. The simulator does the same. Every
+message is sent when the monotonic clock reaches its absolute deadline
+(timeline zero + its stamp offset, never "a period after the last send"), and
+its stamp is the wall-clock time of that deadline. A frame is sent only if it
+is rendered by its slot and the publisher reached the slot before the next
+frame was due; otherwise it is dropped and counted, and the end summary says
+"sent N, dropped M late" with the reasons, so sent + dropped = planned.
+Joint states are small and always sent; the summary says how late the latest
+one went out.
+
+Frames come pre-rendered when the run fits in the render budget, else from a
+renderer thread working ahead (app/sim_frames.py, sim/render_budget.py).
+Publishers are reliable (best-effort subscribers receive them too); the clock
+starts once `min_subscribers` subscribers matched.
 """
 
 from __future__ import annotations
 
-import queue
-import threading
+import sys
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Generic, Protocol, TypeVar
 
-from ..sim.rig_sim import CameraInfoEvent, ImageEvent, JointStateEvent, SimEvent, SimRig
+import numpy as np
 
-LEAD_NS = 1_000_000_000  # the first stamp lies this far ahead of start: rendering gets a head start
-AHEAD_EVENTS = 256
-PRERENDER_BYTES = 2 << 30  # frames of a run rendered before it starts (20 s of 720p30 is 1.7 GB)
+from ..bag.progress import Progress
+from ..core.camera import CameraModel
+from ..core.sync import NS_PER_MS, NS_PER_S
+from ..sim.render_budget import DEFAULT_RENDER_BUDGET_MIB, RenderMode, plan_render
+from ..sim.rig_sim import FrameSlot, SimRig
+from .sim_clock import Clock, SystemClock
+from .sim_frames import FramesOnTheFly, FrameSource, PrerenderedFrames
+
+LEAD_NS = 1_000_000_000  # timeline zero lies this far after the start: an on-the-fly renderer gets a head start
+TAIL_S = 0.5  # after the last message, before the node closes: reliable subscribers fetch the tail
+INTERRUPTED_EXIT = 130  # as the CLI's for Ctrl-C; the summary still says what was sent
 
 
-if TYPE_CHECKING:
-    from ..ros.rig_publisher import RigPublisher
+ImageMessageT = TypeVar("ImageMessageT")
 
 
-class SimPublisher:
-    """Paces a SimRig's events on the wall clock and hands them to a RigPublisher."""
+class RigSink(Protocol[ImageMessageT]):
+    """What the simulator publishes to: ros/rig_publisher.py's RigPublisher on DDS.
 
-    def __init__(self, rig: RigPublisher, config: Path, *, seed: int, rate_hz: float, joint_rate_hz: float, min_subscribers: int) -> None:
-        self.rig = rig
-        self.min_subscribers = min_subscribers
-        # built before the clock starts (scene rendering takes ~1 s); `run` moves its timeline to "now"
-        self.sim = SimRig(config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz)
-        self.frames = 0
-        self.joint_states = 0
-        self.late_ms_max = 0.0
-        self.start_ns = 0  # the wall-clock time of the timeline's zero (stamps are offsets from it)
-        self._prerendered: list[SimEvent] | None = None
+    An image message is built ahead of its slot (`image_message`, on the
+    renderer's side) and only stamped and sent at its slot (`send_image`).
+    """
 
-    def prepare(self, duration_s: float) -> None:
-        """Render the whole run now if it fits in memory, so that publishing keeps real time on a busy machine."""
-        camera = self.sim.camera
-        frame_bytes = camera.width_px * camera.height_px * 3
-        if self.sim.frame_count(duration_s) * frame_bytes <= PRERENDER_BYTES:
-            self._prerendered = list(self.sim.events(duration_s))
+    def joint_state(self, stamp_ns: int, names: Sequence[str], positions: Sequence[float]) -> None: ...
 
-    def run(self, duration_s: float) -> None:
-        self.start_ns = time.time_ns() + LEAD_NS
-        start_mono_ns = time.monotonic_ns() + LEAD_NS
-        if self._prerendered is not None:
-            for rendered in self._prerendered:
-                self._publish_at(rendered, start_mono_ns)
-            return
-        sim = self.sim
-        ahead: queue.Queue[SimEvent | None] = queue.Queue(maxsize=AHEAD_EVENTS)
-        stop = threading.Event()
+    def camera_info(self, stamp_ns: int, frame_id: str, camera: CameraModel) -> None: ...
 
-        def render() -> None:
-            for event in sim.events(duration_s):
-                while not stop.is_set():
-                    try:
-                        ahead.put(event, timeout=0.1)
-                        break
-                    except queue.Full:
-                        continue
-                if stop.is_set():
-                    return
-            ahead.put(None)
+    def image_message(self, frame_id: str, pixels: np.ndarray) -> ImageMessageT: ...
 
-        renderer = threading.Thread(target=render, name="sim_render", daemon=True)
-        renderer.start()
+    def send_image(self, stamp_ns: int, message: ImageMessageT) -> None: ...
+
+
+class FrameDrop(StrEnum):
+    NOT_RENDERED = "not rendered by its slot"
+    PAST_DEADLINE = "reached after the next frame was due"
+
+
+@dataclass
+class SendTally:
+    """What a live run sent and dropped, and how late its latest sends were (against their stamps)."""
+
+    planned_frames: int
+    sent_frames: int = 0
+    not_rendered: int = 0
+    past_deadline: int = 0
+    joint_states: int = 0
+    frame_late_ms_max: float = 0.0
+    joint_late_ms_max: float = 0.0
+
+    @property
+    def dropped_frames(self) -> int:
+        return self.not_rendered + self.past_deadline
+
+    def count_drop(self, reason: FrameDrop) -> None:
+        if reason is FrameDrop.NOT_RENDERED:
+            self.not_rendered += 1
+        else:
+            self.past_deadline += 1
+
+    def summary(self, start_ns: int, *, interrupted: bool = False) -> str:
+        reached = "" if not interrupted else f", interrupted after {self.sent_frames + self.dropped_frames} slots"
+        return (
+            f"roi-node sim: sent {self.sent_frames}, dropped {self.dropped_frames} late of {self.planned_frames} frames "
+            f"({self.not_rendered} {FrameDrop.NOT_RENDERED}, {self.past_deadline} {FrameDrop.PAST_DEADLINE}){reached}; "
+            f"{self.joint_states} joint states; latest send {self.frame_late_ms_max:.1f} ms after its stamp (frames), "
+            f"{self.joint_late_ms_max:.1f} ms (joint states); timeline start {start_ns} ns"
+        )
+
+
+class SimPublisher(Generic[ImageMessageT]):
+    """Paces a SimRig's timeline on absolute deadlines and hands its messages to a RigSink."""
+
+    def __init__(
+        self,
+        sink: RigSink[ImageMessageT],
+        sim: SimRig,
+        duration_s: float,
+        *,
+        render_budget_mib: float = DEFAULT_RENDER_BUDGET_MIB,
+        clock: Clock | None = None,
+    ) -> None:
+        self.sink = sink
+        self.sim = sim
+        self._timeline = sim.timeline(duration_s)  # checks the parameters now, before anything is rendered
+        self.clock = clock or SystemClock()
+        self.plan = plan_render(sim.camera, sim.frame_count(duration_s), render_budget_mib)
+        self.tally = SendTally(self.plan.frames)
+        self.period_ns = round(NS_PER_S / sim.rate_hz)
+        self.start_ns = 0  # wall-clock time of the timeline's zero: a message's stamp is start_ns + its offset
+        self._start_monotonic_ns = 0
+        self._frames: FrameSource[ImageMessageT] | None = None
+
+    def prepare(self, progress: Progress) -> None:
+        """Pre-render the run now if the plan says so (before the clock starts); `progress` reports it."""
+        if self.plan.mode is RenderMode.PRERENDER:
+            self._frames = PrerenderedFrames(self._render_frame, self.plan.frames, progress)
+
+    def run(self) -> None:
+        """Start the clock now (+ LEAD_NS) and send the whole timeline; frames that miss their slot are dropped and counted."""
+        self._start_monotonic_ns = self.clock.monotonic_ns() + LEAD_NS
+        self.start_ns = self.clock.time_ns() + LEAD_NS
+        frames = self._frames
+        if frames is None:  # not pre-rendered: a renderer thread starts now, racing the slots
+            frames = FramesOnTheFly(self._render_frame, self.plan.frames, self.plan.frames_ahead, self._due_ns, self.clock)
         try:
-            while (event := ahead.get()) is not None:
-                self._publish_at(event, start_mono_ns)
+            for item in self._timeline:
+                due_ns = self._due_ns_of(item.stamp_ns)
+                self.clock.sleep_until(due_ns)
+                if isinstance(item, FrameSlot):
+                    self._send_frame(item, due_ns, frames)
+                else:
+                    self.tally.joint_late_ms_max = max(self.tally.joint_late_ms_max, self._late_ms(due_ns))
+                    self.sink.joint_state(self.start_ns + item.stamp_ns, item.names, item.positions)
+                    self.tally.joint_states += 1
         finally:
-            stop.set()
+            frames.close()
 
-    def _publish_at(self, event: SimEvent, start_mono_ns: int) -> None:
-        """Publish when the wall clock reaches the event's stamp (the SimRig timeline starts at 0)."""
-        due = start_mono_ns + event.stamp_ns
-        while (wait := due - time.monotonic_ns()) > 0:
-            time.sleep(min(wait / 1e9, 0.002))
-        self.late_ms_max = max(self.late_ms_max, -wait / 1e6)
-        stamp = self.start_ns + event.stamp_ns
-        if isinstance(event, JointStateEvent):
-            self.rig.joint_state(stamp, event.names, event.positions)
-            self.joint_states += 1
-        elif isinstance(event, CameraInfoEvent):
-            self.rig.camera_info(stamp, event.frame_id, event.camera)
-        elif isinstance(event, ImageEvent):
-            self.rig.image(stamp, event.frame_id, event.image)
-            self.frames += 1
+    def _render_frame(self, frame_index: int) -> ImageMessageT:
+        """Frame k rendered and made a message, ready to stamp and send."""
+        return self.sink.image_message(self.sim.frame_id, self.sim.image_event(frame_index).image)
+
+    def _send_frame(self, slot: FrameSlot, due_ns: int, frames: FrameSource[ImageMessageT]) -> None:
+        message = frames.take(slot.frame_index)
+        late_ns = self.clock.monotonic_ns() - due_ns
+        if message is None or late_ns > self.period_ns:
+            self.tally.count_drop(FrameDrop.NOT_RENDERED if message is None else FrameDrop.PAST_DEADLINE)
+            return
+        stamp_ns = self.start_ns + slot.stamp_ns
+        self.tally.frame_late_ms_max = max(self.tally.frame_late_ms_max, late_ns / NS_PER_MS)
+        self.sink.camera_info(stamp_ns, self.sim.frame_id, self.sim.camera)
+        self.sink.send_image(stamp_ns, message)
+        self.tally.sent_frames += 1
+
+    def _due_ns(self, frame_index: int) -> int:
+        """Monotonic deadline of frame k's slot (what an on-the-fly renderer races)."""
+        return self._due_ns_of(self.sim.capture_ns(frame_index) + self.sim.delay_ns)
+
+    def _due_ns_of(self, stamp_offset_ns: int) -> int:
+        return self._start_monotonic_ns + stamp_offset_ns - self.sim.start_ns
+
+    def _late_ms(self, due_ns: int) -> float:
+        return max(0, self.clock.monotonic_ns() - due_ns) / NS_PER_MS
 
 
 def run_live(
-    config: Path, *, duration_s: float, rate_hz: float, joint_rate_hz: float, seed: int, min_subscribers: int, ros_args: list[str]
+    config: Path,
+    *,
+    duration_s: float,
+    rate_hz: float,
+    joint_rate_hz: float,
+    seed: int,
+    min_subscribers: int,
+    ros_args: list[str],
+    camera_delay_ms: float | None = None,
+    render_budget_mib: float = DEFAULT_RENDER_BUDGET_MIB,
 ) -> int:
     from ..ros.rig_publisher import RigPublisher
     from ..ros.spin import ros_context
 
+    # built before the clock starts (the scene render takes a while); stamps are offsets from the timeline's zero
+    print(f"sim: building the simulated rig of {config} (robots, static scene, choreography)", file=sys.stderr, flush=True)
+    sim = SimRig(config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms)
     with ros_context(ros_args):
         rig = RigPublisher()
-        sim = SimPublisher(rig, config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, min_subscribers=min_subscribers)
+        publisher = SimPublisher(rig, sim, duration_s, render_budget_mib=render_budget_mib)
+        interrupted = False
         try:
-            sim.prepare(duration_s)
+            print(publisher.plan.describe(), file=sys.stderr, flush=True)
+            publisher.prepare(Progress("sim pre-rendering", publisher.plan.frames, enabled=True))
             rig.wait_for_subscribers(min_subscribers)
-            sim.run(duration_s)
-            time.sleep(0.5)  # reliable subscribers fetch the tail
+            publisher.run()
+            time.sleep(TAIL_S)
         except KeyboardInterrupt:
-            print("roi-node sim: interrupted")
+            interrupted = True
         finally:
             rig.close()
-    print(
-        f"roi-node sim: published {sim.frames} frames and {sim.joint_states} joint states; "
-        f"latest send {sim.late_ms_max:.1f} ms behind its stamp; timeline start {sim.start_ns} ns"
-    )
-    return 0
+    print(publisher.tally.summary(publisher.start_ns, interrupted=interrupted))
+    return INTERRUPTED_EXIT if interrupted else 0

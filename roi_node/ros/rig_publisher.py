@@ -2,7 +2,10 @@
 
 The rclpy half of the simulated rig (app/sim_publisher.py paces and renders;
 this only builds and sends messages). Publishers are reliable: best-effort
-subscribers receive them too.
+subscribers receive them too. An Image is built apart from sending it
+(`image_message`, then `send_image` with its stamp): converting a large frame
+into a message costs more than sending it, so the simulator does it ahead of
+the frame's slot, off the path that keeps time.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 from ..core import topics
 from ..core.camera import CameraModel
 from ..core.errors import RoiNodeError
-from .conversions import camera_info_msg, header, image_msg
+from .conversions import camera_info_msg, header, image_msg, time_msg
 
 DISCOVERY_TIMEOUT_S = 30.0
 
@@ -50,8 +53,13 @@ class RigPublisher:
     def camera_info(self, stamp_ns: int, frame_id: str, camera: CameraModel) -> None:
         self.info_pub.publish(camera_info_msg(stamp_ns, frame_id, camera, camera.width_px, camera.height_px))
 
-    def image(self, stamp_ns: int, frame_id: str, pixels: np.ndarray) -> None:
-        self.image_pub.publish(image_msg(stamp_ns, frame_id, pixels))
+    def image_message(self, frame_id: str, pixels: np.ndarray) -> Image:
+        """The Image of `pixels` (rgb8), stamped when sent."""
+        return image_msg(0, frame_id, pixels)
+
+    def send_image(self, stamp_ns: int, message: Image) -> None:
+        message.header.stamp = time_msg(stamp_ns)
+        self.image_pub.publish(message)
 
     def close(self) -> None:
         self.node.destroy_node()

@@ -1,0 +1,121 @@
+"""Where a live simulated camera's frames come from: rendered before the clock starts, or on the fly ahead of it.
+
+Both get frame k from the same `render_frame(k)` (the SimRig's render of
+frame k, made ready to send), so a run shows the same frames either way; they
+differ in when frames are rendered and how many are held
+(sim/render_budget.py chooses). The publisher takes frame k when its slot
+comes; a frame that is not rendered by then is dropped, as a camera drops a
+frame it cannot deliver, instead of being sent late.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import Generic, Protocol, TypeVar
+
+from ..bag.progress import Progress
+from .sim_clock import Clock
+
+FrameT = TypeVar("FrameT")
+FrameT_co = TypeVar("FrameT_co", covariant=True)
+
+
+class FrameSource(Protocol[FrameT_co]):
+    def take(self, frame_index: int) -> FrameT_co | None:
+        """Frame k if it is rendered now, else None (the frame misses its slot); frames are taken in increasing order."""
+
+    def close(self) -> None: ...
+
+
+class PrerenderedFrames(Generic[FrameT]):
+    """Every frame of the run, rendered up front; a taken frame is released, so memory falls as the run goes."""
+
+    def __init__(self, render_frame: Callable[[int], FrameT], frames: int, progress: Progress) -> None:
+        self._frames: list[FrameT | None] = []
+        for k in range(frames):
+            self._frames.append(render_frame(k))
+            progress.update(k + 1)
+        progress.finish()
+
+    def take(self, frame_index: int) -> FrameT | None:
+        frame, self._frames[frame_index] = self._frames[frame_index], None
+        return frame
+
+    def close(self) -> None:
+        self._frames.clear()
+
+
+class FramesOnTheFly(Generic[FrameT]):
+    """A renderer thread working ahead of the clock, holding at most `frames_ahead` rendered frames.
+
+    Like a camera that cannot keep up, it skips a frame it would finish after
+    the frame's slot (judged by how long its last render took) rather than
+    render it late and fall behind the clock. A render failure is raised by
+    the next `take`, on the publisher's thread: the run never goes on without
+    its renderer.
+    """
+
+    def __init__(
+        self, render_frame: Callable[[int], FrameT], frames: int, frames_ahead: int, due_monotonic_ns: Callable[[int], int], clock: Clock
+    ) -> None:
+        self._render_frame = render_frame
+        self._frames = frames
+        self._frames_ahead = frames_ahead
+        self._due_monotonic_ns = due_monotonic_ns
+        self._clock = clock
+        self._changed = threading.Condition()
+        self._ready: dict[int, FrameT] = {}
+        self._next_index = 0  # the frame the renderer works on or considers next; those below are rendered or skipped
+        self._failure: BaseException | None = None
+        self._stopping = False
+        self._thread = threading.Thread(target=self._render_all, name="sim_render", daemon=True)
+        self._thread.start()
+
+    def take(self, frame_index: int, timeout_s: float = 0.0) -> FrameT | None:
+        """Frame k if rendered (waiting up to `timeout_s` while the renderer has not passed it); older frames are discarded."""
+        with self._changed:
+            self._changed.wait_for(
+                lambda: frame_index in self._ready or self._next_index > frame_index or self._failure is not None, timeout_s
+            )
+            if self._failure is not None:
+                raise self._failure
+            for missed in [k for k in self._ready if k < frame_index]:
+                del self._ready[missed]
+            frame = self._ready.pop(frame_index, None)
+            self._changed.notify_all()
+            return frame
+
+    def close(self) -> None:
+        with self._changed:
+            self._stopping = True
+            self._ready.clear()
+            self._changed.notify_all()
+        self._thread.join()
+
+    def _render_all(self) -> None:
+        last_render_ns = 0
+        try:
+            while (frame_index := self._next_to_render(last_render_ns)) is not None:
+                started_ns = self._clock.monotonic_ns()
+                frame = self._render_frame(frame_index)
+                last_render_ns = self._clock.monotonic_ns() - started_ns
+                with self._changed:
+                    self._ready[frame_index] = frame
+                    self._next_index = frame_index + 1
+                    self._changed.notify_all()
+        except BaseException as exc:  # handed to the publisher's thread by take()
+            with self._changed:
+                self._failure = exc
+                self._changed.notify_all()
+
+    def _next_to_render(self, last_render_ns: int) -> int | None:
+        """Once there is room: the first frame a render as long as the last one still finishes before its slot."""
+        with self._changed:
+            self._changed.wait_for(lambda: len(self._ready) < self._frames_ahead or self._stopping)
+            k = self._next_index
+            while k < self._frames and self._clock.monotonic_ns() + last_render_ns > self._due_monotonic_ns(k):
+                k += 1
+            self._next_index = k
+            self._changed.notify_all()
+            return None if self._stopping or k >= self._frames else k
