@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from collections.abc import Callable
 
 
@@ -16,4 +17,17 @@ def int_at_least(minimum: int) -> Callable[[str], int]:
         return value
 
     parse.__name__ = "int"  # argparse names the type in "invalid int value: 'x'"
+    return parse
+
+
+def float_at_least(minimum: float) -> Callable[[str], float]:
+    """A finite number of at least `minimum` (0 for delays and budgets)."""
+
+    def parse(text: str) -> float:
+        value = float(text)
+        if not (math.isfinite(value) and value >= minimum):
+            raise argparse.ArgumentTypeError(f"must be a finite number of at least {minimum:g}, got {text}")
+        return value
+
+    parse.__name__ = "float"  # argparse names the type in "invalid float value: 'x'"
     return parse

@@ -6,8 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..arg_types import int_at_least
+from ..arg_types import float_at_least, int_at_least
 from ..core.errors import UsageError
+from ..sim.render_budget import DEFAULT_RENDER_BUDGET_MIB
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -25,19 +26,23 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     if args.bag:
         if args.target == "live":
             raise UsageError("sim: choose --bag OUT or live, not both")
+        if args.render_budget_mb is not None:
+            raise UsageError("sim: --render-budget-mb applies to live runs; --bag renders one frame at a time")
         from ..sim.bag_sink import write_sim_bag
 
         summary = write_sim_bag(
             config, Path(args.bag), duration_s=args.duration, rate_hz=args.rate_hz, joint_rate_hz=args.joint_rate_hz,
             seed=args.seed, overwrite=args.overwrite, compressed=args.compressed or False, chunk_compression=args.compression,
-            progress=True,
+            camera_delay_ms=args.camera_delay_ms, progress=True,
         )
         print(f"roi-node sim: wrote {summary.path}: {summary.frames} frames on {summary.image_topic}, {summary.joint_states} joint states")
         return 0
     from .sim_publisher import run_live
 
+    budget = DEFAULT_RENDER_BUDGET_MIB if args.render_budget_mb is None else args.render_budget_mb
     return run_live(config, duration_s=args.duration, rate_hz=args.rate_hz, joint_rate_hz=args.joint_rate_hz, seed=args.seed,
-                    min_subscribers=args.min_subscribers, ros_args=args.ros_args)
+                    min_subscribers=args.min_subscribers, ros_args=args.ros_args, camera_delay_ms=args.camera_delay_ms,
+                    render_budget_mib=budget)
 
 
 def _cmd_stress(args: argparse.Namespace) -> int:
@@ -87,6 +92,12 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     sim.add_argument("--joint-rate-hz", type=float, default=200.0, help="joint state rate (default: 200)")
     sim.add_argument("--seed", type=int_at_least(0), default=0, help="trajectory and scene seed (default: 0)")
     sim.add_argument("--min-subscribers", type=int, default=1, help="live: wait for this many subscribers first (default: 1)")
+    sim.add_argument("--camera-delay-ms", type=float_at_least(0.0), metavar="MS",
+                     help="simulated camera delay: each image's header stamp is its capture time + MS, as a driver that "
+                     "stamps on arrival does (default: the rig's camera.delay_ms, which the node uses to recover capture time)")
+    sim.add_argument("--render-budget-mb", type=float_at_least(0.0), metavar="MIB",
+                     help="live: memory for rendered frames, in MiB; a run whose frames fit is rendered before the clock "
+                     f"starts, a longer or larger one on the fly, at most this much ahead (default: {DEFAULT_RENDER_BUDGET_MIB:g})")
     sim.set_defaults(func=_cmd_sim)
 
     demo = verbs.add_parser(
