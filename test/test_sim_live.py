@@ -31,7 +31,7 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 
 from roi_node.app.sim_clock import SystemClock
 from roi_node.app.sim_frames import FramesOnTheFly, PrerenderedFrames
-from roi_node.app.sim_publisher import FrameDrop, SimPublisher
+from roi_node.app.sim_publisher import FrameDrop, LateFrames, SimPublisher
 from roi_node.bag.progress import Progress
 from roi_node.bag.writer import typestore
 from roi_node.cli import main
@@ -52,7 +52,7 @@ SEED = 5
 SUMMARY = re.compile(
     r"^roi-node sim: sent (?P<sent>\d+), dropped (?P<dropped>\d+) late of (?P<planned>\d+) frames "
     rf"\((?P<unrendered>\d+) {FrameDrop.NOT_RENDERED}, (?P<late>\d+) {FrameDrop.PAST_DEADLINE}\); "
-    r"(?P<joints>\d+) joint states; .* timeline start (?P<start>\d+) ns$"
+    r"(?P<sent_late>\d+) sent over a period late; (?P<joints>\d+) joint states; .* timeline start (?P<start>\d+) ns$"
 )
 
 
@@ -186,7 +186,22 @@ def test_a_publisher_that_falls_behind_drops_frames_and_keeps_its_clock(small_si
     expected_joints = [start_ns + e.stamp_ns for e in small_sim.timeline(0.8) if isinstance(e, JointStateEvent)]
     assert sink.joint_stamps == expected_joints  # joint states are never dropped
     summary = tally.summary(start_ns)
-    assert "sent 5, dropped 3 late of 8 frames (0 not rendered by its slot, 3 reached after the next frame was due)" in summary
+    assert "sent 5, dropped 3 late of 8 frames (0 not rendered by its slot, 3 reached after the next frame was due); " \
+        "0 sent over a period late" in summary
+
+
+def test_late_frames_send_sends_every_frame_and_reports_how_far_behind(small_sim: SimRig) -> None:
+    clock = ManualClock()
+    sink = SlowSink(clock, image_cost_ns=PERIOD_NS * 18 // 10)
+    publisher = SimPublisher(sink, small_sim, 0.8, late_frames=LateFrames.SEND, clock=clock)
+    publisher.prepare(Progress("test", 8, enabled=False))
+    publisher.run()
+    # each send pushes the next 0.8 periods later: frame k goes out 0.8 k periods after its stamp
+    tally = publisher.tally
+    assert (tally.sent_frames, tally.dropped_frames, tally.sent_over_a_period_late) == (8, 0, 6)  # k = 2 .. 7
+    assert tally.frame_late_ms_max == pytest.approx(7 * 0.8 * PERIOD_NS / NS_PER_MS)
+    delay_ns = round(DELAY_MS * NS_PER_MS)
+    assert sink.image_stamps == [publisher.start_ns + (k + 1) * PERIOD_NS + delay_ns for k in range(8)]  # stamps stay on the clock
 
 
 # --- the flags ---------------------------------------------------------------------------------
@@ -230,7 +245,8 @@ def test_sim_flags_refuse_bad_values_in_one_line(small_rig: Path, tmp_path: Path
         "error: argument --camera-delay-ms: must be a finite number of at least 0, got -5")
     assert main(["sim", "--config", str(small_rig), "--bag", str(tmp_path / "b"), "--render-budget-mb", "10"]) == 2
     err = capsys.readouterr().err
-    assert err == "roi-node sim: error: sim: --render-budget-mb applies to live runs; --bag renders one frame at a time\n"
+    assert err == ("roi-node sim: error: sim: --render-budget-mb and --late-frames apply to live runs; "
+                   "--bag writes every frame, one at a time\n")
     assert not (tmp_path / "b").exists()
 
 
@@ -299,7 +315,7 @@ def test_live_sim_sends_its_frames_on_the_wall_clock_and_accounts_for_every_one(
         assert summary is not None, sim.stdout
         counts = {k: int(v) for k, v in summary.groupdict().items()}
         assert counts["planned"] == 10 and counts["sent"] + counts["dropped"] == 10
-        assert counts["dropped"] == counts["unrendered"] + counts["late"]
+        assert counts["dropped"] == counts["unrendered"] + counts["late"] and counts["sent_late"] == 0
         assert listener.wait_for(counts["sent"], counts["joints"], 30.0), (len(listener.images), len(listener.joints), sim.stdout)
     finally:
         listener.close()

@@ -22,8 +22,8 @@ FrameT_co = TypeVar("FrameT_co", covariant=True)
 
 
 class FrameSource(Protocol[FrameT_co]):
-    def take(self, frame_index: int) -> FrameT_co | None:
-        """Frame k if it is rendered now, else None (the frame misses its slot); frames are taken in increasing order."""
+    def take(self, frame_index: int, timeout_s: float | None = 0.0) -> FrameT_co | None:
+        """Frame k if rendered within `timeout_s` (None: however long it takes), else None; taken in increasing order."""
 
     def close(self) -> None: ...
 
@@ -38,7 +38,7 @@ class PrerenderedFrames(Generic[FrameT]):
             progress.update(k + 1)
         progress.finish()
 
-    def take(self, frame_index: int) -> FrameT | None:
+    def take(self, frame_index: int, timeout_s: float | None = 0.0) -> FrameT | None:
         frame, self._frames[frame_index] = self._frames[frame_index], None
         return frame
 
@@ -51,13 +51,19 @@ class FramesOnTheFly(Generic[FrameT]):
 
     Like a camera that cannot keep up, it skips a frame it would finish after
     the frame's slot (judged by how long its last render took) rather than
-    render it late and fall behind the clock. A render failure is raised by
+    render it late and fall behind the clock; without `due_monotonic_ns` it
+    renders every frame, however late. A render failure is raised by
     the next `take`, on the publisher's thread: the run never goes on without
     its renderer.
     """
 
     def __init__(
-        self, render_frame: Callable[[int], FrameT], frames: int, frames_ahead: int, due_monotonic_ns: Callable[[int], int], clock: Clock
+        self,
+        render_frame: Callable[[int], FrameT],
+        frames: int,
+        frames_ahead: int,
+        due_monotonic_ns: Callable[[int], int] | None,
+        clock: Clock,
     ) -> None:
         self._render_frame = render_frame
         self._frames = frames
@@ -72,7 +78,7 @@ class FramesOnTheFly(Generic[FrameT]):
         self._thread = threading.Thread(target=self._render_all, name="sim_render", daemon=True)
         self._thread.start()
 
-    def take(self, frame_index: int, timeout_s: float = 0.0) -> FrameT | None:
+    def take(self, frame_index: int, timeout_s: float | None = 0.0) -> FrameT | None:
         """Frame k if rendered (waiting up to `timeout_s` while the renderer has not passed it); older frames are discarded."""
         with self._changed:
             self._changed.wait_for(
@@ -114,7 +120,8 @@ class FramesOnTheFly(Generic[FrameT]):
         with self._changed:
             self._changed.wait_for(lambda: len(self._ready) < self._frames_ahead or self._stopping)
             k = self._next_index
-            while k < self._frames and self._clock.monotonic_ns() + last_render_ns > self._due_monotonic_ns(k):
+            due = self._due_monotonic_ns
+            while due is not None and k < self._frames and self._clock.monotonic_ns() + last_render_ns > due(k):
                 k += 1
             self._next_index = k
             self._changed.notify_all()

@@ -10,7 +10,10 @@ is rendered by its slot and the publisher reached the slot before the next
 frame was due; otherwise it is dropped and counted, and the end summary says
 "sent N, dropped M late" with the reasons, so sent + dropped = planned.
 Joint states are small and always sent; the summary says how late the latest
-one went out.
+one went out. `LateFrames.SEND` (`--late-frames send`) is for a consumer that
+needs every frame more than a camera's timing: every frame is rendered and
+sent however late, and the summary counts those sent over a period late and
+says how far behind the latest one went out.
 
 Frames come pre-rendered when the run fits in the render budget, else from a
 renderer thread working ahead (app/sim_frames.py, sim/render_budget.py).
@@ -62,6 +65,11 @@ class RigSink(Protocol[ImageMessageT]):
     def send_image(self, stamp_ns: int, message: ImageMessageT) -> None: ...
 
 
+class LateFrames(StrEnum):
+    DROP = "drop"  # a camera's behaviour: a frame that cannot go out before the next one is due is dropped
+    SEND = "send"  # every frame goes out, late ones counted and their lateness reported
+
+
 class FrameDrop(StrEnum):
     NOT_RENDERED = "not rendered by its slot"
     PAST_DEADLINE = "reached after the next frame was due"
@@ -75,6 +83,7 @@ class SendTally:
     sent_frames: int = 0
     not_rendered: int = 0
     past_deadline: int = 0
+    sent_over_a_period_late: int = 0
     joint_states: int = 0
     frame_late_ms_max: float = 0.0
     joint_late_ms_max: float = 0.0
@@ -94,7 +103,8 @@ class SendTally:
         return (
             f"roi-node sim: sent {self.sent_frames}, dropped {self.dropped_frames} late of {self.planned_frames} frames "
             f"({self.not_rendered} {FrameDrop.NOT_RENDERED}, {self.past_deadline} {FrameDrop.PAST_DEADLINE}){reached}; "
-            f"{self.joint_states} joint states; latest send {self.frame_late_ms_max:.1f} ms after its stamp (frames), "
+            f"{self.sent_over_a_period_late} sent over a period late; {self.joint_states} joint states; "
+            f"latest send {self.frame_late_ms_max:.1f} ms after its stamp (frames), "
             f"{self.joint_late_ms_max:.1f} ms (joint states); timeline start {start_ns} ns"
         )
 
@@ -109,9 +119,11 @@ class SimPublisher(Generic[ImageMessageT]):
         duration_s: float,
         *,
         render_budget_mib: float = DEFAULT_RENDER_BUDGET_MIB,
+        late_frames: LateFrames = LateFrames.DROP,
         clock: Clock | None = None,
     ) -> None:
         self.sink = sink
+        self.late_frames = late_frames
         self.sim = sim
         self._timeline = sim.timeline(duration_s)  # checks the parameters now, before anything is rendered
         self.clock = clock or SystemClock()
@@ -133,7 +145,8 @@ class SimPublisher(Generic[ImageMessageT]):
         self.start_ns = self.clock.time_ns() + LEAD_NS
         frames = self._frames
         if frames is None:  # not pre-rendered: a renderer thread starts now, racing the slots
-            frames = FramesOnTheFly(self._render_frame, self.plan.frames, self.plan.frames_ahead, self._due_ns, self.clock)
+            due = self._due_ns if self.late_frames is LateFrames.DROP else None  # SEND: render every frame
+            frames = FramesOnTheFly(self._render_frame, self.plan.frames, self.plan.frames_ahead, due, self.clock)
         try:
             for item in self._timeline:
                 due_ns = self._due_ns_of(item.stamp_ns)
@@ -152,11 +165,14 @@ class SimPublisher(Generic[ImageMessageT]):
         return self.sink.image_message(self.sim.frame_id, self.sim.image_event(frame_index).image)
 
     def _send_frame(self, slot: FrameSlot, due_ns: int, frames: FrameSource[ImageMessageT]) -> None:
-        message = frames.take(slot.frame_index)
+        dropping = self.late_frames is LateFrames.DROP
+        message = frames.take(slot.frame_index, 0.0 if dropping else None)
         late_ns = self.clock.monotonic_ns() - due_ns
-        if message is None or late_ns > self.period_ns:
+        if message is None or (dropping and late_ns > self.period_ns):
             self.tally.count_drop(FrameDrop.NOT_RENDERED if message is None else FrameDrop.PAST_DEADLINE)
             return
+        if late_ns > self.period_ns:
+            self.tally.sent_over_a_period_late += 1
         stamp_ns = self.start_ns + slot.stamp_ns
         self.tally.frame_late_ms_max = max(self.tally.frame_late_ms_max, late_ns / NS_PER_MS)
         self.sink.camera_info(stamp_ns, self.sim.frame_id, self.sim.camera)
@@ -185,6 +201,7 @@ def run_live(
     ros_args: list[str],
     camera_delay_ms: float | None = None,
     render_budget_mib: float = DEFAULT_RENDER_BUDGET_MIB,
+    late_frames: LateFrames = LateFrames.DROP,
 ) -> int:
     from ..ros.rig_publisher import RigPublisher
     from ..ros.spin import ros_context
@@ -194,7 +211,7 @@ def run_live(
     sim = SimRig(config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms)
     with ros_context(ros_args):
         rig = RigPublisher()
-        publisher = SimPublisher(rig, sim, duration_s, render_budget_mib=render_budget_mib)
+        publisher = SimPublisher(rig, sim, duration_s, render_budget_mib=render_budget_mib, late_frames=late_frames)
         interrupted = False
         try:
             print(publisher.plan.describe(), file=sys.stderr, flush=True)

@@ -26,8 +26,8 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     if args.bag:
         if args.target == "live":
             raise UsageError("sim: choose --bag OUT or live, not both")
-        if args.render_budget_mb is not None:
-            raise UsageError("sim: --render-budget-mb applies to live runs; --bag renders one frame at a time")
+        if args.render_budget_mb is not None or args.late_frames != "drop":
+            raise UsageError("sim: --render-budget-mb and --late-frames apply to live runs; --bag writes every frame, one at a time")
         from ..sim.bag_sink import write_sim_bag
 
         summary = write_sim_bag(
@@ -37,12 +37,12 @@ def _cmd_sim(args: argparse.Namespace) -> int:
         )
         print(f"roi-node sim: wrote {summary.path}: {summary.frames} frames on {summary.image_topic}, {summary.joint_states} joint states")
         return 0
-    from .sim_publisher import run_live
+    from .sim_publisher import LateFrames, run_live
 
     budget = DEFAULT_RENDER_BUDGET_MIB if args.render_budget_mb is None else args.render_budget_mb
     return run_live(config, duration_s=args.duration, rate_hz=args.rate_hz, joint_rate_hz=args.joint_rate_hz, seed=args.seed,
                     min_subscribers=args.min_subscribers, ros_args=args.ros_args, camera_delay_ms=args.camera_delay_ms,
-                    render_budget_mib=budget)
+                    render_budget_mib=budget, late_frames=LateFrames(args.late_frames))
 
 
 def _cmd_stress(args: argparse.Namespace) -> int:
@@ -78,7 +78,9 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="a simulated rig: rendered camera + joint states, live on DDS or into a bag",
         description="Simulate the rig of a rig config: its robots follow a seeded trajectory, a camera with the rig's "
         "calibration renders them, and images, camera info and joint states are published live on DDS (the default) or "
-        "written into a rosbag2 MCAP bag with --bag, whose parent folders are created.",
+        "written into a rosbag2 MCAP bag with --bag, whose parent folders are created. Live, the camera keeps the wall "
+        "clock as a real one does: a frame that cannot go out before the next one is due is dropped, and the last line "
+        "says how many were sent and dropped.",
     )
     sim.add_argument("target", nargs="?", choices=["live"], help="publish live (the default without --bag)")
     sim.add_argument("--config", help="rig config (default: the bundled demo_bimanual rig)")
@@ -98,6 +100,10 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     sim.add_argument("--render-budget-mb", type=float_at_least(0.0), metavar="MIB",
                      help="live: memory for rendered frames, in MiB; a run whose frames fit is rendered before the clock "
                      f"starts, a longer or larger one on the fly, at most this much ahead (default: {DEFAULT_RENDER_BUDGET_MIB:g})")
+    sim.add_argument("--late-frames", choices=("drop", "send"), default="drop",
+                     help="live: a frame that cannot go out before the next one is due is dropped and counted, as a camera "
+                     "does (drop, the default), or sent however late, the lateness reported (send: for a consumer that needs "
+                     "every frame)")
     sim.set_defaults(func=_cmd_sim)
 
     demo = verbs.add_parser(
