@@ -95,7 +95,8 @@ def test_live_records_carry_the_baxter_fingers(tmp_path: Path) -> None:
         with process(node_args(config), env, tmp_path / "node.log"):
             collector.wait_for_node()
             sim = subprocess.run(
-                [sys.executable, "-m", "roi_node.cli", "sim", "--config", str(config), "--duration", "1.0", "--seed", "3"],
+                [sys.executable, "-m", "roi_node.cli", "sim", "--config", str(config), "--duration", "1.0", "--seed", "3",
+                 "--late-frames", "send"],  # it counts frames: a busy machine must not drop one
                 cwd=REPO, env=env, capture_output=True, text=True, timeout=120,
             )
             assert sim.returncode == 0, sim.stderr

@@ -127,7 +127,7 @@ def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed
                              logs / "record.log")
         _wait_for_recorder(watch, record_topics, procs)
         sim_args = _cli("sim", "live", "--config", str(config), "--duration", str(duration_s), "--rate-hz", str(rate_hz),
-                        "--seed", str(seed), "--min-subscribers", "2")
+                        "--seed", str(seed), "--min-subscribers", "2", "--late-frames", "send")  # a recording run wants every frame
         sim = _start(sim_args, env, logs / "sim.log")
         expected = int(duration_s * rate_hz)
         while sim.poll() is None:
