@@ -25,12 +25,14 @@ class StatusWindow:
         self._frames_in = stats.frames_in
         self._frames_out = stats.frames_out
         self._drops = Counter(stats.drops)
+        self._lost = stats.lost_before_node
         self._errors = sum(stats.errors.values())
         self._process_ms = stats.process_ms_total
         self._residuals = len(stats.residuals_ms)
 
     def line(self, stats: StreamStats, now_ns: int, pending: int) -> str:
-        """e.g. `frames in 300 (30.0 Hz), out 298 (29.8 Hz); dropped 2 (overflow 2); ...`; starts the next window."""
+        """e.g. `frames in 300 (30.0 Hz), out 298 (29.8 Hz); dropped 2 (overflow 2); lost before the node (transport) 3;
+        ...`; starts the next window."""
         span_s = max(1e-9, (now_ns - self._start_ns) / NS_PER_S)
         frames_in = stats.frames_in - self._frames_in
         frames_out = stats.frames_out - self._frames_out
@@ -38,11 +40,13 @@ class StatusWindow:
         drops.subtract(self._drops)
         dropped = {reason: n for reason, n in sorted(drops.items()) if n > 0}
         errors = sum(stats.errors.values()) - self._errors
+        lost = max(0, stats.lost_before_node - self._lost)  # an estimate: a late frame may revise it down
         process_ms = (stats.process_ms_total - self._process_ms) / frames_out if frames_out else None
         residuals = stats.residuals_ms[self._residuals:]
         parts = [
             f"frames in {frames_in} ({frames_in / span_s:.1f} Hz), out {frames_out} ({frames_out / span_s:.1f} Hz)",
             f"dropped {sum(dropped.values())}" + (f" ({', '.join(f'{k} {v}' for k, v in dropped.items())})" if dropped else ""),
+            f"lost before the node (transport) {lost}",
             f"processing errors {errors}",
             "processing " + ("-" if process_ms is None else f"{process_ms:.1f} ms mean"),
             "sync residual "

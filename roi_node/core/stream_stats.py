@@ -3,7 +3,10 @@
 Pure bookkeeping (no rclpy): counts since start and over the last window
 (live diagnostics), rates, sync residuals, per-arm validity, in-frame ratios
 and flags, processing errors by exception type, and every drop or bad message
-by reason, so nothing a driver discards goes unreported.
+by reason, so nothing a driver discards goes unreported. Frames that never
+reached the driver are estimated from the gaps in the stamps of those that
+did (core/frame_loss.py), fed by `frame_arrived`, and kept apart from the
+driver's own drops.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from .frame_loss import FrameLossEstimator
 from .records import FrameRecord
 from .stamps import NS_PER_S
 from .sync import STATUS_ORDER
@@ -31,6 +35,7 @@ class _Window:
     in_frame_sum: dict[str, float] = field(default_factory=dict)
     arm_frames: Counter[str] = field(default_factory=Counter)
     errors: Counter[str] = field(default_factory=Counter)
+    drops: Counter[str] = field(default_factory=Counter)
 
 
 class StreamStats:
@@ -52,7 +57,9 @@ class StreamStats:
         self.arm_frames: Counter[str] = Counter()
         self._window = _Window()
         self._window_start_ns = start_ns
+        self._drop_streaks: Counter[str] = Counter()  # by reason: consecutive windows, up to the last, with such drops
         self._recent_latency: deque[float] = deque(maxlen=1000)
+        self._arrivals = FrameLossEstimator()
 
     @property
     def frames_in(self) -> int:
@@ -70,8 +77,18 @@ class StreamStats:
         self.totals["joint_msgs_in"] += 1
         self._window.joint_msgs_in += 1
 
+    @property
+    def lost_before_node(self) -> int:
+        """Frames estimated lost before they reached the driver (gaps in the stamps of the frames that did)."""
+        return self._arrivals.lost
+
+    def frame_arrived(self, stamp_ns: int) -> None:
+        """A frame reached the driver (in arrival order, whatever becomes of it): its stamp, for `lost_before_node`."""
+        self._arrivals.frame(stamp_ns)
+
     def drop(self, reason: str, count: int = 1) -> None:
         self.drops[reason] += count
+        self._window.drops[reason] += count
 
     def bad_message(self, kind: str, error: str) -> None:
         self.bad[kind] += 1
@@ -121,6 +138,7 @@ class StreamStats:
 
         return (
             f"frames in {self.frames_in}, out {self.frames_out}; dropped: {counts(self.drops)}; "
+            f"lost before the node (transport): {self.lost_before_node}; "
             f"bad messages: {counts(self.bad)}; processing errors: {counts(self.errors)}; "
             f"sync: {counts(self.status)}"
         )
@@ -144,6 +162,8 @@ class StreamStats:
         """Everything for one diagnostics message; starts a new window."""
         w = self._window
         span_s = max(1e-9, (now_ns - self._window_start_ns) / NS_PER_S)
+        for reason in set(self._drop_streaks) | set(w.drops):
+            self._drop_streaks[reason] = self._drop_streaks[reason] + 1 if w.drops[reason] else 0
         snap: dict[str, Any] = {
             "window_s": span_s,
             "frame_rate_in_hz": w.frames_in / span_s,
@@ -151,6 +171,9 @@ class StreamStats:
             "frame_rate_out_hz": w.frames_out / span_s,
             "totals": dict(self.totals),
             "drops": dict(self.drops),
+            "drops_window": dict(w.drops),
+            "drop_streaks": {reason: n for reason, n in self._drop_streaks.items() if n},
+            "lost_before_node": self.lost_before_node,
             "bad_messages": dict(self.bad),
             "processing_errors": dict(self.errors),
             "processing_errors_window": dict(w.errors),

@@ -2,10 +2,13 @@
 
 One status per concern so a rig's diagnostic aggregator can route them:
 input, processing, sync, one per arm, lineage. Levels: WARN when frames were
-dropped, messages were bad or frames were flagged; ERROR when the camera or a
-joint stream has been silent longer than `silence_timeout_s`, when frames
-arrive but nothing can be published (no joint states, no intrinsics, no
-URDF), and when processing raised in the last window.
+dropped, messages were bad, frames were lost before the node (transport) or
+frames were flagged; ERROR when the camera or a joint stream has been silent
+longer than `silence_timeout_s`, when frames arrive but nothing can be
+published (no joint states, no intrinsics, no URDF), when the decoder cannot
+keep up (frames dropped undecoded, `decode_overflow`, in
+`SUSTAINED_OVERFLOW_WINDOWS` windows in a row: a burst is a WARN), and when
+processing raised in the last window.
 """
 
 from __future__ import annotations
@@ -20,6 +23,8 @@ from ..core.metadata import Lineage
 from .conversions import header
 
 HARDWARE_ID = "roi_node"
+DECODE_OVERFLOW = "decode_overflow"  # the drop reason of a frame the decoder thread never got to
+SUSTAINED_OVERFLOW_WINDOWS = 2
 
 
 def _kv(key: str, value: object) -> KeyValue:
@@ -69,15 +74,22 @@ def diagnostics_msg(
     statuses = []
     bad = snap["bad_messages"]
     drops = snap["drops"]
+    lost = snap["lost_before_node"]
+    overflow_windows = snap["drop_streaks"].get(DECODE_OVERFLOW, 0)
     input_level = DiagnosticStatus.OK
     input_message = f"frames {_fmt(snap['frame_rate_in_hz'])} Hz in, {_fmt(snap['frame_rate_out_hz'])} Hz out"
     if silence:
         input_level, input_message = DiagnosticStatus.ERROR, silence
     elif waiting_for:
         input_level, input_message = DiagnosticStatus.ERROR, f"waiting for {waiting_for}"
-    elif bad or drops:
+    elif overflow_windows >= SUSTAINED_OVERFLOW_WINDOWS:
+        input_level = DiagnosticStatus.ERROR
+        input_message = (f"the decoder cannot keep up: {snap['drops_window'][DECODE_OVERFLOW]} frames dropped undecoded "
+                         f"({DECODE_OVERFLOW}) in the last window, {overflow_windows} windows in a row")
+    elif bad or drops or lost:
         input_level = DiagnosticStatus.WARN
-        input_message += f"; dropped {sum(drops.values())}, bad messages {sum(bad.values())} since start"
+        input_message += (f"; dropped {sum(drops.values())}, bad messages {sum(bad.values())}, "
+                          f"lost before the node (transport) {lost} since start")
     statuses.append(
         _status(
             "input",
@@ -89,6 +101,8 @@ def diagnostics_msg(
                 "frame_rate_out_hz": round(snap["frame_rate_out_hz"], 3),
                 "totals": snap["totals"],
                 "dropped_by_reason": drops,
+                "dropped_by_reason_window": snap["drops_window"],
+                "lost_before_node": lost,
                 "bad_messages_by_kind": bad,
                 "last_errors": snap["last_errors"],
                 "process_ms": snap["process_ms"],
