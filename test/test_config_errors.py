@@ -121,11 +121,11 @@ def test_document_that_is_not_a_mapping_is_rejected(tmp_path: Path) -> None:
         pytest.param(("arms",), DELETE, "arms", ["expected a non-empty list"], id="missing-arms"),
         pytest.param(("arms",), [], "arms", ["expected a non-empty list"], id="empty-arms"),
         pytest.param(("rig_id",), DELETE, "rig_id", ["missing", "string"], id="missing-rig-id"),
-        pytest.param(("arms", 0, "ofset_px"), 25, "arms[0].ofset_px", ["unknown key", "offset_px"], id="unknown-arm-key"),
+        pytest.param(("arms", 0, "ofset_px"), 25, "arms[hand].ofset_px", ["unknown key", "offset_px"], id="unknown-arm-key"),
         pytest.param(("camera", "intrinsic"), "x.yaml", "camera.intrinsic", ["unknown key", "intrinsics"], id="unknown-camera-key"),
-        pytest.param(("arms", 0, "offset_px"), "thirty", "arms[0].offset_px", ["finite number", "got 'thirty'"], id="wrong-type"),
-        pytest.param(("arms", 0, "offset_px"), True, "arms[0].offset_px", ["finite number", "got True"], id="bool-is-not-a-number"),
-        pytest.param(("arms", 0, "offset_px"), math.nan, "arms[0].offset_px", ["finite number", "got nan"], id="nan-number"),
+        pytest.param(("arms", 0, "offset_px"), "thirty", "arms[hand].offset_px", ["finite number", "got 'thirty'"], id="wrong-type"),
+        pytest.param(("arms", 0, "offset_px"), True, "arms[hand].offset_px", ["finite number", "got True"], id="bool-is-not-a-number"),
+        pytest.param(("arms", 0, "offset_px"), math.nan, "arms[hand].offset_px", ["finite number", "got nan"], id="nan-number"),
         pytest.param(
             ("camera", "extrinsics", "translation"),
             [1.9, math.inf, 1.15],
@@ -148,16 +148,21 @@ def test_document_that_is_not_a_mapping_is_rejected(tmp_path: Path) -> None:
             id="extrinsics-parent",
         ),
         pytest.param(
-            ("arms", 0, "robot"), "pandaa", "arms[0].robot", ["unknown robot 'pandaa'", "robots are panda"], id="unknown-robot-id"
+            ("arms", 0, "robot"), "pandaa", "arms[hand].robot", ["unknown robot 'pandaa'", "robots are panda"], id="unknown-robot-id"
         ),
         pytest.param(
-            ("arms", 0, "tip", "frame"), "panda_hand_tcp", "arms[0].tip", ["exactly one of offset_m", "frame"], id="tip-offset-and-frame"
+            ("arms", 0, "tip", "frame"), "panda_hand_tcp", "arms[hand].tip", ["exactly one of position_m", "frame"],
+            id="tip-position-and-frame",
         ),
-        pytest.param(("arms", 0, "tip"), {}, "arms[0].tip", ["exactly one of offset_m", "frame"], id="tip-neither"),
-        pytest.param(("arms", 0, "tip", "offset_m"), [0, 0, 0], "arms[0].tip.offset_m", ["must not be zero"], id="tip-zero-offset"),
-        pytest.param(("arms", 0, "scale", "min_px"), 800, "arms[0].scale.min_px", ["<= max_px (720", "got 800"], id="min-above-max"),
-        pytest.param(("arms", 0, "scale", "alpha"), -2.0, "arms[0].scale.alpha", ["> 0", "got -2.0"], id="negative-alpha"),
-        pytest.param(("arms", 0, "scale", "mode"), "auto", "arms[0].scale.mode", ["depth, fixed", "got 'auto'"], id="unknown-scale-mode"),
+        pytest.param(("arms", 0, "tip"), {}, "arms[hand].tip", ["exactly one of position_m", "frame"], id="tip-neither"),
+        pytest.param(
+            ("arms", 0, "tip", "position_m"), [0, 0, 0], "arms[hand].tip.position_m", ["must not be zero"], id="tip-zero-position"
+        ),
+        pytest.param(("arms", 0, "scale", "min_px"), 800, "arms[hand].scale.min_px", ["<= max_px (720", "got 800"], id="min-above-max"),
+        pytest.param(("arms", 0, "scale", "alpha"), -2.0, "arms[hand].scale.alpha", ["> 0", "got -2.0"], id="negative-alpha"),
+        pytest.param(
+            ("arms", 0, "scale", "mode"), "auto", "arms[hand].scale.mode", ["depth, fixed", "got 'auto'"], id="unknown-scale-mode"
+        ),
         pytest.param(
             ("sync", "policy"), "fastest", "sync.policy", ["interpolate, nearest, exact, latest", "got 'fastest'"], id="unknown-sync-policy"
         ),
@@ -183,11 +188,56 @@ def test_duplicate_arm_ids_are_rejected(tmp_path: Path) -> None:
     _assert_error(_load_error(path), path, "<file>: arms: ", "duplicate id 'hand'")
 
 
-def test_wrong_field_in_second_robot_names_its_index(tmp_path: Path) -> None:
+def test_wrong_field_in_second_robot_names_it_by_id(tmp_path: Path) -> None:
     doc = _base_doc()
     doc["robots"].append({"id": "second", "urdf": "example-robot-data:panda", "joint_prefix": 7})
     path = _write_rig(tmp_path, doc)
-    _assert_error(_load_error(path), path, "<file>: robots[1].joint_prefix: ", "expected a string", "got 7")
+    _assert_error(_load_error(path), path, "<file>: robots[second].joint_prefix: ", "expected a string", "got 7")
+
+
+def test_the_old_tip_offset_m_is_refused_with_the_new_name(tmp_path: Path) -> None:
+    """tip.offset_m (a vector) was renamed to tip.position_m: arms[].offset_m (a scalar) keeps its name."""
+    doc = _base_doc()
+    doc["arms"][0]["tip"] = {"offset_m": [0.0, 0.0, 0.1034]}
+    path = _write_rig(tmp_path, doc)
+    message = _load_error(path)
+    assert message == (f"{path}: arms[hand].tip.offset_m: renamed: write position_m: [x, y, z] (the tip's position in the "
+                       "ee frame, m); the arm's own offset_m is the scalar inward offset")
+    doc["arms"][0]["tip"] = {"position_m": [0.0, 0.0, 0.1034]}
+    doc["arms"][0].pop("offset_px")
+    doc["arms"][0]["offset_m"] = 0.05
+    rig = load_rig_config(_write_rig(tmp_path, doc))
+    assert rig.arms[0].tip.position_m == (0.0, 0.0, 0.1034) and rig.arms[0].offset_m == 0.05
+
+
+def test_every_error_names_a_place_the_same_way_with_the_path_as_given(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """While loading and after (the URDF check at pipeline construction): `<path as given>: arms[<id>].<key>`."""
+    _write_rig(tmp_path / "rigs", _base_doc())
+    monkeypatch.chdir(tmp_path)
+    given = Path("rigs") / "rig.yaml"
+    doc = _base_doc()
+    doc["arms"][0]["scale"]["alpha"] = -1.0
+    _write_rig(tmp_path / "rigs", doc)
+    assert _load_error(given).startswith("rigs/rig.yaml: arms[hand].scale.alpha: ")
+    doc["arms"][0]["scale"]["alpha"] = 2.0
+    doc["arms"][0]["ee_frame"] = "panda_hnd"
+    _write_rig(tmp_path / "rigs", doc)
+    rig = load_rig_config(given)
+    assert rig.source == given and rig.path == (tmp_path / "rigs" / "rig.yaml").resolve()
+    with pytest.raises(KinematicsError) as info:
+        RoiPipeline(rig)
+    assert str(info.value).startswith("rigs/rig.yaml: arms[hand].ee_frame: frame 'panda_hnd' is not in panda.urdf")
+
+
+def test_an_entry_without_a_usable_id_of_its_own_is_named_by_its_index(tmp_path: Path) -> None:
+    doc = _base_doc()
+    del doc["arms"][0]["id"]
+    path = _write_rig(tmp_path, doc)
+    _assert_error(_load_error(path), path, "<file>: arms[0].id: ", "missing")
+    doc = _base_doc()
+    doc["arms"].append(dict(doc["arms"][0], offset_px="far"))  # a second arm with the same id: neither is arms[hand]
+    path = _write_rig(tmp_path, doc)
+    _assert_error(_load_error(path), path, "<file>: arms[1].offset_px: ", "got 'far'")
 
 
 # --- robots / URDF -------------------------------------------------------------------------
@@ -196,14 +246,14 @@ def test_wrong_field_in_second_robot_names_its_index(tmp_path: Path) -> None:
 def test_urdf_path_not_found_names_resolved_path(tmp_path: Path) -> None:
     path = _rig_with(tmp_path, ("robots", 0, "urdf"), "urdf/missing_robot.urdf")
     message = _load_error(path)
-    _assert_error(message, path, "<file>: robots[0].urdf: ", "not found")
+    _assert_error(message, path, "<file>: robots[panda].urdf: ", "not found")
     assert str(tmp_path.resolve() / "urdf" / "missing_robot.urdf") in message
 
 
 def test_unknown_example_robot_data_reference_is_kinematics_error(tmp_path: Path) -> None:
     path = _rig_with(tmp_path, ("robots", 0, "urdf"), "example-robot-data:nonexistent")
     message = _load_error(path, KinematicsError)
-    _assert_error(message, path, "<file>: robots[0].urdf: ", "'example-robot-data:nonexistent'", "not found", "short names: ", "panda")
+    _assert_error(message, path, "<file>: robots[panda].urdf: ", "'example-robot-data:nonexistent'", "not found", "short names: ", "panda")
 
 
 def test_unknown_ee_frame_fails_pipeline_construction_with_similar_frames(tmp_path: Path) -> None:
@@ -212,7 +262,7 @@ def test_unknown_ee_frame_fails_pipeline_construction_with_similar_frames(tmp_pa
     with pytest.raises(KinematicsError) as info:
         RoiPipeline(rig)
     message = str(info.value)
-    _assert_error(message, path.resolve(), "<file>: arms[hand].ee_frame: ", "frame 'panda_hnd' is not in panda.urdf",
+    _assert_error(message, path, "<file>: arms[hand].ee_frame: ", "frame 'panda_hnd' is not in panda.urdf",
                   "did you mean the link 'panda_hand'?")
 
 
@@ -223,7 +273,7 @@ def test_unknown_tip_frame_fails_pipeline_construction(tmp_path: Path) -> None:
     with pytest.raises(KinematicsError) as info:
         RoiPipeline(rig)
     message = str(info.value)
-    _assert_error(message, rig.path, "<file>: arms[hand].tip.frame: ", "'panda_hand_tpc'", "did you mean the link 'panda_hand_tcp'?")
+    _assert_error(message, rig.source, "<file>: arms[hand].tip.frame: ", "'panda_hand_tpc'", "did you mean the link 'panda_hand_tcp'?")
 
 
 # --- calibration ---------------------------------------------------------------------------
@@ -345,7 +395,7 @@ def test_bundled_bimanual_rig_loads() -> None:
     np.testing.assert_allclose(rig.robot("left_panda").world_T_base.translation_m, [0.0, 0.42, 0.0])
     np.testing.assert_allclose(rig.robot("right_panda").world_T_base.translation_m, [0.0, -0.42, 0.0])
     assert [a.id for a in rig.arms] == ["left", "right"]
-    assert all(a.tip.frame == "panda_hand_tcp" and a.tip.offset_m is None for a in rig.arms)
+    assert all(a.tip.frame == "panda_hand_tcp" and a.tip.position_m is None for a in rig.arms)
     assert rig.arms[0].offset_px == 30.0
     assert rig.arms[0].scale == DepthScale(alpha=2.0, radius_m=0.2, min_px=128.0, max_px=720.0)
     assert rig.camera.extrinsics_version == "2026-11-01"
@@ -360,7 +410,7 @@ def test_bundled_single_rig_loads_with_defaults() -> None:
     rig = load_rig_config(SINGLE_RIG)
     assert rig.rig_id == "panda_single"
     (arm,) = rig.arms
-    assert arm.tip.offset_m == (0.0, 0.0, 0.1034)
+    assert arm.tip.position_m == (0.0, 0.0, 0.1034)
     assert arm.tip.frame is None
     assert arm.aspect == (1.0, 1.0)  # default
     (robot,) = rig.robots

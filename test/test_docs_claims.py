@@ -159,7 +159,7 @@ def test_the_documented_urdf_short_names_are_the_known_ones_and_the_named_rigs_l
     bimanual = load_rig_config(CONFIG / "rig_demo_bimanual.yaml")
     assert sorted(r.joint_prefix for r in bimanual.robots) == ["left_", "right_"]
     single = load_rig_config(CONFIG / "rig_panda_single.yaml")
-    assert len(single.arms) == 1 and yaml.safe_load(_text(CONFIG / "rig_panda_single.yaml"))["arms"][0]["tip"].keys() == {"offset_m"}
+    assert len(single.arms) == 1 and yaml.safe_load(_text(CONFIG / "rig_panda_single.yaml"))["arms"][0]["tip"].keys() == {"position_m"}
 
 
 def test_the_parameter_table_is_the_nodes_parameters_with_their_defaults() -> None:

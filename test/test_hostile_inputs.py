@@ -299,7 +299,7 @@ def _set(path: list[Any], value: Any) -> Callable[[dict[str, Any]], None]:
 RIG_VALUE_CASES = [
     pytest.param(_set(["sync", "max_skew_ms"], 1e308), ["sync.max_skew_ms", "<= 10000 ms"], id="max_skew_1e308"),
     pytest.param(_set(["camera", "delay_ms"], 1e300), ["camera.delay_ms", "<= 10000 ms"], id="delay_1e300"),
-    pytest.param(_set(["arms", 0, "scale"], {"mode": "fixed", "size_px": 1e9}), ["arms[0].scale.size_px", "<= 8192 px"], id="size_1e9"),
+    pytest.param(_set(["arms", 0, "scale"], {"mode": "fixed", "size_px": 1e9}), ["arms[left].scale.size_px", "<= 8192 px"], id="size_1e9"),
     pytest.param(_set(["rig_id"], "r" * 5000), ["rig_id", "5000 characters"], id="long_rig_id"),
     pytest.param(_set(["output", "size"], [100000, 256]), ["output.size", "1..4096"], id="huge_output"),
     pytest.param(

@@ -136,7 +136,7 @@ def test_lifecycle_node_publishes_only_while_active_and_a_broken_rig_fails_confi
     assert deactivated[0] >= 20 and deactivated[1] >= 20
     assert after == deactivated, "nothing is published after deactivate"
     errors = [line for line in log.splitlines() if "ERROR" in line]
-    assert len(errors) == 1 and "configure failed" in errors[0] and "arms[0].scale.alpha" in errors[0], log
+    assert len(errors) == 1 and "configure failed" in errors[0] and "arms[left].scale.alpha" in errors[0], log
     assert "Traceback" not in log
     stopped = [line for line in log.splitlines() if "stopped: frames in" in line]
     assert len(stopped) == 2, "one summary at cleanup, one at shutdown"

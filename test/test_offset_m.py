@@ -45,9 +45,9 @@ def test_offset_m_centres_on_the_projected_point_and_scales_with_its_depth(tmp_p
 
 
 def test_offset_px_and_offset_m_together_is_an_error(tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match=r"arms\[0\]\.offset_m: give one of offset_px .* or offset_m"):
+    with pytest.raises(ConfigError, match=r"arms\[left\]\.offset_m: give one of offset_px .* or offset_m"):
         load_rig_config(_rig(tmp_path, offset_m=0.05, offset_px=20))
-    with pytest.raises(ConfigError, match=r"arms\[0\]\.offset_m: expected a finite number"):
+    with pytest.raises(ConfigError, match=r"arms\[left\]\.offset_m: expected a finite number"):
         load_rig_config(_rig(tmp_path, offset_m="far"))
 
 
@@ -66,7 +66,7 @@ def test_the_tips_distance_is_never_used_only_its_direction(tmp_path: Path, offs
         doc["camera"]["rectified"] = "offset_px" in offset
         for entry in doc["arms"]:
             entry.pop("offset_px")
-            entry.update(offset, tip={"offset_m": [0.0, 0.0, tip_z_m]})
+            entry.update(offset, tip={"position_m": [0.0, 0.0, tip_z_m]})
         rig = load_rig_config(write_rig(tmp_path, doc))
         camera = rig.camera.intrinsics
         assert camera is not None

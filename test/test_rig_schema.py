@@ -48,7 +48,7 @@ def _bases() -> dict[str, dict[str, Any]]:
     other = copy.deepcopy(bimanual)
     del other["camera"]["intrinsics"]
     arm = other["arms"][0]
-    arm["tip"] = {"offset_m": [0.0, 0.0, 0.1]}
+    arm["tip"] = {"position_m": [0.0, 0.0, 0.1]}
     arm["scale"] = {"mode": "fixed", "size_px": 200}
     del arm["offset_px"]
     arm["offset_m"] = 0.05

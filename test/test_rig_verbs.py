@@ -129,7 +129,7 @@ def test_check_config_prints_the_resolved_rig_and_each_arms_joints(rig: Path) ->
 @pytest.mark.parametrize(
     ("key_path", "value", "named"),
     [
-        (("arms", 0, "scale", "alpha"), -1.0, "arms[0].scale.alpha"),
+        (("arms", 0, "scale", "alpha"), -1.0, "arms[left].scale.alpha"),
         (("sync", "max_skew_ms"), "fast", "sync.max_skew_ms"),
         (("arms", 1, "ee_frame"), "panda_hnd", "arms[right].ee_frame"),
         (("camera", "extrinsics", "ofset"), 1, "camera.extrinsics.ofset"),

@@ -27,7 +27,7 @@ def _cmd_check_config(args: argparse.Namespace) -> int:
     arms: dict[str, Any] = {}
     for arm in rig.arms:
         robot = rig.robot(arm.robot)
-        joints = arm_joints(kinematics[robot.id], arm, f"{rig.path}: arms[{arm.id}]")
+        joints = arm_joints(kinematics[robot.id], arm, rig.arm_location(arm.id))
         arms[arm.id] = {
             "robot": robot.id,
             "chain": [robot.joint_prefix + j for j in joints.chain],

@@ -158,7 +158,7 @@ def _with_camera(rig: RigConfig, **changes: Any) -> RigConfig:
 
 def _intrinsics(rig: RigConfig) -> CameraModel:
     if rig.camera.intrinsics is None:
-        raise ConfigError(f"{rig.path}: camera.intrinsics: stress needs a calibration file (the simulator renders with it)")
+        raise ConfigError(f"{rig.location('camera.intrinsics')}: stress needs a calibration file (the simulator renders with it)")
     return rig.camera.intrinsics
 
 

@@ -199,7 +199,7 @@ class _Replay:
         missing = [j for j in required if j not in have]
         if missing:
             raise ConfigError(
-                f"{self.rig.path}: the rig needs joints {', '.join(missing)} that {self.source} does not have on "
+                f"{self.rig.source}: the rig needs joints {', '.join(missing)} that {self.source} does not have on "
                 f"{', '.join(self.selection.joint_topics)}; the bag's joint states name {', '.join(sorted(have)) or 'no joints'}"
             )
         if self.selection.joint_topics_detected:
@@ -304,7 +304,7 @@ class _Replay:
         """The first frame decides whether this stream fits the rig's camera at all."""
         camera = self.engine.first_camera()
         if camera is not None and (width, height) != (camera.width_px, camera.height_px):
-            source = "the bag's camera info" if self.from_bag else f"the rig config {self.rig.path}"
+            source = "the bag's camera info" if self.from_bag else f"the rig config {self.rig.source}"
             raise CalibrationError(
                 f"{self.frame_where}: frames are {width}x{height} but the intrinsics from {source} are for "
                 f"{camera.width_px}x{camera.height_px}; use the rig config that matches this camera"

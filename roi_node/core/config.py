@@ -1,9 +1,15 @@
 """Rig config (`schema: roi_node/rig/v1`): one YAML per rig, the single source of
-truth for the live node and offline replay (see DESIGN.md "Rig config").
+truth for the live node and offline replay.
 
 Every error names the file, the key path and what was expected. Unknown keys
 are errors too: a misspelt `ofset_px` must not silently fall back to a default.
 Paths are relative to the config file.
+
+One way of naming a place in the file, in every error about it, while loading
+and after (an unknown ee frame, a joint the bag lacks): the file as the user
+gave it, then the key path with list entries named by their id, e.g.
+`rigs/lab.yaml: arms[left].tip.frame` (`RigConfig.location`). An entry without
+a usable id, or with one another entry also has, is named by its index.
 """
 
 from __future__ import annotations
@@ -67,11 +73,15 @@ class FixedScale:
     size_px: float
 
 
+# `tip.offset_m` was the old name of `tip.position_m`; it shared its name with the arm's scalar `offset_m`
+RENAMED_TIP_KEY = "offset_m"
+
+
 @dataclass(frozen=True)
 class TipSpec:
-    """Where the fingertips are: a fixed offset in the ee frame, or a URDF frame."""
+    """Where the fingertips are: a point in the ee frame (`position_m`, metres), or a URDF frame."""
 
-    offset_m: tuple[float, float, float] | None = None
+    position_m: tuple[float, float, float] | None = None
     frame: str | None = None
 
 
@@ -127,7 +137,8 @@ class SyncConfig:
 
 @dataclass(frozen=True)
 class RigConfig:
-    path: Path
+    path: Path  # absolute: what paths in the file are relative to
+    source: Path  # the path as the user gave it: every message names the file by it
     rig_id: str
     camera: CameraConfig
     robots: tuple[RobotConfig, ...]
@@ -138,6 +149,14 @@ class RigConfig:
 
     def robot(self, robot_id: str) -> RobotConfig:
         return next(r for r in self.robots if r.id == robot_id)
+
+    def location(self, key_path: str) -> str:
+        """`<file as given>: <key_path>`, the start of every message about a place in this rig file."""
+        return f"{self.source}: {key_path}"
+
+    def arm_location(self, arm_id: str) -> str:
+        """The location of an `arms[]` entry, named by its id as the loader names it (`arms[left]`)."""
+        return self.location(f"arms[{arm_id}]")
 
 
 class _Node:
@@ -250,7 +269,16 @@ class _Node:
         value = self.data.get(key)
         if not isinstance(value, list) or not value:
             raise self.fail(key, "expected a non-empty list")
-        return [_Node(item, f"{self._path(key)}[{i}]", self.file) for i, item in enumerate(value)]
+        labels = _entry_labels(value)
+        return [_Node(item, f"{self._path(key)}[{label}]", self.file) for item, label in zip(value, labels, strict=True)]
+
+
+def _entry_labels(entries: list[Any]) -> list[str]:
+    """How each entry of a list is named in messages: its id when it has a usable one of its own, else its index."""
+    ids = [e.get("id") if isinstance(e, Mapping) else None for e in entries]
+    usable = [isinstance(i, str) and 0 < len(i) <= MAX_TEXT_CHARS and i.isprintable() and i.strip() == i for i in ids]
+    taken = [i for i, ok in zip(ids, usable, strict=True) if ok]
+    return [str(i) if ok and taken.count(i) == 1 else str(index) for index, (i, ok) in enumerate(zip(ids, usable, strict=True))]
 
 
 def _short(value: object) -> str:
@@ -292,6 +320,7 @@ def load_rig_config(path: str | Path) -> RigConfig:
     sync = _load_sync(root.child("sync") if root.has("sync") else _Node({}, "sync", file))
     return RigConfig(
         path=file.resolve(),
+        source=file,
         rig_id=root.text("rig_id"),
         camera=camera,
         robots=robots,
@@ -379,16 +408,21 @@ def _load_arm(node: _Node, robot_ids: set[str]) -> ArmConfig:
     if robot not in robot_ids:
         raise node.fail("robot", f"unknown robot {robot!r}; robots are {', '.join(sorted(robot_ids))}")
     tip_node = node.child("tip")
-    tip_node.check_keys(("offset_m", "frame"))
-    if tip_node.has("offset_m") == tip_node.has("frame"):
-        raise node.fail("tip", "give exactly one of offset_m: [x, y, z] or frame: <URDF frame>")
+    if tip_node.has(RENAMED_TIP_KEY):
+        raise tip_node.fail(
+            RENAMED_TIP_KEY, "renamed: write position_m: [x, y, z] (the tip's position in the ee frame, m); "
+            "the arm's own offset_m is the scalar inward offset"
+        )
+    tip_node.check_keys(("position_m", "frame"))
+    if tip_node.has("position_m") == tip_node.has("frame"):
+        raise node.fail("tip", "give exactly one of position_m: [x, y, z] or frame: <URDF frame>")
     if tip_node.has("frame"):
         tip = TipSpec(frame=tip_node.text("frame"))
     else:
-        ox, oy, oz = tip_node.numbers("offset_m", 3, limit=10.0)
-        if ox == oy == oz == 0.0:
-            raise tip_node.fail("offset_m", "must not be zero: it defines the inward direction d_in")
-        tip = TipSpec(offset_m=(ox, oy, oz))
+        x, y, z = tip_node.numbers("position_m", 3, limit=10.0)
+        if x == y == z == 0.0:
+            raise tip_node.fail("position_m", "must not be zero: the direction ee -> tip defines the inward direction d_in")
+        tip = TipSpec(position_m=(x, y, z))
     scale_node = node.child("scale")
     mode = scale_node.choice("mode", ("depth", "fixed"), "depth")
     scale: DepthScale | FixedScale

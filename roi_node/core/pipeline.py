@@ -135,11 +135,11 @@ class RoiPipeline:
         warm_up_resampling()  # compiled (or loaded from the disk cache) now, not on the first frame
 
     def _arm_model(self, arm: ArmConfig, kin: RobotKinematics) -> _ArmModel:
-        joints = arm_joints(kin, arm, f"{self.rig.path}: arms[{arm.id}]")
+        joints = arm_joints(kin, arm, self.rig.arm_location(arm.id))
         ee_T_tip = None
         if arm.tip.frame is None:
-            assert arm.tip.offset_m is not None
-            ee_T_tip = Transform(np.eye(3), np.asarray(arm.tip.offset_m, dtype=np.float64))
+            assert arm.tip.position_m is not None
+            ee_T_tip = Transform(np.eye(3), np.asarray(arm.tip.position_m, dtype=np.float64))
         robot = self.rig.robot(arm.robot)
         cam_T_base = self.cam_T_world @ robot.world_T_base
         gripper = tuple(robot.joint_prefix + j for j in joints.gripper)

@@ -68,7 +68,7 @@ def _pose(raw: dict[str, Any]) -> dict[str, Any]:
 
 
 def _arm(arm: ArmConfig) -> dict[str, Any]:
-    tip: dict[str, Any] = {"frame": arm.tip.frame} if arm.tip.frame is not None else {"offset_m": list(arm.tip.offset_m or ())}
+    tip: dict[str, Any] = {"frame": arm.tip.frame} if arm.tip.frame is not None else {"position_m": list(arm.tip.position_m or ())}
     out: dict[str, Any] = {"id": arm.id, "robot": arm.robot, "ee_frame": arm.ee_frame, "tip": tip}
     if arm.offset_m is not None:
         out["offset_m"] = arm.offset_m

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Generic, TypeVar
 
-from .errors import JointStateError
+from .errors import ConfigError, JointStateError
 from .kinematics import wrap_angle
 from .stamps import NS_PER_MS, NS_PER_S
 
@@ -44,6 +44,17 @@ class SyncPolicy(StrEnum):
     NEAREST = "nearest"
     EXACT = "exact"
     LATEST = "latest"
+
+
+class SyncLimitsError(ConfigError):
+    """Sync limits a synchronizer cannot work with (the rig loader refuses them in a rig file)."""
+
+    def __init__(self, max_skew_ms: float, max_wait_ms: float) -> None:
+        super().__init__(
+            f"sync limits: max_skew_ms must be finite and > 0, max_wait_ms finite and >= 0; got {max_skew_ms!r}, {max_wait_ms!r}"
+        )
+        self.max_skew_ms = max_skew_ms
+        self.max_wait_ms = max_wait_ms
 
 
 STATUS_ORDER = tuple(SyncStatus)
@@ -332,7 +343,15 @@ class FrameSynchronizer(Generic[P]):
         return len(self._pending)
 
     def set_limits(self, max_skew_ms: float, max_wait_ms: float) -> None:
-        """The skew and wait limits for every frame released from now on."""
+        """The skew and wait limits for every frame released from now on.
+
+        The rig loader's ranges (core/config.py) are the contract, checked
+        again here because a synchronizer with other limits fails on every
+        frame instead of once: a skew of 0 divides by zero in the confidence,
+        and NaN or an infinity has no nanosecond count.
+        """
+        if not (math.isfinite(max_skew_ms) and max_skew_ms > 0 and math.isfinite(max_wait_ms) and max_wait_ms >= 0):
+            raise SyncLimitsError(max_skew_ms, max_wait_ms)
         self.max_skew_ns = int(max_skew_ms * NS_PER_MS)
         self.max_wait_ns = int(max_wait_ms * NS_PER_MS)
 

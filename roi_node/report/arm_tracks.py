@@ -141,7 +141,7 @@ def arm_tracks(
         q = np.full((len(times), len(chain)), np.nan) if missing else np.stack([joints.at(n, times) for n in names], axis=1)
         cam_T_base = cam_T_world @ robot.world_T_base
         frames = [*origins, arm.ee_frame] + ([arm.tip.frame] if arm.tip.frame else [])
-        tip_offset = None if arm.tip.offset_m is None else np.asarray(arm.tip.offset_m, np.float64)
+        tip_offset = None if arm.tip.position_m is None else np.asarray(arm.tip.position_m, np.float64)
         rows: list[Float64Array | None] = []
         gripper_mask: NDArray[np.bool_] | None = None
         for qi in q:

@@ -56,6 +56,7 @@ from ..core.image_codec import image_from_compressed, image_from_msg
 from ..core.overlay_cdr import overlay_cdr
 from ..core.pipeline import FrameResult
 from ..core.resources import resolve_config_file
+from ..core.short_repr import short_text
 from ..core.stamps import NS_PER_MS, NS_PER_S
 from ..core.status_line import StatusWindow
 from ..core.stream_stats import StreamStats
@@ -459,7 +460,8 @@ class StreamNode(Node):
         unknown = [p.name for p in parameter_list if not self.has_parameter(p.name)]
         if unknown:
             settable = f"; settable now: {', '.join(self.policy.names)}" if self.policy is not None else ""
-            return SetParametersResult(successful=False, reason=f"parameter {unknown[0]}: not a parameter of roi_node{settable}")
+            reason = f"parameter {short_text(unknown[0])}: not a parameter of roi_node{settable}"
+            return SetParametersResult(successful=False, reason=reason)
         return super().set_parameters_atomically(parameter_list)
 
     def _crop_offset_ver(self) -> str:

@@ -16,9 +16,10 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..core.compressed_outputs import DEFAULT_JPEG_QUALITY, JPEG_QUALITY_RANGE, OutputTransport
-from ..core.config import MAX_TIME_MS, SYNC_POLICIES, RigConfig
+from ..core.config import SYNC_POLICIES, RigConfig
 from ..core.errors import ParameterError
 from ..core.image_codec import OUTPUT_ENCODINGS
+from ..core.short_repr import short_repr
 
 TRANSPORTS = ("raw", "compressed")
 RELIABILITIES = ("reliable", "best_effort")
@@ -41,9 +42,7 @@ class NodeParams:
     joint_state_depth: int
     publisher_reliability: str
     publisher_depth: int
-    sync_policy: str | None  # None: the rig config's
-    max_skew_ms: float | None
-    max_wait_ms: float | None
+    sync_policy: str | None  # None: the rig config's (the sync limits are runtime parameters: ros/runtime_params.py)
     max_pending_frames: int
     output_encoding: str
     output_transport: OutputTransport
@@ -75,6 +74,7 @@ def _qos(reliability: str, depth: int) -> QoSProfile:
     )
 
 
+RIG_VALUE_MS = -1.0  # sync.max_skew_ms / sync.max_wait_ms: "the rig config's value" (any other negative is refused)
 # name -> default; the default's type is the parameter's type (an integer is accepted where a double is declared)
 DEFAULTS: dict[str, object] = {
     "config": "",
@@ -92,8 +92,8 @@ DEFAULTS: dict[str, object] = {
     "qos.publisher_reliability": "reliable",
     "qos.publisher_depth": 30,
     "sync.policy": "",
-    "sync.max_skew_ms": -1.0,
-    "sync.max_wait_ms": -1.0,
+    "sync.max_skew_ms": RIG_VALUE_MS,
+    "sync.max_wait_ms": RIG_VALUE_MS,
     "sync.max_pending_frames": 8,
     "output_encoding": "rgb8",
     "output_transport": OutputTransport.RAW.value,
@@ -135,7 +135,7 @@ def typed(name: str, default: object, value: object) -> object:
         return list(value)
     if _type_name(value) != expected:
         article = "an" if expected[0] in "aeiou" else "a"
-        raise ParameterError(name, f"expected {article} {expected}, got {value!r} ({_type_name(value)})")
+        raise ParameterError(name, f"expected {article} {expected}, got {short_repr(value)} ({_type_name(value)})")
     return value
 
 
@@ -176,13 +176,9 @@ def read(node: Node) -> NodeParams:
 
 
 def apply_overrides(rig: RigConfig, params: NodeParams) -> RigConfig:
-    """Parameters that override the rig config: sync policy and limits, global view on/off."""
-    sync = dataclasses.replace(
-        rig.sync,
-        policy=params.sync_policy or rig.sync.policy,
-        max_skew_ms=rig.sync.max_skew_ms if params.max_skew_ms is None else params.max_skew_ms,
-        max_wait_ms=rig.sync.max_wait_ms if params.max_wait_ms is None else params.max_wait_ms,
-    )
+    """Parameters that override the rig config and are fixed while the node runs: sync policy, global view on/off
+    (the sync limits may change at runtime: ros/runtime_params.py applies them)."""
+    sync = dataclasses.replace(rig.sync, policy=params.sync_policy or rig.sync.policy)
     output = dataclasses.replace(rig.output, global_enabled=params.global_view and rig.output.global_enabled)
     return dataclasses.replace(rig, sync=sync, output=output)
 
@@ -190,14 +186,14 @@ def apply_overrides(rig: RigConfig, params: NodeParams) -> RigConfig:
 def _choice(values: dict[str, object], param: str, choices: tuple[str, ...]) -> str:
     value = str(values[param])
     if value not in choices:
-        raise ParameterError(param, f"{value!r} is not one of {', '.join(choices)}")
+        raise ParameterError(param, f"{short_repr(value)} is not one of {', '.join(choices)}")
     return value
 
 
 def _positive_int(values: dict[str, object], param: str) -> int:
     value = values[param]
     if not isinstance(value, int) or value < 1:
-        raise ParameterError(param, f"expected a positive integer, got {value!r}")
+        raise ParameterError(param, f"expected a positive integer, got {short_repr(value)}")
     return value
 
 
@@ -205,16 +201,8 @@ def _int_in(values: dict[str, object], param: str, bounds: tuple[int, int]) -> i
     value = values[param]
     low, high = bounds
     if not isinstance(value, int) or not low <= value <= high:
-        raise ParameterError(param, f"expected an integer in {low}..{high}, got {value!r}")
+        raise ParameterError(param, f"expected an integer in {low}..{high}, got {short_repr(value)}")
     return value
-
-
-def optional_ms(values: dict[str, object], param: str) -> float | None:
-    """Negative means "the rig config's value"."""
-    value = float(values[param])  # type: ignore[arg-type]
-    if value > MAX_TIME_MS:
-        raise ParameterError(param, f"must be <= {MAX_TIME_MS:g} ms, got {value:g}")
-    return None if value < 0 else value
 
 
 def _positive_seconds(values: dict[str, object], param: str) -> float:
@@ -236,10 +224,10 @@ def _validate(v: dict[str, object]) -> NodeParams:
         raise ParameterError("config", "the rig config path is required (--config rig.yaml or -p config:=rig.yaml)")
     topics = tuple(str(t) for t in v["joint_state_topics"])  # type: ignore[attr-defined]
     if not topics or any(not t for t in topics):
-        raise ParameterError("joint_state_topics", f"expected one or more topic names, got {list(topics)!r}")
+        raise ParameterError("joint_state_topics", f"expected one or more topic names, got {short_repr(list(topics))}")
     policy = str(v["sync.policy"]) or None
     if policy is not None and policy not in SYNC_POLICIES:
-        raise ParameterError("sync.policy", f"{policy!r} is not one of {', '.join(SYNC_POLICIES)}")
+        raise ParameterError("sync.policy", f"{short_repr(policy)} is not one of {', '.join(SYNC_POLICIES)}")
     return NodeParams(
         config=str(v["config"]),
         image_transport=_choice(v, "image_transport", TRANSPORTS),
@@ -256,8 +244,6 @@ def _validate(v: dict[str, object]) -> NodeParams:
         publisher_reliability=_choice(v, "qos.publisher_reliability", RELIABILITIES),
         publisher_depth=_positive_int(v, "qos.publisher_depth"),
         sync_policy=policy,
-        max_skew_ms=optional_ms(v, "sync.max_skew_ms"),
-        max_wait_ms=optional_ms(v, "sync.max_wait_ms"),
         max_pending_frames=_positive_int(v, "sync.max_pending_frames"),
         output_encoding=_choice(v, "output_encoding", OUTPUT_ENCODINGS),
         output_transport=OutputTransport(_choice(v, "output_transport", tuple(OutputTransport))),

@@ -1,8 +1,10 @@
 """The parameters a running node accepts: each arm's crop policy and the sync limits.
 
 `ros2 param set` semantics: a change is validated exactly as the rig config
-loader validates the same key (ranges, min_px <= max_px, scale x aspect), then
-takes effect for the next frame the worker prepares; a change of crop policy
+loader validates the same key (finite, ranges, min_px <= max_px, scale x
+aspect; the loader's own code, not a copy), then takes effect for the next
+frame the worker prepares; a refusal is one line naming the parameter, the
+value (cut to 60 characters) and what is accepted, and the running values stay; a change of crop policy
 changes the records' `lineage.crop_offset_ver` (a content hash of the arm
 policies). Every other parameter is read once at start (at configure, for the
 lifecycle node) and a set is refused with one line naming it and what can be
@@ -13,6 +15,11 @@ Per arm (`<id>` its arms[].id), declared with the rig file's values:
 `arms.<id>.aspect` ([w, h]), and `arms.<id>.scale.alpha`, `.radius_m`,
 `.min_px`, `.max_px` (depth scale) or `arms.<id>.scale.size_px` (fixed scale).
 They also override the rig at start (`-p arms.left.offset_px:=40`).
+
+`sync.max_skew_ms` and `sync.max_wait_ms` are declared with -1 (the rig
+config's value); any other value is checked as the rig file's `sync` section
+is (max_skew_ms > 0, max_wait_ms >= 0, both finite and <= 10 s), at start as
+at runtime.
 """
 
 from __future__ import annotations
@@ -26,9 +33,9 @@ from typing import Any
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 
-from ..core.config import ArmConfig, DepthScale, RigConfig, load_arm
+from ..core.config import ArmConfig, DepthScale, RigConfig, SyncConfig, load_arm, load_sync
 from ..core.errors import ConfigError, ParameterError
-from .params import POLICY_PREFIX, NodeParams, apply_overrides, optional_ms, typed
+from .params import POLICY_PREFIX, RIG_VALUE_MS, NodeParams, apply_overrides, typed
 
 SYNC_LIMITS = ("sync.max_skew_ms", "sync.max_wait_ms")
 
@@ -95,16 +102,32 @@ class RuntimePolicy:
                     _set_key(raw, param.keys, value)
             try:
                 arms.append(load_arm(raw, POLICY_PREFIX + arm.id, file_rig.path, robot_ids))
-            except ConfigError as exc:  # "<file>: arms.left.scale.min_px: problem" -> the parameter's own line
-                name, _, problem = str(exc).removeprefix(f"{file_rig.path}: ").partition(": ")
-                raise ParameterError(name, problem) from None
+            except ConfigError as exc:
+                raise _parameter_error(exc, file_rig) from None
             raw_arms.append(raw)
-        limits = {name: typed(name, -1.0, values.get(name, -1.0)) for name in SYNC_LIMITS}
-        params = dataclasses.replace(
-            self.params, max_skew_ms=optional_ms(limits, SYNC_LIMITS[0]), max_wait_ms=optional_ms(limits, SYNC_LIMITS[1])
-        )
-        rig = dataclasses.replace(file_rig, arms=tuple(arms), raw={**file_rig.raw, "arms": raw_arms})
-        return apply_overrides(rig, params)
+        rig = dataclasses.replace(file_rig, arms=tuple(arms), sync=self._sync(values), raw={**file_rig.raw, "arms": raw_arms})
+        return apply_overrides(rig, self.params)
+
+    def _sync(self, values: Mapping[str, object]) -> SyncConfig:
+        """The rig file's sync section with the limits set to other than RIG_VALUE_MS, through the rig loader."""
+        file_rig = self.file_rig
+        raw = dict(file_rig.raw.get("sync") or {})
+        for name in SYNC_LIMITS:
+            value = typed(name, RIG_VALUE_MS, values.get(name, RIG_VALUE_MS))
+            if value != RIG_VALUE_MS:
+                raw[name.removeprefix("sync.")] = value
+        try:
+            return load_sync(raw, "sync", file_rig.path)
+        except ConfigError as exc:
+            refused = _parameter_error(exc, file_rig)
+            raise ParameterError(refused.name, f"{refused.problem} (or {RIG_VALUE_MS:g}: the rig config's value)") from None
+
+
+def _parameter_error(exc: ConfigError, file_rig: RigConfig) -> ParameterError:
+    """The rig loader's "<file>: <key path>: problem" as the parameter's own line: the key paths it is given
+    (`arms.<id>`, `sync`) are the parameters' names."""
+    name, _, problem = str(exc).removeprefix(f"{file_rig.path}: ").partition(": ")
+    return ParameterError(name, problem)
 
 
 def _plain(value: object) -> object:

@@ -77,7 +77,7 @@ class SimArm:
     def __init__(self, rig: RigConfig, index: int, model: _RobotModel) -> None:
         arm: ArmConfig = rig.arms[index]
         robot = rig.robot(arm.robot)
-        where = f"{rig.path}: arms[{arm.id}]"
+        where = rig.arm_location(arm.id)
         kinematics = model.kinematics
         kinematics.check_frame(arm.ee_frame, f"{where}.ee_frame")
         if arm.tip.frame is not None:
@@ -89,7 +89,7 @@ class SimArm:
         self.prefix = robot.joint_prefix
         self.ee_frame = arm.ee_frame
         self.tip_frame = arm.tip.frame
-        self.tip_offset_m = None if arm.tip.offset_m is None else np.asarray(arm.tip.offset_m, dtype=np.float64)
+        self.tip_position_m = None if arm.tip.position_m is None else np.asarray(arm.tip.position_m, dtype=np.float64)
         frames = [arm.ee_frame] + ([arm.tip.frame] if arm.tip.frame else [])
         self.chain: tuple[str, ...] = unique_in_order(j for f in frames for j in kinematics.chain_joints(f))
         self.path_frames: tuple[str, ...] = _movable_path(arm.ee_frame, model.joints)
@@ -141,8 +141,8 @@ class SimArm:
         if self.tip_frame is not None:
             tip_in_ee = base_T_ee.inverse().apply(poses[n_path + 1].translation_m)
         else:
-            assert self.tip_offset_m is not None
-            tip_in_ee = self.tip_offset_m
+            assert self.tip_position_m is not None
+            tip_in_ee = self.tip_position_m
         points = np.vstack([np.zeros(3), *(p.translation_m for p in poses[: n_path + 1])])
         keep = np.concatenate([[True], np.linalg.norm(np.diff(points, axis=0), axis=1) > _MIN_SEGMENT_M])
         return ArmPose(base_T_ee, tip_in_ee, points[keep])

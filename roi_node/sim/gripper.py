@@ -1,6 +1,6 @@
 """A two-finger gripper drawn at the tool, sized and oriented from the rig's tip definition.
 
-The rig says where the fingertips are (`tip.frame` or `tip.offset_m` in the
+The rig says where the fingertips are (`tip.frame` or `tip.position_m` in the
 ee frame); that vector is the approach direction and its length L sets the
 size, so the shape fits any robot: a hand body along the approach axis, a
 palm across it and two fingers that run from the palm to the fingertips. The
