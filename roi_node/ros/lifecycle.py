@@ -19,14 +19,25 @@ per-frame work for both this node and RoiNode):
   released.
 - shutdown (from any state): the stream stops as in cleanup, and the process
   exits 0 once the transition has been answered.
+
+Every change_state request is answered. One that is no transition of the
+current state (activate before configure, configure twice, cleanup while
+active, an unknown id or label, anything once finalized) is refused with
+success=False and one WARN line naming the request, the state and the
+transitions it has; the node stays in its state and, if active, keeps
+publishing. (rclpy's own service raises on such a request, which ends the
+process unanswered.) A refusal is the client's mistake, not the stream's, so
+/diagnostics, which reports the stream, does not count it.
 """
 
 from __future__ import annotations
 
+from lifecycle_msgs.srv import ChangeState
 from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 
 from ..core.errors import RoiNodeError
+from ..core.short_repr import short_repr
 from .node import NODE_NAME, StreamNode
 from .params import declare, read
 from .runtime_params import undeclare_policy
@@ -40,10 +51,30 @@ class RoiLifecycleNode(LifecycleNodeMixin, StreamNode):
     def __init__(self, *, parameter_overrides: list[Parameter] | None = None) -> None:
         StreamNode.__init__(self, NODE_NAME, parameter_overrides=parameter_overrides or [])
         LifecycleNodeMixin.__init__(self, enable_communication_interface=True)
+        self._perform_transition = self._service_change_state.callback
+        self._service_change_state.callback = self._on_change_state
         self.active = False
         declare(self)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info("lifecycle node unconfigured: configure loads the rig, activate starts publishing")
+
+    def _on_change_state(self, request: ChangeState.Request, response: ChangeState.Response) -> ChangeState.Response:
+        """The change_state service: a transition of the current state is performed (rclpy's callback), any other
+        request is refused here, where rclpy would raise."""
+        wanted = request.transition
+        state_id, state_label = self._state_machine.current_state
+        available = self._state_machine.available_transitions  # (id, label, start id, start label, goal id, goal label)
+        if any((t[1] == wanted.label) if wanted.label else (t[0] == wanted.id) for t in available):
+            return self._perform_transition(request, response)
+        labels = {t[0]: t[1] for t in self._state_machine.transition_graph}
+        asked = short_repr(wanted.label) if wanted.label else f"{labels.get(wanted.id, 'unknown')} ({wanted.id})"
+        offered = ", ".join(f"{t[1]} ({t[0]})" for t in available) or "none (the process is exiting)"
+        self.get_logger().warning(
+            f"lifecycle: transition {asked} refused: not a transition of state {state_label} ({state_id}); "
+            f"its transitions: {offered}"
+        )
+        response.success = False
+        return response
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
@@ -85,5 +116,18 @@ class RoiLifecycleNode(LifecycleNodeMixin, StreamNode):
         return TransitionCallbackReturn.SUCCESS
 
     def _exit(self) -> None:
+        """End the process, once the change_state requests already received are answered (refused: finalized);
+        any answered here goes out before the next tick ends it."""
+        service = self._service_change_state
+        answered = False
+        while True:
+            with service.handle:
+                request, header = service.handle.service_take_request(ChangeState.Request)
+            if header is None:
+                break
+            service.send_response(self._on_change_state(request, ChangeState.Response()), header)
+            answered = True
+        if answered:
+            return
         self.destroy_timer(self._exit_timer)
         self.context.try_shutdown()
