@@ -59,6 +59,7 @@ def test_ros2_run_entry_point_with_ros_args_and_sigterm_shutdown(tmp_path: Path)
     out = "".join(lines)
     assert proc.returncode == 0, out
     assert "/rig1/roi/left/image_raw" in out and "rig demo_bimanual" in out
+    assert "stopped: frames in" in out and "Failed to publish log message" not in out, "the summary logged before shutdown"
 
 
 def test_vla_example_prints_observations_from_the_running_node(tmp_path: Path) -> None:

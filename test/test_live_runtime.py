@@ -151,7 +151,7 @@ def test_runtime_offset_moves_the_next_centres_and_changes_crop_offset_ver(tmp_p
     publisher = None
     try:
         args = ["-m", "roi_node.cli", "run", "--config", str(BIMANUAL), "--ros-args", "-p", "status_period_s:=0.5"]
-        with process(args, env, log_path):
+        with process(args, env, log_path) as node:
             collector.wait_for_node()
             publisher = start_publisher(tmp_path, env, frames=300)
             assert collector.wait_until(lambda: len(collector.metadata) >= 15, 20.0), log_path.read_text()
@@ -214,3 +214,5 @@ def test_runtime_offset_moves_the_next_centres_and_changes_crop_offset_ver(tmp_p
     assert "set arms.left.offset_px 40.0" in log
     assert any("status: frames in" in line for line in log.splitlines()), log
     assert any("stopped: frames in" in line for line in log.splitlines()), "the summary on SIGINT"
+    assert node.returncode == 0, log[-3000:]
+    assert "Failed to publish log message" not in log, "the summary reaches /rosout: logged before the context shuts down"
