@@ -6,12 +6,20 @@ stream: each joint state republished on COMMAND_TOPIC, COMMAND_LEAD_RAD
 ahead and COMMAND_DELAY_NS later (what a teleop command looks like), so
 every action is known; its ROI bag carries that topic (replay
 --include-inputs). `single` is an ROI bag of another rig (one arm, 640x480).
+`timed` is the ROI bag of a recording whose camera stamps move off the
+nominal cadence by given offsets (jitter, a stall): the sim renders each
+frame at its moved capture time, as a real camera's frame shows the scene
+at its own stamp.
 """
 
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
+import statistics
+from collections.abc import Sequence
+from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +32,7 @@ from roi_node.bag.replay import replay_bag
 from roi_node.bag.writer import BagWriter, typestore
 from roi_node.core import topics
 from roi_node.core.image_codec import image_from_msg
-from roi_node.sim.bag_sink import write_sim_bag
+from roi_node.sim.bag_sink import write_events, write_sim_bag
 from roi_node.sim.rig_sim import CameraInfoEvent, ImageEvent, JointStateEvent, SimRig
 
 from .roibags import roi_bag, small_rig, sway
@@ -79,6 +87,18 @@ class ExportBags:
 
         return self._once("commanded_roi", build)
 
+    def timed(self, name: str, rate_hz: float, offsets_ns: Sequence[int]) -> Path:
+        """The ROI bag of len(offsets_ns) frames at rate_hz, frame k's stamp moved by offsets_ns[k]."""
+
+        def build() -> Path:
+            sim = OffsetSim(self.rig, offsets_ns, seed=5, rate_hz=rate_hz)
+            raw, roi = self.folder / f"{name}_raw", self.folder / name
+            write_events(sim, raw, duration_s=len(offsets_ns) / rate_hz)
+            replay_bag(raw, roi, self.rig)
+            return roi
+
+        return self._once(name, build)
+
     @property
     def single(self) -> Path:
         def build() -> Path:
@@ -86,6 +106,23 @@ class ExportBags:
             return roi_bag(self.folder, "single", rig, sway(12))
 
         return self._once("single", build)
+
+
+class OffsetSim(SimRig):
+    """The sim rig whose frame k is captured offsets_ns[k] away from the nominal cadence."""
+
+    def __init__(self, rig: Path, offsets_ns: Sequence[int], **options: Any) -> None:
+        super().__init__(rig, **options)
+        self.offsets_ns = list(offsets_ns)
+
+    def capture_ns(self, frame_index: int) -> int:
+        return super().capture_ns(frame_index) + self.offsets_ns[frame_index]
+
+
+def jitter_ns(frames: int, amplitude_ns: int, seed: int) -> list[int]:
+    """Uniform stamp jitter in [-amplitude, +amplitude] per frame."""
+    rng = np.random.default_rng(seed)
+    return [int(v) for v in rng.integers(-amplitude_ns, amplitude_ns + 1, size=frames)]
 
 
 def _commanded_bag(path: Path, rig: Path) -> Path:
@@ -151,12 +188,24 @@ def psnr_db(a: np.ndarray, b: np.ndarray) -> float:
     return float("inf") if mse == 0 else 10.0 * float(np.log10(255.0**2 / mse))
 
 
+def grid_tolerance_ns(stamps: list[int], fps: int) -> Fraction:
+    """Half the shorter of the median source step and the grid period (exact)."""
+    ordered = sorted(stamps)
+    period = Fraction(1_000_000_000, fps)
+    steps = [b - a for a, b in itertools.pairwise(ordered)]
+    return min(Fraction(statistics.median_low(steps)), period) / 2 if steps else period / 2
+
+
 def grid_oracle(stamps: list[int], fps: int) -> list[int]:
-    """Per grid frame, the stamp of the latest frame at or before first + k/fps (plain Python, exact)."""
-    first, ordered = stamps[0], sorted(stamps)
+    """Per grid frame, the stamp shown: nearest to first + k/fps among the frames at most the tolerance after it,
+    a tie to the earlier; the grid runs while the last frame is within the tolerance before a grid time.
+    Plain Python over exact fractions, every frame compared with every grid time."""
+    ordered = sorted(stamps)
+    period, tolerance = Fraction(1_000_000_000, fps), grid_tolerance_ns(stamps, fps)
     out, k = [], 0
-    while first * fps + k * 1_000_000_000 <= ordered[-1] * fps:
-        out.append(max(s for s in ordered if (s - first) * fps <= k * 1_000_000_000))
+    while ordered[0] + k * period <= ordered[-1] + tolerance:
+        t = ordered[0] + k * period
+        out.append(min((s for s in ordered if s <= t + tolerance), key=lambda s: (abs(s - t), s)))
         k += 1
     return out
 

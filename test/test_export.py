@@ -1,8 +1,8 @@
 """`roi-node export lerobot` without lerobot: the v3.0 layout, schemas and info.json fields, PyAV decoding, append, refusals.
 
 Every value is checked against an independent read of the source bags
-(rosbags' AnyReader): the grid against a plain-Python oracle of "latest frame
-at or before the grid time", the state against the records' joint_positions,
+(rosbags' AnyReader): the grid against a plain-Python oracle of "the frame
+nearest the grid time, at most the tolerance after it", the state against the records' joint_positions,
 decoded video frames against the bags' ROI images. The format itself is
 checked against lerobot's v3.0 conventions; test/lerobot runs the real reader.
 """
@@ -159,7 +159,7 @@ def test_frames_follow_the_grid_and_carry_the_records_values(dataset: Path, bags
         span = range(row["dataset_from_index"], row["dataset_to_index"])
         records = records_by_stamp(bag)
         stamps = [table["roi_node.source_stamp_ns"][i] for i in span]
-        assert stamps == grid_oracle(list(records), FPS)  # latest at or before each grid time, none from the future
+        assert stamps == grid_oracle(list(records), FPS)  # nearest each grid time, none later than the tolerance
         assert [table["frame_index"][i] for i in span] == list(range(len(span)))
         assert [table["timestamp"][i] for i in span] == [np.float32(k / FPS) for k in range(len(span))]
         for position, i in enumerate(span):
@@ -288,17 +288,34 @@ def test_commands_give_the_action_from_a_roi_bag_or_a_regenerated_recording(
     assert set(episode["lineage"][0]["tuple"]) >= {"intrinsics_ver", "extrinsics_ver", "fk_ver", "roi_generator_ver"}
 
 
-def test_the_grid_takes_the_latest_frame_never_a_later_one_and_refuses_old_frames() -> None:
+def test_the_grid_takes_the_nearest_frame_at_most_the_tolerance_later_and_refuses_gaps() -> None:
     ms = 1_000_000
+    # steps 30, 70, 1 ns, 110 ms: median (lower middle) 30 ms, so the tolerance is 15 ms (under half of 100 ms at 10 fps)
     stamps = [0, 30 * ms, 100 * ms, 100 * ms + 1, 210 * ms]
     plan = resample(stamps, 10, 100 * ms, "bag")
-    assert plan.sources == (0, 2, 3)  # 0 ms, 100 ms exactly on the grid time, then 100 ms + 1 ns for 200 ms
-    assert (plan.dropped, plan.duplicated, plan.worst_age_ns) == (2, 0, 100 * ms - 1)
+    # 0 ms; 100 ms exactly on the grid time; 200 ms: 210 ms is 10 ms later (within 15 ms), nearer than 100 ms + 1 ns
+    assert plan.sources == (0, 2, 4) and plan.tolerance_ns == 15 * ms
+    assert (plan.dropped, plan.duplicated, plan.worst_offset_ns) == (2, 0, 10 * ms)
+    tie = resample([0, 80 * ms, 120 * ms, 200 * ms], 10, 100 * ms, "bag")  # median step 80 ms: tolerance 40 ms
+    assert tie.sources == (0, 1, 3) and tie.tolerance_ns == 40 * ms  # 80 and 120 ms are both 20 ms from 100 ms: the earlier
+    # a slower source (150 ms steps at 10 fps: tolerance 50 ms, half the grid period): 150 ms, on the tolerance's edge
+    # after grid time 100 ms, is nearer than 0 ms; grid time 200 ms holds it (a duplicate); 151 ms is past the edge
     slow = resample([0, 150 * ms, 300 * ms], 10, 100 * ms, "bag")
-    assert slow.sources == (0, 0, 1, 2) and (slow.dropped, slow.duplicated) == (0, 1)
-    expected = r"bag: no frame within 50 ms before grid time 0\.100 s \(frame 1 at 10 fps\): the latest is 100\.0 ms"
+    assert slow.sources == (0, 1, 1, 2) and (slow.dropped, slow.duplicated, slow.worst_offset_ns) == (0, 1, 50 * ms)
+    assert resample([0, 151 * ms, 300 * ms], 10, 100 * ms, "bag").sources == (0, 0, 1, 2)
+    # within a 250 ms max age, 300 and 400 ms hold 200 ms; 451 ms is 51 ms after 400 ms, past the 50 ms, so shown from 500 ms
+    late = resample([0, 100 * ms, 200 * ms, 451 * ms], 10, 250 * ms, "bag")
+    assert late.sources == (0, 1, 2, 2, 2, 3) and late.duplicated == 2
+    expected = (
+        r"bag: no frame within 50 ms before grid time 0\.100 s \(frame 1 at 10 fps\) nor 50\.0 ms after it: "
+        r"the latest is 100\.0 ms old, the next 150\.0 ms later"
+    )
     with pytest.raises(BagError, match=expected):
         resample([0, 250 * ms], 10, 50 * ms, "bag")
+    days = 86400 * 10**9  # 100 days apart: no gap with a max age as long, but 500 days are more than the ns * fps scale holds
+    limit = (2**63 - 1) // 240 // days  # int64 on the ns * 240 scale
+    with pytest.raises(BagError, match=rf"bag: source frames span 500 days .* at most {limit} days"):
+        resample([k * 100 * days for k in range(6)], 240, 100 * days, "bag")
 
 
 def test_statistics_aggregate_like_the_concatenated_data_and_image_quantiles_are_numpys() -> None:

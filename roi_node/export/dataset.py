@@ -5,14 +5,18 @@ video feature; each episode is appended to them (so one run of several bags
 writes one file per feature, episodes one after another, as lerobot does) and
 gets its metadata row, with its statistics and where its frames and video
 span live. `finish` writes the metadata files. An append continues an
-existing export: new episodes go to new files after the existing ones, and
-the totals, tasks and statistics are merged with the existing ones.
+existing export (read back by existing.py): new episodes go to new files
+after the existing ones, and the totals, tasks and statistics are merged with
+the existing ones. A file that cannot be written (disk full) is named in a
+DatasetWriteError by its place in the dataset: pyarrow's and Python's write
+errors do not name it.
 """
 
 from __future__ import annotations
 
-import json
+import os
 from collections.abc import Iterator
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,13 +27,13 @@ import pyarrow.parquet as pq
 
 from ..bag.progress import Progress
 from .actions import Actions
-from .errors import DatasetError
+from .errors import DatasetError, DatasetWriteError
+from .existing import DatasetState
 from .features import SOURCE_STAMP_KEY, EpisodeSpec
 from .grid import GridPlan
 from .layout import (
     BYTES_PER_MB,
     CHUNKS_SIZE,
-    CODEBASE_VERSION,
     DATA_FILES_SIZE_IN_MB,
     DEFAULT_FEATURES,
     INFO_PATH,
@@ -45,71 +49,10 @@ from .layout import (
     video_path,
     write_json,
 )
-from .provenance import PROVENANCE_PATH, Provenance, read_provenance
+from .provenance import PROVENANCE_PATH, Provenance
 from .source import RoiSource, frames
-from .stats import Stats, aggregate, from_json, image_stats, numeric_stats, sample_positions, to_json
+from .stats import Stats, aggregate, image_stats, numeric_stats, sample_positions, to_json
 from .video import Codec, VideoFileWriter, video_info
-
-
-@dataclass
-class DatasetState:
-    """What a dataset holds so far: the base an append starts from (empty for a new dataset)."""
-
-    spec: EpisodeSpec | None = None
-    fps: int | None = None
-    robot_type: str | None = None
-    features: dict[str, dict[str, Any]] = field(default_factory=dict)
-    episodes: int = 0
-    frames: int = 0
-    tasks: list[str] = field(default_factory=list)
-    stats: dict[str, Stats] = field(default_factory=dict)
-    next_data: FileIndex = field(default_factory=FileIndex)
-    next_episodes: FileIndex = field(default_factory=FileIndex)
-    next_video: dict[str, FileIndex] = field(default_factory=dict)
-    provenance: Provenance | None = None
-
-
-def load_state(root: Path) -> DatasetState:
-    """An existing roi_node export, checked enough that appending to it keeps it loadable."""
-    info_file = root / INFO_PATH
-    try:
-        info = json.loads(info_file.read_text())
-    except (OSError, ValueError) as exc:
-        raise DatasetError(f"{root}: exists but is not a LeRobot dataset ({info_file}: {exc})") from exc
-    if info.get("codebase_version") != CODEBASE_VERSION:
-        raise DatasetError(f"{info_file}: codebase_version {info.get('codebase_version')!r}; this exporter appends to {CODEBASE_VERSION!r}")
-    provenance = read_provenance(root)
-    features = info["features"]
-    spec = EpisodeSpec.from_features(features, str(info_file))
-    state = DatasetState(
-        spec=spec,
-        fps=int(info["fps"]),
-        robot_type=info.get("robot_type"),
-        features=features,
-        episodes=int(info["total_episodes"]),
-        frames=int(info["total_frames"]),
-        provenance=provenance,
-    )
-    tasks = pq.read_table(root / TASKS_PATH).to_pydict()
-    state.tasks = [task for _, task in sorted(zip(tasks["task_index"], tasks["__index_level_0__"], strict=True))]
-    stats_file = root / STATS_PATH
-    if stats_file.is_file():
-        state.stats = from_json(json.loads(stats_file.read_text()))
-    last = _last_episode(root)
-    state.next_data = FileIndex(last["data/chunk_index"], last["data/file_index"]).following(CHUNKS_SIZE)
-    state.next_episodes = FileIndex(last["meta/episodes/chunk_index"], last["meta/episodes/file_index"]).following(CHUNKS_SIZE)
-    for key in spec.video_sizes():
-        state.next_video[key] = FileIndex(last[f"videos/{key}/chunk_index"], last[f"videos/{key}/file_index"]).following(CHUNKS_SIZE)
-    return state
-
-
-def _last_episode(root: Path) -> dict[str, Any]:
-    files = sorted((root / "meta" / "episodes").glob("*/*.parquet"))
-    if not files:
-        raise DatasetError(f"{root}: no meta/episodes/*/*.parquet; not a complete LeRobot v3.0 dataset")
-    columns = [c for c in pq.read_schema(files[-1]).names if not c.startswith("stats/")]
-    rows = pq.read_table(files[-1], columns=columns).to_pylist()
-    return max(rows, key=lambda row: row["episode_index"])
 
 
 @dataclass(frozen=True)
@@ -131,12 +74,22 @@ class _VideoSeries:
 
 
 class DatasetWriter:
-    """Append episodes to a dataset folder (a temporary one: the caller moves it into place)."""
+    """Append episodes to a dataset folder `root` (a temporary one: the caller moves it into place at `target`)."""
 
     def __init__(
-        self, root: Path, *, fps: int, codec: Codec, spec: EpisodeSpec, robot_type: str | None, state: DatasetState, progress: bool = False
+        self,
+        root: Path,
+        target: Path,
+        *,
+        fps: int,
+        codec: Codec,
+        spec: EpisodeSpec,
+        robot_type: str | None,
+        state: DatasetState,
+        progress: bool = False,
     ) -> None:
         self.root = root
+        self.target = target
         self.progress = progress
         self.fps = fps
         self.codec = codec
@@ -151,6 +104,7 @@ class DatasetWriter:
         self.schema = data_schema(self.features)
         self._data_index = state.next_data
         self._data_writer: pq.ParquetWriter | None = None
+        self._data_path = root / data_path(self._data_index)
         self._data_bytes = 0
         self._videos = {key: _VideoSeries(key, state.next_video.get(key, FileIndex())) for key in spec.video_sizes()}
         self._rows: list[dict[str, Any]] = []
@@ -191,19 +145,30 @@ class DatasetWriter:
             self.state.tasks.append(task)
         return self.state.tasks.index(task)
 
+    @contextmanager
+    def _writing(self, path: Path) -> Iterator[None]:
+        """An OSError while writing `path` (inside root) as a DatasetWriteError naming its place in the dataset."""
+        try:
+            yield
+        except OSError as exc:
+            reason = os.strerror(exc.errno) if exc.errno else str(exc)
+            raise DatasetWriteError(self.target, path.relative_to(self.root).as_posix(), reason) from exc
+
     def _write_data(self, values: dict[str, np.ndarray]) -> dict[str, Any]:
         if self._data_writer is not None and self._data_bytes >= DATA_FILES_SIZE_IN_MB * BYTES_PER_MB:
-            self._data_writer.close()
+            with self._writing(self._data_path):
+                self._data_writer.close()
             self._data_writer = None
             self._data_index = self._data_index.following(CHUNKS_SIZE)
+            self._data_path = self.root / data_path(self._data_index)
             self._data_bytes = 0
-        if self._data_writer is None:
-            path = self.root / data_path(self._data_index)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            self._data_writer = pq.ParquetWriter(path, schema=self.schema, compression="snappy", use_dictionary=True)
         arrays = [_arrow_column(values[name], field_.type) for name, field_ in zip(self.schema.names, self.schema, strict=True)]
         table = pa.Table.from_arrays(arrays, schema=self.schema)
-        self._data_writer.write_table(table)
+        with self._writing(self._data_path):
+            if self._data_writer is None:
+                self._data_path.parent.mkdir(parents=True, exist_ok=True)
+                self._data_writer = pq.ParquetWriter(self._data_path, schema=self.schema, compression="snappy", use_dictionary=True)
+            self._data_writer.write_table(table)
         self._data_bytes += table.nbytes
         first = int(values["index"][0])
         return {
@@ -226,7 +191,8 @@ class DatasetWriter:
         encoded = 0
         for key, stamp, pixels in frames(source.path, source.video_topics, wanted):
             for position, image in feeders[key].offer(stamp, pixels):
-                writers[key].write(image)
+                with self._writing(writers[key].path):
+                    writers[key].write(image)
                 encoded += 1
                 progress.update(encoded)
                 if position in sampled:
@@ -249,29 +215,36 @@ class DatasetWriter:
 
     def _video_writer(self, series: _VideoSeries) -> VideoFileWriter:
         if series.writer is not None and series.writer.bytes_muxed >= VIDEO_FILES_SIZE_IN_MB * BYTES_PER_MB:
-            series.writer.close()
+            with self._writing(series.writer.path):
+                series.writer.close()
             series.writer = None
             series.index = series.index.following(CHUNKS_SIZE)
         if series.writer is None:
             path = self.root / video_path(series.key, series.index)
-            series.writer = VideoFileWriter(path, self.codec, self.fps, self.spec.video_sizes()[series.key])
+            with self._writing(path):
+                series.writer = VideoFileWriter(path, self.codec, self.fps, self.spec.video_sizes()[series.key])
             series.files.append(path)
         return series.writer
 
     def abort(self) -> None:
+        """Close the open files of a dataset that is discarded; a file failing to close (disk full) changes nothing then."""
         if self._data_writer is not None:
-            self._data_writer.close()
+            with suppress(OSError):
+                self._data_writer.close()
         for series in self._videos.values():
             if series.writer is not None:
-                series.writer.abort()
+                with suppress(OSError):
+                    series.writer.abort()
 
     def finish(self, provenance: Provenance) -> None:
         """Close the files and write meta/: episodes, info, stats, tasks, provenance."""
         if self._data_writer is not None:
-            self._data_writer.close()
+            with self._writing(self._data_path):
+                self._data_writer.close()
         for series in self._videos.values():
             if series.writer is not None:
-                series.writer.close()
+                with self._writing(series.writer.path):
+                    series.writer.close()
         if self.state.spec is None:  # a new dataset: the video info comes from its first files, as lerobot reads it
             for key, series in self._videos.items():
                 self.features[key]["info"] = video_info(series.files[0])
@@ -280,14 +253,16 @@ class DatasetWriter:
             row["meta/episodes/chunk_index"] = meta_index.chunk
             row["meta/episodes/file_index"] = meta_index.file
         episodes_file = self.root / episodes_path(meta_index)
-        episodes_file.parent.mkdir(parents=True, exist_ok=True)
-        pq.write_table(pa.Table.from_pylist(self._rows), episodes_file, compression="snappy")
+        with self._writing(episodes_file):
+            episodes_file.parent.mkdir(parents=True, exist_ok=True)
+            pq.write_table(pa.Table.from_pylist(self._rows), episodes_file, compression="snappy")
         parts = ([self.state.stats] if self.state.stats else []) + self._episode_stats
-        write_json(self.root / STATS_PATH, to_json(aggregate(parts)))
+        self._write_json(self.root / STATS_PATH, to_json(aggregate(parts)))
         tasks_file = self.root / TASKS_PATH
-        fresh = tasks_file.with_name(".tasks.parquet.new")
-        pq.write_table(tasks_table(self.state.tasks), fresh)
-        fresh.replace(tasks_file)
+        with self._writing(tasks_file):
+            fresh = tasks_file.with_name(".tasks.parquet.new")
+            pq.write_table(tasks_table(self.state.tasks), fresh)
+            fresh.replace(tasks_file)
         info = info_document(
             fps=self.fps,
             robot_type=self.robot_type,
@@ -296,8 +271,12 @@ class DatasetWriter:
             frames=self.state.frames,
             tasks=len(self.state.tasks),
         )
-        write_json(self.root / INFO_PATH, info)
-        write_json(self.root / PROVENANCE_PATH, provenance.as_dict())
+        self._write_json(self.root / INFO_PATH, info)
+        self._write_json(self.root / PROVENANCE_PATH, provenance.as_dict())
+
+    def _write_json(self, path: Path, doc: Any) -> None:
+        with self._writing(path):
+            write_json(path, doc)
 
 
 def _arrow_column(values: np.ndarray, kind: pa.DataType) -> pa.Array:

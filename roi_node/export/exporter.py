@@ -9,6 +9,8 @@ place when every episode is written, so a failure leaves no output, and an
 append that fails leaves the old dataset as it was: the new folder starts
 with hard links to the old files (the new episodes go to new files; the
 meta files are rewritten through new files, never into the linked ones).
+The temporary folder is named after the process (core/atomic_output.py), so a
+later export to the same output removes the one a killed run left behind.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from ..bag.replay import replay_bag
-from ..core.atomic_output import ensure_parent
+from ..core.atomic_output import commit, ensure_parent, remove_orphaned_partials, remove_path, temporary_sibling
 from ..core.errors import BagError
 from ..core.sync import NS_PER_MS
 from ..report.gates import GateSet, load_gates
@@ -33,11 +35,13 @@ from ..report.manifest import hash_files
 from ..report.roibag import METADATA_TOPIC
 from ..report.validate import judge
 from .actions import Actions, CommandStream, next_state_actions
-from .dataset import DatasetState, DatasetWriter, EpisodeInput, load_state
-from .errors import DatasetError
+from .dataset import DatasetWriter, EpisodeInput
+from .errors import DatasetError, DatasetWriteError
+from .existing import DatasetState, load_state
 from .features import SOURCE_STAMP_KEY, STATE_KEY, ActionSource
 from .grid import GridPlan, resample
 from .limits import DEFAULT_MAX_AGE_MS
+from .options import check_fps, check_max_age_ms, check_task
 from .provenance import ActionOrigin, Provenance
 from .source import RoiSource, has_roi_outputs, read_source
 from .video import Codec
@@ -55,6 +59,11 @@ class ExportOptions:
     command_topic: str | None = None
     gates: Path | None = None
     progress: bool = False  # video frames encoded, rate and ETA on stderr (bag/progress.py)
+
+    def __post_init__(self) -> None:
+        check_fps(self.fps)
+        check_max_age_ms(self.max_age_ms)
+        check_task(self.task)
 
 
 @dataclass(frozen=True)
@@ -77,7 +86,8 @@ class EpisodeReport:
         gates = "gates PASS" if self.gates_passed else f"gates FAIL ({self.gates_failed} failed)"
         return (
             f"episode {self.episode_index}: {self.bag} ({origin}): {self.source_frames} frames{incomplete} -> {plan.frames} at "
-            f"{plan.fps} fps (dropped {plan.dropped}, duplicated {plan.duplicated}, oldest {plan.worst_age_ns / NS_PER_MS:.1f} ms)"
+            f"{plan.fps} fps (dropped {plan.dropped}, duplicated {plan.duplicated}, largest |grid time - frame stamp| "
+            f"{plan.worst_offset_ns / NS_PER_MS:.1f} ms, tolerance {plan.tolerance_ns / NS_PER_MS:.1f} ms)"
             f"{held}; {gates}"
         )
 
@@ -122,9 +132,9 @@ def export_lerobot(
         reports: list[EpisodeReport] = []
         try:
             for bag in bags:
-                with _roi_bag(bag, options, work.parent, (regenerated or {}).get(bag)) as roi:
+                with _roi_bag(bag, options, work, (regenerated or {}).get(bag)) as roi:
                     source = read_source(roi, gates.params)
-                    writer = writer or _writer(work, source, state, options, provenance.codec)
+                    writer = writer or _writer(work, output, source, state, options, provenance.codec)
                     report = _episode(writer, bag, source, options, provenance, gates)
                 reports.append(report)
                 if on_episode is not None:
@@ -166,10 +176,10 @@ def _provenance(state: DatasetState, options: ExportOptions) -> Provenance:
     return Provenance(old.codec, old.fps, options.max_age_ms, old.action, list(old.episodes))
 
 
-def _writer(work: Path, source: RoiSource, state: DatasetState, options: ExportOptions, codec: Codec) -> DatasetWriter:
+def _writer(work: Path, output: Path, source: RoiSource, state: DatasetState, options: ExportOptions, codec: Codec) -> DatasetWriter:
     spec = state.spec or source.spec
     return DatasetWriter(
-        work, fps=options.fps, codec=codec, spec=spec, robot_type=options.robot_type or source.robot_id, state=state,
+        work, output, fps=options.fps, codec=codec, spec=spec, robot_type=options.robot_type or source.robot_id, state=state,
         progress=options.progress,
     )
 
@@ -207,9 +217,10 @@ def _episode(
                 "source_frames": len(source.columns),
                 "usable_frames": len(source.usable),
                 "frames": plan.frames,
+                "tolerance_ms": plan.tolerance_ns / NS_PER_MS,
                 "dropped": plan.dropped,
                 "duplicated": plan.duplicated,
-                "oldest_ms": plan.worst_age_ns / NS_PER_MS,
+                "max_offset_ms": plan.worst_offset_ns / NS_PER_MS,
             },
             "action": {"command_topic": options.command_topic, "held_frames": actions.held_frames},
         }
@@ -237,8 +248,10 @@ def _roi_origin(config: Path | None) -> dict[str, Any]:
 def _roi_bag(bag: Path, options: ExportOptions, scratch: Path, made: Path | None) -> Iterator[Path]:
     """The bag's ROI outputs: the bag itself, or a replay of it through the rig into a temporary folder.
 
-    A command topic is the replay's command stream too (its records then carry the teleop residual),
-    never one of the measured joint state topics.
+    The temporary folder is made inside the dataset's temporary folder `scratch` (and removed before the
+    next bag), so a killed run leaves it only where the next run removes it. A command topic is the
+    replay's command stream too (its records then carry the teleop residual), never one of the measured
+    joint state topics.
     """
     if options.config is None:
         if not has_roi_outputs(bag):
@@ -258,25 +271,24 @@ def _roi_bag(bag: Path, options: ExportOptions, scratch: Path, made: Path | None
 
 @contextmanager
 def _staging(output: Path, append: bool) -> Iterator[Path]:
-    """A temporary sibling of `output`, moved into place when the block completes, removed otherwise."""
-    work = Path(tempfile.mkdtemp(prefix=f".{output.name}.", suffix=".tmp", dir=output.parent))
+    """A temporary sibling of `output` named after this process, moved into place when the block completes, removed otherwise.
+
+    First the temporary siblings of processes that are gone (a killed export) are removed.
+    """
+    remove_orphaned_partials(output)
+    work = temporary_sibling(output)
+    remove_path(work)
+    work.mkdir()
     try:
         if append:
             _link_tree(output, work)
         yield work
         if append:
-            backup = work.with_suffix(".old")
-            os.rename(output, backup)
-            try:
-                os.rename(work, output)
-            except OSError:
-                os.rename(backup, output)
-                raise
-            shutil.rmtree(backup)
+            commit(work, output)  # the old dataset is renamed aside, the new one in, then the old one deleted
         else:
             os.rename(work, output)
     finally:
-        shutil.rmtree(work, ignore_errors=True)
+        remove_path(work)
 
 
 def _link_tree(source: Path, target: Path) -> None:
@@ -289,4 +301,7 @@ def _link_tree(source: Path, target: Path) -> None:
         try:
             os.link(path, destination)
         except OSError:
-            shutil.copy2(path, destination)
+            try:
+                shutil.copy2(path, destination)
+            except OSError as exc:
+                raise DatasetWriteError(source, destination.relative_to(target).as_posix(), exc.strerror or str(exc)) from exc

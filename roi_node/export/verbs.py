@@ -3,17 +3,34 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 from typing import Any
 
 from ..arg_types import int_at_least
+from .limits import MAX_AGE_LIMIT_MS, MAX_FPS, MIN_FPS
 
 
-def _positive_float(text: str) -> float:
+def _max_age_ms(text: str) -> float:
+    """--max-age-ms above 0 and at most MAX_AGE_LIMIT_MS (ExportOptions checks the same for API callers)."""
     value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    if not (math.isfinite(value) and 0 < value <= MAX_AGE_LIMIT_MS):
+        raise argparse.ArgumentTypeError(f"must be above 0 and at most {MAX_AGE_LIMIT_MS:g}, got {text}")
     return value
+
+
+_max_age_ms.__name__ = "float"  # argparse names the type in "invalid float value: 'x'"
+
+
+def _fps(text: str) -> int:
+    """--fps within MIN_FPS..MAX_FPS (ExportOptions checks the same for API callers)."""
+    value = int_at_least(MIN_FPS)(text)
+    if value > MAX_FPS:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_FPS} (SVT-AV1's maximum frame rate), got {value}")
+    return value
+
+
+_fps.__name__ = "int"  # argparse names the type in "invalid int value: 'x'"
 
 
 def export_options(args: argparse.Namespace) -> Any:
@@ -68,13 +85,16 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="ROI bags -> a LeRobot v3.0 dataset (one bag = one episode)",
         description="Write ROI bags (replay outputs, or live recordings of the node's outputs) as episodes of a LeRobot v3.0 "
         "dataset: global and per-arm ROI videos, observation.state from the records' joint_positions, action, and per arm "
-        "the ROI's crop box, confidence, in-frame, padding and validity. Frames are put on a fixed fps grid (the latest "
-        "frame at or before each grid time, no older than --max-age-ms). With --config, raw recordings are first run "
+        "the ROI's crop box, confidence, in-frame, padding and validity. Frames are put on a fixed fps grid: each grid time "
+        "shows the frame nearest to it, stamped at most half a source period (or half a grid period, if shorter) after it; "
+        "a grid time with no frame within --max-age-ms before it refuses the bag. With --config, raw recordings are first run "
         "through the rig's pipeline. Provenance (bag hashes, lineage, gate results) goes to meta/roi_node_provenance.json.",
     )
     lerobot.add_argument("bags", nargs="+", metavar="BAG", help="ROI bags (or raw recordings with --config), one episode each")
     lerobot.add_argument("-o", "--output", required=True, metavar="DATASET", help="dataset folder to write")
-    lerobot.add_argument("--fps", required=True, type=int_at_least(1), metavar="N", help="dataset frame rate (the grid)")
+    lerobot.add_argument(
+        "--fps", required=True, type=_fps, metavar="N", help=f"dataset frame rate (the grid), {MIN_FPS} to {MAX_FPS} (SVT-AV1's maximum)"
+    )
     lerobot.add_argument("--task", required=True, metavar="TEXT", help="task description of these episodes")
     lerobot.add_argument("--config", metavar="RIG", help="regenerate the ROIs of raw recordings with this rig config")
     lerobot.add_argument("--robot-type", metavar="NAME", help="info.json robot_type (default: the records' robot_id)")
@@ -83,8 +103,8 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "--codec", choices=["av1", "h264", "lossless"], help="video codec (default: av1 as LeRobot, or the dataset's own with --append)"
     )
     lerobot.add_argument(
-        "--max-age-ms", type=_positive_float, default=DEFAULT_MAX_AGE_MS, metavar="MS",
-        help=f"oldest a source frame may be at a grid time (default: {DEFAULT_MAX_AGE_MS:g})",
+        "--max-age-ms", type=_max_age_ms, default=DEFAULT_MAX_AGE_MS, metavar="MS",
+        help=f"oldest a source frame may be at a grid time, at most {MAX_AGE_LIMIT_MS:g} (default: {DEFAULT_MAX_AGE_MS:g})",
     )
     lerobot.add_argument("--command-topic", metavar="T", help="JointState topic of commanded positions: action (default: next state)")
     lerobot.add_argument("--gates", metavar="FILE", help="gates YAML whose verdicts go into the provenance (default: bundled)")
