@@ -9,6 +9,12 @@ camera's delay, and the image shift that best aligns it is the reprojection
 offset (a drift proxy for extrinsics or intrinsics). No detector is learned
 or trained: the evidence is the difference from the bag's own static scene.
 
+Before fitting, the inputs are screened (calibration_inputs): joint states
+beyond the URDF limits, joints that hold still while the images move, and
+bags where nothing moves cannot be measured, and the check says so instead
+of fitting. The offsets are fitted only at a delay the evidence resolves.
+What the fits support is judged in calibration_verdict.
+
 The bag is read in two passes over the image topic: frames sampled across
 the bag for the static scene, then every frame for the evidence around each
 arm. Works on recorded input bags and on ROI bags that carry their inputs
@@ -19,8 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
-from enum import StrEnum
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -36,163 +41,22 @@ from ..core.errors import BagError, CalibrationError, ImageError
 from ..core.kinematics import RobotKinematics
 from ..core.sync import NS_PER_MS
 from .arm_tracks import ArmTrack, JointSeries, arm_tracks
-from .calibration_fit import DelayFit, FrameEvidence, OffsetFit, fit_delay, fit_offsets
-from .gates import BAG_SCOPE, CALIBRATION_DELAY_GATE, CALIBRATION_OFFSET_GATE, GateSet, gate_threshold
-from .motion_evidence import EvidenceCrop, WorkingScale, arm_mask, background, box_around, noise_threshold
+from .calibration_fit import FrameEvidence, fit_delay, fit_offsets, skeleton_motion
+from .calibration_inputs import images_move, screen_joint_limits, screen_motion
+from .calibration_verdict import MIN_MOVING_FRAMES, CalibrationCheck, Tolerances
+from .motion_evidence import EvidenceCrop, StaticScene, WorkingScale, arm_mask, background, box_around, noise_threshold
 
-CALIBRATION_SCHEMA = "roi_node/calibration/v1"
 SEARCH_MS = (-50.0, 250.0)
 BACKGROUND_FRAMES = 32  # frames sampled across the bag for the static-scene median
 TRACK_STEP_NS = 5 * NS_PER_MS
 OFFSET_RADIUS_PX = 48.0  # raw px: the largest reprojection offset searched
-MIN_MOVING_FRAMES = 10
 REFINE_ROUNDS = 2  # delay and offsets fitted again, each with the other's estimate
 # an offset below this (raw px) is within the method's own bias on a well-calibrated rig: the delay is not refitted for it
 REFIT_MIN_OFFSET_PX = 3.0
-DEFAULT_DELAY_TOLERANCE_MS = 10.0
-DEFAULT_OFFSET_TOLERANCE_PX = 8.0
+LINK_MASK_SHARE = 0.4  # of the hand's mask radius: how wide a link is masked in the static scene
 _CROP_DELAYS = 16  # candidate delays whose points bound an arm's crop
 SKIPPED_FRAME_ERRORS: tuple[type[BaseException], ...] = (ImageError, *DESERIALIZE_ERRORS)  # a bad frame is left out
 SKIPPED_STREAM_ERRORS: tuple[type[BaseException], ...] = (CalibrationError, *DESERIALIZE_ERRORS)
-
-
-class Verdict(StrEnum):
-    OK = "ok"
-    OFF = "off"  # outside the tolerance
-    UNKNOWN = "unknown"  # not enough evidence to say
-
-
-@dataclass(frozen=True)
-class Tolerances:
-    """What counts as right: the gates calibration_delay_error_ms and calibration_reprojection_offset_px."""
-
-    delay_ms: float = DEFAULT_DELAY_TOLERANCE_MS
-    reprojection_px: float = DEFAULT_OFFSET_TOLERANCE_PX
-
-    @classmethod
-    def from_gates(cls, gates: GateSet) -> Tolerances:
-        """The gates' max bounds; a gate switched off leaves the default tolerance."""
-        delay = gate_threshold(gates, CALIBRATION_DELAY_GATE, "max")
-        offset = gate_threshold(gates, CALIBRATION_OFFSET_GATE, "max")
-        return cls(DEFAULT_DELAY_TOLERANCE_MS if delay is None else delay, DEFAULT_OFFSET_TOLERANCE_PX if offset is None else offset)
-
-
-@dataclass(frozen=True)
-class CalibrationCheck:
-    bag: Path
-    image_topic: str
-    frames: int
-    configured_delay_ms: float
-    delay: DelayFit
-    offsets: dict[str, OffsetFit]
-    tolerances: Tolerances
-
-    @property
-    def delay_error_ms(self) -> float:
-        """How far the configured camera.delay_ms is from the measured delay."""
-        return abs(self.delay.delay_ms - self.configured_delay_ms)
-
-    @property
-    def delay_confidence(self) -> float:
-        """1 when the 95% interval is far inside the tolerance, 0 when it is as wide as the tolerance."""
-        if self.delay.moving_frames < MIN_MOVING_FRAMES or self.delay.contrast <= 0:
-            return 0.0
-        half_width = (self.delay.ci_ms[1] - self.delay.ci_ms[0]) / 2
-        return float(np.clip(1.0 - half_width / self.tolerances.delay_ms, 0.0, 1.0))
-
-    @property
-    def delay_verdict(self) -> Verdict:
-        if self.delay_confidence == 0.0:
-            return Verdict.UNKNOWN
-        return Verdict.OK if self.delay_error_ms <= self.tolerances.delay_ms else Verdict.OFF
-
-    def offset_px(self, arm_id: str) -> float | None:
-        offset = self.offsets[arm_id].offset_px
-        return None if offset is None else math.hypot(*offset)
-
-    def offset_verdict(self, arm_id: str) -> Verdict:
-        size = self.offset_px(arm_id)
-        if size is None or self.offsets[arm_id].frames < MIN_MOVING_FRAMES:
-            return Verdict.UNKNOWN
-        return Verdict.OK if size <= self.tolerances.reprojection_px else Verdict.OFF
-
-    @property
-    def verdict(self) -> Verdict:
-        verdicts = [self.delay_verdict, *(self.offset_verdict(a) for a in self.offsets)]
-        if Verdict.OFF in verdicts:
-            return Verdict.OFF
-        return Verdict.UNKNOWN if Verdict.UNKNOWN in verdicts else Verdict.OK
-
-    def hints(self) -> list[str]:
-        out = []
-        if self.delay_verdict is Verdict.OFF:
-            out.append(f"set camera.delay_ms: {self.delay.delay_ms:.1f} (configured {self.configured_delay_ms:g})")
-        drifted = [a for a in self.offsets if self.offset_verdict(a) is Verdict.OFF]
-        if drifted:
-            out.append(f"recalibrate extrinsics (or intrinsics): arms {', '.join(drifted)} are drawn away from where FK puts them")
-        return out
-
-    def gate_metrics(self) -> dict[str, dict[str, float | None]]:
-        """The calibration gates' values: the bag's delay error (BAG_SCOPE) and every arm's offset; None when unknown."""
-        out: dict[str, dict[str, float | None]] = {
-            BAG_SCOPE: {CALIBRATION_DELAY_GATE: None if self.delay_verdict is Verdict.UNKNOWN else round(self.delay_error_ms, 2)}
-        }
-        for arm_id in self.offsets:
-            size = self.offset_px(arm_id)
-            known = size is not None and self.offset_verdict(arm_id) is not Verdict.UNKNOWN
-            out[arm_id] = {CALIBRATION_OFFSET_GATE: round(size, 2) if known and size is not None else None}
-        return out
-
-    def as_dict(self) -> dict[str, Any]:
-        arms = {}
-        for arm_id, fit in self.offsets.items():
-            arms[arm_id] = {
-                "offset_px": None if fit.offset_px is None else [round(v, 2) for v in fit.offset_px],
-                "offset_norm_px": None if (size := self.offset_px(arm_id)) is None else round(size, 2),
-                "spread_px": None if fit.spread_px is None else [round(v, 2) for v in fit.spread_px],
-                "frames": fit.frames,
-                "verdict": str(self.offset_verdict(arm_id)),
-            }
-        return {
-            "schema": CALIBRATION_SCHEMA,
-            "bag": str(self.bag),
-            "image_topic": self.image_topic,
-            "frames": self.frames,
-            "delay_ms": round(self.delay.delay_ms, 2),
-            "delay_ci_ms": [round(v, 2) for v in self.delay.ci_ms],
-            "delay_std_ms": round(self.delay.std_ms, 3),
-            "delay_confidence": round(self.delay_confidence, 3),
-            "configured_delay_ms": self.configured_delay_ms,
-            "delay_error_ms": round(self.delay_error_ms, 2),
-            "delay_verdict": str(self.delay_verdict),
-            "moving_frames": self.delay.moving_frames,
-            "reprojection_offset_px": {a: v["offset_px"] for a, v in arms.items()},
-            "arms": arms,
-            "tolerances": {"delay_ms": self.tolerances.delay_ms, "reprojection_px": self.tolerances.reprojection_px},
-            "verdict": str(self.verdict),
-            "hints": self.hints(),
-        }
-
-    def lines(self) -> list[str]:
-        d = self.delay
-        out = [
-            f"{self.bag}: {self.frames} frames on {self.image_topic}, {d.moving_frames} with arm motion",
-            f"camera delay: {d.delay_ms:.1f} ms (95% interval {d.ci_ms[0]:.1f} .. {d.ci_ms[1]:.1f}, confidence "
-            f"{self.delay_confidence:.2f}); configured {self.configured_delay_ms:g} ms: {self.delay_verdict} "
-            f"(tolerance {self.tolerances.delay_ms:g} ms)",
-        ]
-        for arm_id, fit in self.offsets.items():
-            if fit.offset_px is None or fit.spread_px is None:
-                out.append(f"arm {arm_id}: reprojection offset unknown (the arm was not seen moving)")
-                continue
-            (dx, dy), (sx, sy) = fit.offset_px, fit.spread_px
-            out.append(
-                f"arm {arm_id}: reprojection offset ({dx:+.1f}, {dy:+.1f}) px (per-frame spread {sx:.1f}, {sy:.1f}; "
-                f"{fit.frames} frames): {self.offset_verdict(arm_id)} (tolerance {self.tolerances.reprojection_px:g} px)"
-            )
-        out.extend(f"hint: {h}" for h in self.hints())
-        out.append(f"verdict: {self.verdict}")
-        return out
 
 
 def carries_inputs(topics: dict[str, TopicStats]) -> bool:
@@ -205,12 +69,15 @@ def carries_inputs(topics: dict[str, TopicStats]) -> bool:
 def check_calibration(
     bag_path: Path, rig: RigConfig, tolerances: Tolerances, *, search_ms: tuple[float, float] = SEARCH_MS
 ) -> CalibrationCheck:
-    """Measure the camera delay and every arm's reprojection offset from one bag."""
+    """Measure the camera delay and every arm's reprojection offset from one bag (or say why it cannot be measured)."""
     path = Path(bag_path)
+    arm_ids = tuple(a.id for a in rig.arms)
     with open_bag(path) as reader:
         if reader.message_count == 0:
             raise BagError(f"{path}: the bag is empty (no messages)")
         selection = select_inputs(path, topic_stats(reader), need_camera_info=rig.camera.intrinsics is None)
+        unmeasured = partial(CalibrationCheck, path, selection.image_topic, arm_ids=arm_ids, configured_delay_ms=rig.camera.delay_ms,
+                             tolerances=tolerances)
         first = _FirstPass(reader, selection, path, rig.camera.rectified)
         camera = rig.camera.intrinsics
         if camera is None:
@@ -219,16 +86,21 @@ def check_calibration(
             camera = min(first.cameras, key=lambda stamped: stamped[0])[1]  # the earliest stamped
         kinematics = {r.id: RobotKinematics(r.id, r.urdf_path) for r in rig.robots}
         continuous = _continuous(rig, kinematics, frozenset(n for _, names, _ in first.joints for n in names))
-        joints = JointSeries.from_samples(first.joints, continuous)
         required = _required_joints(rig, kinematics)
+        joints, beyond_limits = screen_joint_limits(
+            JointSeries.from_samples(first.joints, continuous), _joint_limits(rig, kinematics, required)
+        )
         absent = [n for n in required if n not in joints.values]
         if absent:
             raise BagError(f"{path}: the rig needs joints {', '.join(absent)} that the bag's joint states do not name")
+        if beyond_limits is not None:
+            return unmeasured(frames=None, blocked=beyond_limits)
         start, stop = joints.span_ns(required)
         tracks = arm_tracks(rig, kinematics, camera, joints, (start, stop), TRACK_STEP_NS)
         scale = WorkingScale.for_image(camera.width_px, camera.height_px)
         frames = _FrameReader(reader, selection, path, camera)
-        static = _static_scene(first.sampled(camera), tracks, scale, search_ms)
+        sampled = first.sampled(camera)
+        static = _static_scene(sampled, tracks, scale, search_ms)
         radius_work = max(1, math.ceil(OFFSET_RADIUS_PX * scale.factor))
         evidence = _evidence(frames, tracks, scale, static, search_ms, radius_work)
     if len(evidence) < MIN_MOVING_FRAMES:
@@ -236,21 +108,39 @@ def check_calibration(
             f"{path}: only {len(evidence)} frames have joint states for every capture time searched "
             f"({search_ms[0]:g} .. {search_ms[1]:g} ms before their stamps); the check needs at least {MIN_MOVING_FRAMES}"
         )
+    skeleton_moving = skeleton_motion(evidence, tracks, scale, search_ms)
+    motionless = screen_motion(skeleton_moving, len(evidence), images_move([image for _, image in sampled]))
+    if motionless is not None:
+        return unmeasured(frames=len(evidence), blocked=motionless, skeleton_moving_frames=skeleton_moving)
+    measured = partial(unmeasured, frames=len(evidence), skeleton_moving_frames=skeleton_moving)
+    delay = fit_delay(evidence, tracks, scale, search_ms, {})
+    if not measured(delay=delay).delay_resolved:
+        return measured(delay=delay)  # offsets are fitted at the delay: without one they would be fitted anywhere
     # a miscalibrated camera shifts the skeleton off the arm, which the delay alone would try to absorb:
     # fit the delay, then the offsets at that delay, then the delay again with the skeleton shifted by them
-    delay = fit_delay(evidence, tracks, scale, search_ms, {})
     offsets = fit_offsets(evidence, tracks, scale, round(delay.delay_ms * NS_PER_MS), radius_work)
     for round_index in range(REFINE_ROUNDS):
         shifts = {
             a: np.asarray(f.offset_px) * scale.factor
             for a, f in offsets.items()
-            if f.offset_px is not None and math.hypot(*f.offset_px) >= REFIT_MIN_OFFSET_PX
+            if f.offset_px is not None and not f.at_search_edge and math.hypot(*f.offset_px) >= REFIT_MIN_OFFSET_PX
         }
         if not shifts:
             break
         delay = fit_delay(evidence, tracks, scale, search_ms, shifts, previous=delay if round_index else None)
         offsets = fit_offsets(evidence, tracks, scale, round(delay.delay_ms * NS_PER_MS), radius_work, previous=offsets)
-    return CalibrationCheck(path, selection.image_topic, len(evidence), rig.camera.delay_ms, delay, offsets, tolerances)
+    return measured(delay=delay, offsets=offsets)
+
+
+def _joint_limits(rig: RigConfig, kinematics: dict[str, RobotKinematics], names: list[str]) -> dict[str, tuple[float, float]]:
+    """(lower, upper) of every limited joint among `names` (JointState names), from the URDFs."""
+    out: dict[str, tuple[float, float]] = {}
+    for robot in rig.robots:
+        for name in (n for n in names if n.startswith(robot.joint_prefix)):
+            limits = kinematics[robot.id].limits(name.removeprefix(robot.joint_prefix))
+            if limits is not None:
+                out.setdefault(name, limits)
+    return out
 
 
 def _required_joints(rig: RigConfig, kinematics: dict[str, RobotKinematics]) -> list[str]:
@@ -354,8 +244,12 @@ def _crop_delays_ns(search_ms: tuple[float, float]) -> np.ndarray:
 
 def _static_scene(
     sampled: list[tuple[int, np.ndarray]], tracks: tuple[ArmTrack, ...], scale: WorkingScale, search_ms: tuple[float, float]
-) -> np.ndarray:
-    """The median of frames sampled across the bag, leaving out where FK puts an arm at any candidate delay."""
+) -> StaticScene:
+    """The median of frames sampled across the bag, leaving out where FK puts an arm at any candidate delay.
+
+    The hand (ee -> tip) is masked `reach` wide, the links LINK_MASK_SHARE of that: links are thinner than a
+    hand, and a wider mask would leave no sampled frame free where the arm works.
+    """
     delays = _crop_delays_ns(search_ms)
     images, masks = [], []
     for stamp, small in sampled:
@@ -364,7 +258,9 @@ def _static_scene(
             times = stamp - delays
             points = scale.to_work(track.at(times))
             reach = track.reach_at(times) * scale.factor
-            skeletons += [(p, float(r)) for p, r in zip(points, reach, strict=True)]
+            links = ~track.gripper | np.r_[False, ~track.gripper[:-1]]  # the link polyline up to the ee
+            for p, r in zip(points, reach, strict=True):
+                skeletons += [(p[links], float(r) * LINK_MASK_SHARE), (p[track.gripper], float(r))]
         images.append(small)
         masks.append(arm_mask(small.shape[:2], skeletons))
     return background(images, masks)
@@ -374,7 +270,7 @@ def _evidence(
     frames: _FrameReader,
     tracks: tuple[ArmTrack, ...],
     scale: WorkingScale,
-    static: np.ndarray,
+    static: StaticScene,
     search_ms: tuple[float, float],
     radius_work: int,
 ) -> list[FrameEvidence]:
@@ -386,10 +282,10 @@ def _evidence(
         if not first <= stamp <= last:  # every candidate capture time must have joint samples
             continue
         small = scale.shrink(image)
-        threshold = noise_threshold(small, static)
+        threshold = noise_threshold(small, static.image)
         crops: dict[str, EvidenceCrop] = {}
         for track in tracks:
-            box = box_around(scale.to_work(track.at(stamp - delays)).reshape(-1, 2), radius_work + 2, static.shape[:2])
+            box = box_around(scale.to_work(track.at(stamp - delays)).reshape(-1, 2), radius_work + 2, static.known.shape)
             if box is not None:
                 crops[track.arm_id] = EvidenceCrop.of(small, static, threshold, box)
         out.append(FrameEvidence(stamp, crops))

@@ -14,7 +14,9 @@ so blocks of about a second are resampled, not frames.
 The reprojection offset of an arm is the image shift o that maximises the
 same score at the fitted delay: FK + calibration put the arm at p, the images
 show it at p + o. A constant o is what a rotated or shifted camera (or a
-principal point error) does; the per-frame argmax gives its spread.
+principal point error) does; the per-frame argmax gives its spread, and the
+same block bootstrap its uncertainty (the radius holding 95% of the
+resampled estimates).
 """
 
 from __future__ import annotations
@@ -55,6 +57,11 @@ class DelayFit:
     std_ms: float
     moving_frames: int
     contrast: float  # (peak - median of S over the range) / peak: 0 when the curve is flat
+    at_search_edge: bool  # the coarse maximum is an end of the range searched: the delay is outside it (or nowhere)
+
+    @property
+    def half_width_ms(self) -> float:
+        return (self.ci_ms[1] - self.ci_ms[0]) / 2
 
 
 @dataclass(frozen=True)
@@ -63,6 +70,8 @@ class OffsetFit:
     offset_px: tuple[float, float] | None  # raw image px: images minus FK + calibration
     spread_px: tuple[float, float] | None  # robust std of the per-frame offsets
     frames: int
+    ci_radius_px: float | None  # raw px around offset_px holding 95% of the bootstrap estimates
+    at_search_edge: bool  # the coarse maximum is on the edge of the offsets searched: the offset is beyond them (or nowhere)
 
 
 def _points_work(track: ArmTrack, scale: WorkingScale, times_ns: NDArray[np.int64], offset_work: Float64Array) -> Float64Array:
@@ -90,6 +99,21 @@ def score_curves(
             travel = np.hypot(*(points[-1] - points[0]).T)
             moving[k] |= bool(np.nanmax(travel, initial=0.0) >= MOTION_FLOOR_PX)
     return curves, moving
+
+
+def skeleton_motion(
+    frames: Sequence[FrameEvidence], tracks: Sequence[ArmTrack], scale: WorkingScale, search_ms: tuple[float, float]
+) -> int:
+    """How many frames FK says an arm moves in: some point travels MOTION_FLOOR_PX between the ends of the search range.
+
+    What the joint states alone say, before any image evidence: frozen or static joints give 0.
+    """
+    ends_ns = np.round(np.asarray(search_ms) * NS_PER_MS).astype(np.int64)
+    moving = 0
+    for frame in frames:
+        travel = [np.hypot(*np.diff(_points_work(t, scale, frame.stamp_ns - ends_ns, np.zeros(2)), axis=0)[0].T) for t in tracks]
+        moving += any(np.nanmax(d, initial=0.0) >= MOTION_FLOOR_PX for d in travel)
+    return moving
 
 
 def _peak(delays_ms: Float64Array, totals: Float64Array) -> Float64Array:
@@ -123,20 +147,22 @@ def fit_delay(
 
     With `previous` (a refit after a small change, e.g. of the offsets), only the fine search around it is run.
     """
+    lo, hi = search_ms
     if previous is None:
-        lo, hi = search_ms
         coarse_ms: Float64Array = np.arange(lo, hi + COARSE_STEP_MS / 2, COARSE_STEP_MS, dtype=np.float64)
         coarse, moving_frames = score_curves(frames, tracks, scale, np.round(coarse_ms * NS_PER_MS).astype(np.int64), offsets_work)
         total = coarse.sum(axis=0)
-        centre = float(coarse_ms[int(np.argmax(total))])
+        best = int(np.argmax(total))
+        centre = float(coarse_ms[best])
+        at_edge = best in (0, len(coarse_ms) - 1)
         peak_value = float(total.max())
         contrast = (peak_value - float(np.median(total))) / peak_value if peak_value > 0 else 0.0
         moving = int(moving_frames.sum())
     else:
         centre = round(previous.delay_ms / FINE_STEP_MS) * FINE_STEP_MS
-        contrast, moving = previous.contrast, previous.moving_frames
+        contrast, moving, at_edge = previous.contrast, previous.moving_frames, previous.at_search_edge
     fine_ms: Float64Array = np.arange(
-        centre - FINE_HALF_WIDTH_MS, centre + FINE_HALF_WIDTH_MS + FINE_STEP_MS / 2, FINE_STEP_MS, dtype=np.float64
+        max(lo, centre - FINE_HALF_WIDTH_MS), min(hi, centre + FINE_HALF_WIDTH_MS) + FINE_STEP_MS / 2, FINE_STEP_MS, dtype=np.float64
     )
     fine, _ = score_curves(frames, tracks, scale, np.round(fine_ms * NS_PER_MS).astype(np.int64), offsets_work)
     delay = float(_peak(fine_ms, fine.sum(axis=0)[None, :])[0])
@@ -144,11 +170,11 @@ def fit_delay(
     estimates = _peak(fine_ms, resampled)
     tail = (1.0 - CI_LEVEL) / 2 * 100
     ci = (float(np.percentile(estimates, tail)), float(np.percentile(estimates, 100 - tail)))
-    return DelayFit(delay, ci, float(np.std(estimates)), moving, contrast)
+    return DelayFit(delay, ci, float(np.std(estimates)), moving, contrast, at_edge)
 
 
 def _bootstrap(curves: Float64Array, stamps_ns: NDArray[np.int64], seed: int) -> Float64Array:
-    """Summed curves of BOOTSTRAP_RESAMPLES block resamples of the frames (R x D)."""
+    """Summed curves (N x D per frame) of BOOTSTRAP_RESAMPLES block resamples of the frames (R x D)."""
     block = np.floor((stamps_ns - stamps_ns.min()) / (BOOTSTRAP_BLOCK_S * 1e9)).astype(np.int64)
     ids, inverse = np.unique(block, return_inverse=True)
     sums = np.zeros((len(ids), curves.shape[1]))
@@ -165,49 +191,72 @@ def fit_offsets(
     delay_ns: int,
     radius_work: int,
     previous: dict[str, OffsetFit] | None = None,
+    seed: int = 0,
 ) -> dict[str, OffsetFit]:
     """Per arm, the image shift that best aligns its skeleton with the foreground at the fitted delay.
 
     A coarse grid over +-radius_work finds the basin (or `previous` says where it is), a 1 px grid of
     +-OFFSET_FINE_HALF_PX around it the peak (refined by parabolas); the per-frame maxima on the fine
-    grid give the spread.
+    grid give the spread, a block bootstrap of the frames the uncertainty.
     """
     coarse_step = max(1, radius_work // OFFSET_COARSE_STEPS)
+    coarse = _square_grid(np.zeros(2), radius_work, coarse_step)
     out: dict[str, OffsetFit] = {}
     for track in tracks:
+        unseen = OffsetFit(track.arm_id, None, None, 0, None, False)
         points = [
-            (crop, _points_work(track, scale, np.array([frame.stamp_ns - delay_ns]), np.zeros(2))[0])
+            (frame.stamp_ns, crop, _points_work(track, scale, np.array([frame.stamp_ns - delay_ns]), np.zeros(2))[0])
             for frame in frames
             if (crop := frame.crops.get(track.arm_id)) is not None
         ]
-        points = [(crop, p) for crop, p in points if np.isfinite(p).all(axis=1).any()]
+        points = [(t, crop, p) for t, crop, p in points if np.isfinite(p).all(axis=1).any()]
         known = None if previous is None else previous[track.arm_id].offset_px
+        at_edge = False if previous is None else previous[track.arm_id].at_search_edge
         if known is not None:
             centre = np.round(np.asarray(known) * scale.factor)
         else:
-            coarse = _square_grid(np.zeros(2), radius_work, coarse_step)
-            total = sum((crop.sample(p[None] + coarse[:, None]).sum(axis=1) for crop, p in points), np.zeros(len(coarse)))
+            total = sum((_responses(crop, p, coarse, known_everywhere=False) for _, crop, p in points), np.zeros(len(coarse)))
             if not points or total.max() <= 0:
-                out[track.arm_id] = OffsetFit(track.arm_id, None, None, 0)
+                out[track.arm_id] = unseen
                 continue
-            centre = coarse[int(np.argmax(total))]
+            best = int(np.argmax(total))
+            centre = coarse[best]
+            at_edge = bool(np.abs(centre).max() >= np.abs(coarse).max())
         fine = _square_grid(centre, OFFSET_FINE_HALF_PX, 1)
         side = 2 * OFFSET_FINE_HALF_PX + 1
-        responses = np.array([crop.sample(p[None] + fine[:, None]).sum(axis=1) for crop, p in points]).reshape(-1, len(fine))
+        responses = np.array([_responses(crop, p, fine, known_everywhere=True) for _, crop, p in points]).reshape(-1, len(fine))
         seen = responses.max(axis=1) > 0
         if not seen.any():
-            out[track.arm_id] = OffsetFit(track.arm_id, None, None, 0)
+            out[track.arm_id] = unseen
             continue
         mean_work = centre + _refine(responses.sum(axis=0).reshape(side, side))
         offsets = np.array([centre + _refine(r.reshape(side, side)) for r in responses[seen]])
         spread_work = 1.4826 * np.median(np.abs(offsets - np.median(offsets, axis=0)), axis=0)
+        resampled = _bootstrap(responses[seen], np.array([t for t, _, _ in points], np.int64)[seen], seed)
+        estimates = np.array([centre + _refine(r.reshape(side, side)) for r in resampled])
+        radius_work_95 = float(np.percentile(np.hypot(*(estimates - mean_work).T), CI_LEVEL * 100))
         out[track.arm_id] = OffsetFit(
             track.arm_id,
             (float(mean_work[0] / scale.factor), float(mean_work[1] / scale.factor)),
             (float(spread_work[0] / scale.factor), float(spread_work[1] / scale.factor)),
             int(seen.sum()),
+            radius_work_95 / scale.factor,
+            at_edge,
         )
     return out
+
+
+def _responses(crop: EvidenceCrop, points_work: Float64Array, grid: Float64Array, *, known_everywhere: bool) -> Float64Array:
+    """The score of one frame's points shifted by each grid offset (G).
+
+    Only points where the static scene is known count: at every shift (`known_everywhere`, the same points
+    for every shift), or else where they are unshifted (the coarse grid, which only finds the basin).
+    """
+    shifted = points_work[None] + grid[:, None]
+    used = crop.known_at(shifted).all(axis=0) if known_everywhere else crop.known_at(points_work)
+    if not used.any():
+        return np.zeros(len(grid))
+    return crop.sample(shifted[:, used]).sum(axis=1)
 
 
 def _square_grid(centre: Float64Array, half: int, step: int) -> Float64Array:

@@ -12,6 +12,15 @@ and the score falls off linearly to either side. A plain mask would score
 every point inside a limb the same, and the best delay would be anywhere
 the skeleton stays inside the silhouette.
 
+A pixel that an arm covers in (nearly) every sampled frame has no static
+value: its median is the arm itself, and its difference from a frame shows
+only where the arm moved off its usual place, the edges of the silhouette,
+not its centre line. A skeleton drawn correctly there lies between two such
+edges and scores less than one shifted onto an edge: a bias of the evidence,
+not of the calibration. So the static scene says where it is known (at least
+MIN_FREE_SAMPLES frames without an arm), and the fit uses only points whose
+every candidate position falls where it is known.
+
 Everything runs at a working resolution of about WORK_WIDTH_PX across, and
 per frame only the region each arm can be in (over the candidate delays and
 offsets) is kept, so a long 720p bag fits in memory.
@@ -36,6 +45,7 @@ MAX_DEPTH_PX = 31.0  # working px: the evidence saturates this deep inside a par
 _DEPTH_LEVELS = 8.0  # uint8 levels per working px in a stored crop
 _BLUR_SIGMA_PX = 1.0  # working pixels: smooths the distance ridge for sub-pixel interpolation
 _OUTSIDE = -1.0e5  # a remap coordinate that lands outside every map
+MIN_FREE_SAMPLES = 3  # sampled frames with no arm near a pixel before its static value is trusted
 
 
 @dataclass(frozen=True)
@@ -75,10 +85,19 @@ def arm_mask(shape: tuple[int, int], skeletons_work: list[tuple[Float64Array, fl
     return mask.astype(bool)
 
 
-def background(frames: list[np.ndarray], arm_masks: list[np.ndarray]) -> np.ndarray:
-    """The static scene (H x W x C uint8): per pixel, the median of the frames where no arm can be.
+@dataclass(frozen=True)
+class StaticScene:
+    """The scene without the arms, and where that is known."""
 
-    A pixel that some arm covers in every sampled frame keeps the plain median.
+    image: np.ndarray  # H x W x C uint8
+    known: np.ndarray  # H x W bool: at least MIN_FREE_SAMPLES sampled frames had no arm at the pixel
+
+
+def background(frames: list[np.ndarray], arm_masks: list[np.ndarray]) -> StaticScene:
+    """Per pixel, the median of the sampled frames where no arm can be.
+
+    A pixel that some arm covers in every sampled frame keeps the plain median (the image needs a value);
+    it is not `known`.
     """
     stack = np.stack(frames)
     shape = stack.shape[1:]
@@ -86,6 +105,7 @@ def background(frames: list[np.ndarray], arm_masks: list[np.ndarray]) -> np.ndar
     samples = stack.reshape(n, -1).T.astype(np.uint16)  # pixel-major: each row sorts contiguously
     plain = np.sort(samples, axis=1)[:, n // 2]
     masked = np.stack(arm_masks).reshape(n, -1).T
+    free = n - masked.sum(axis=1)
     if len(shape) == 3:
         masked = np.repeat(masked, shape[2], axis=0)  # the same mask for every channel of a pixel
     samples[masked] = _MASKED
@@ -94,7 +114,14 @@ def background(frames: list[np.ndarray], arm_masks: list[np.ndarray]) -> np.ndar
     rows = np.arange(len(samples))
     median = samples[rows, np.maximum(count - 1, 0) // 2]
     out = np.where(count > 0, median, plain)
-    return out.astype(np.uint8).reshape(shape)
+    return StaticScene(out.astype(np.uint8).reshape(shape), (free >= min(MIN_FREE_SAMPLES, n)).reshape(shape[:2]))
+
+
+def moving_share(frame: np.ndarray, static: np.ndarray) -> float:
+    """The share of a frame's pixels (sparsely sampled) that differ from `static` by more than the noise."""
+    sparse = (slice(None, None, _NOISE_STRIDE), slice(None, None, _NOISE_STRIDE))
+    strongest = _strongest(cv2.absdiff(np.ascontiguousarray(frame[sparse]), np.ascontiguousarray(static[sparse])))
+    return float(np.mean(strongest > noise_threshold(frame, static)))
 
 
 def noise_threshold(frame: np.ndarray, static: np.ndarray) -> float:
@@ -139,20 +166,28 @@ def box_around(points_work: Float64Array, margin_px: float, shape: tuple[int, in
 
 @dataclass(frozen=True)
 class EvidenceCrop:
-    """A part of a frame's foreground map; (x0, y0) is its top-left working pixel."""
+    """A part of a frame's foreground map and of where its static scene is known; (x0, y0) is its top-left working pixel."""
 
     x0: int
     y0: int
     values: np.ndarray  # h x w uint8: the map in 1/_DEPTH_LEVELS px (a quarter of the memory of float32)
+    known: np.ndarray  # h x w bool: the static scene is known there
 
     @classmethod
-    def of(cls, frame: np.ndarray, static: np.ndarray, threshold: float, box: tuple[int, int, int, int]) -> EvidenceCrop:
+    def of(cls, frame: np.ndarray, static: StaticScene, threshold: float, box: tuple[int, int, int, int]) -> EvidenceCrop:
         x0, y0, x1, y1 = box
-        depth = evidence(frame[y0:y1, x0:x1], static[y0:y1, x0:x1], threshold)
-        return cls(x0, y0, np.round(depth * _DEPTH_LEVELS).astype(np.uint8))
+        depth = evidence(frame[y0:y1, x0:x1], static.image[y0:y1, x0:x1], threshold)
+        return cls(x0, y0, np.round(depth * _DEPTH_LEVELS).astype(np.uint8), static.known[y0:y1, x0:x1])
 
     def sample(self, points_work: Float64Array) -> Float64Array:
         """Bilinear values at points (... x 2 working px); 0 outside the crop or at NaN points."""
+        return self._remap(self.values.astype(np.float32) * (1.0 / _DEPTH_LEVELS), points_work)
+
+    def known_at(self, points_work: Float64Array) -> np.ndarray:
+        """Whether each point (... x 2 working px) lies where the static scene is known (all four bilinear neighbours)."""
+        return self._remap(self.known.astype(np.float32), points_work) > 1.0 - 1e-4
+
+    def _remap(self, table: np.ndarray, points_work: Float64Array) -> Float64Array:
         shape = points_work.shape[:-1]
         flat = points_work.reshape(-1, 2)
         x = np.where(np.isfinite(flat[:, 0]), flat[:, 0] - self.x0, _OUTSIDE).astype(np.float32)
@@ -163,7 +198,6 @@ class EvidenceCrop:
         mx = np.full(rows * cols, _OUTSIDE, np.float32)
         my = np.full(rows * cols, _OUTSIDE, np.float32)
         mx[:n], my[:n] = x, y
-        values = self.values.astype(np.float32) * (1.0 / _DEPTH_LEVELS)
         maps = (mx.reshape(rows, cols), my.reshape(rows, cols))
-        out = cv2.remap(values, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        out = cv2.remap(table, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         return out.reshape(-1)[:n].astype(np.float64).reshape(shape)

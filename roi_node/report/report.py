@@ -262,12 +262,18 @@ def _calibration_section(bag: Mapping[str, Any]) -> list[str]:
     check = bag.get("calibration")
     if not check:
         return []
-    low, high = check["delay_ci_ms"]
+    if check["delay_ms"] is None:  # not measured: the reason says why
+        delay = "Camera delay not measured"
+    else:
+        low, high = check["delay_ci_ms"]
+        delay = f"Camera delay {check['delay_ms']:g} ms (95% interval {low:g} .. {high:g}, confidence {check['delay_confidence']:g})"
+    reason = check["cannot_tell"] or check["delay_cannot_tell"]
+    cannot = "" if reason is None else f" (cannot tell: {reason['reason']}: {reason['detail']})"
     lines = [
         "### Calibration from the images",
         "",
-        f"Camera delay {check['delay_ms']:g} ms (95% interval {low:g} .. {high:g}, confidence {check['delay_confidence']:g}); "
-        f"configured {check['configured_delay_ms']:g} ms: {check['delay_verdict']}. Verdict: {check['verdict']}.",
+        f"{delay}; configured {check['configured_delay_ms']:g} ms: {check['delay_verdict']}"
+        f"{cannot}. Verdict: {check['verdict']}.",
         "",
     ]
     rows = [[arm, a["offset_px"], a["spread_px"], a["frames"], a["verdict"]] for arm, a in check["arms"].items()]

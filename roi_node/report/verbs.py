@@ -52,7 +52,8 @@ def _rig(path: str) -> RigConfig:
 
 
 def _cmd_check_calibration(args: argparse.Namespace) -> int:
-    from .calibration import Tolerances, Verdict, check_calibration
+    from .calibration import check_calibration
+    from .calibration_verdict import Tolerances, Verdict
     from .gates import load_gates
 
     tolerances = Tolerances.from_gates(load_gates(Path(args.gates) if args.gates else None))
