@@ -24,6 +24,7 @@ from typing import Any
 from .camera import CameraModel, load_calibration_yaml
 from .errors import CalibrationError, ConfigError
 from .robot_models import EXAMPLE_ROBOT_DATA_PREFIX, resolve_robot_reference
+from .short_repr import short_repr
 from .sync import SyncPolicy
 from .transforms import Transform
 from .yaml_file import read_yaml
@@ -193,7 +194,7 @@ class _Node:
         if value is None:
             raise self.fail(key, "missing (expected a string)")
         if not isinstance(value, str) or not value:
-            raise self.fail(key, f"expected a non-empty string, got {_short(value)}")
+            raise self.fail(key, f"expected a non-empty string, got {short_repr(value)}")
         if len(value) > MAX_TEXT_CHARS:
             raise self.fail(key, f"{len(value)} characters; expected at most {MAX_TEXT_CHARS}")
         return value
@@ -208,19 +209,17 @@ class _Node:
         minimum: float | None = None,
         unit: str = "",
     ) -> float:
-        """A finite number within [minimum, maximum] (`unit` is named in the message)."""
+        """A finite number within [minimum, maximum] (or (0, maximum] when `positive`); every refusal names the
+        accepted range (`unit` included), so that one line says what to write instead."""
         value = self.data.get(key, default)
+        lowest = "> 0 and " if positive else "" if minimum is None else f">= {minimum:g} and "
+        accepted = f"{lowest}<= {maximum:g}{f' {unit}' if unit else ''}"
         if value is None:
-            raise self.fail(key, f"missing (expected a number{' in ' + unit if unit else ''})")
+            raise self.fail(key, f"missing (expected a number {accepted})")
         if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise self.fail(key, f"expected a finite number{' in ' + unit if unit else ''}, got {_short(value)}")
-        suffix = f" {unit}" if unit else ""
-        if positive and value <= 0:
-            raise self.fail(key, f"must be > 0{suffix}, got {value!r}")
-        if minimum is not None and value < minimum:
-            raise self.fail(key, f"must be >= {minimum:g}{suffix}, got {value!r}")
-        if value > maximum:
-            raise self.fail(key, f"must be <= {maximum:g}{suffix}, got {value!r}")
+            raise self.fail(key, f"expected a finite number {accepted}, got {short_repr(value)}")
+        if (positive and value <= 0) or (minimum is not None and value < minimum) or value > maximum:
+            raise self.fail(key, f"must be {accepted}, got {value!r}")
         return float(value)
 
     def boolean(self, key: str, default: bool) -> bool:
@@ -232,26 +231,26 @@ class _Node:
     def choice(self, key: str, choices: tuple[str, ...], default: str) -> str:
         value = self.data.get(key, default)
         if value not in choices:
-            raise self.fail(key, f"expected one of {', '.join(choices)}, got {value!r}")
+            raise self.fail(key, f"expected one of {', '.join(choices)}, got {short_repr(value)}")
         return str(value)
 
     def numbers(
         self, key: str, length: int, default: list[float] | None = None, *, limit: float, positive: bool = False
     ) -> tuple[float, ...]:
-        """`length` finite numbers, each of magnitude at most `limit`."""
+        """`length` finite numbers, each of magnitude at most `limit` (and > 0 when `positive`); every refusal
+        names the accepted range."""
         value = self.data.get(key, default)
+        accepted = f"> 0 and <= {limit:g}" if positive else f"within +-{limit:g}"
         if value is None:
-            raise self.fail(key, f"missing (expected {length} numbers)")
+            raise self.fail(key, f"missing (expected {length} numbers {accepted})")
         if not isinstance(value, list | tuple) or len(value) != length:
-            raise self.fail(key, f"expected a list of {length} numbers, got {_short(value)}")
+            raise self.fail(key, f"expected a list of {length} numbers {accepted}, got {short_repr(value)}")
         out = []
         for item in value:
             if isinstance(item, bool) or not isinstance(item, int | float) or not math.isfinite(item):
-                raise self.fail(key, f"expected finite numbers, got {_short(value)}")
-            if positive and item <= 0:
-                raise self.fail(key, f"values must be > 0, got {value!r}")
-            if abs(item) > limit:
-                raise self.fail(key, f"values must be within +-{limit:g}, got {value!r}")
+                raise self.fail(key, f"expected finite numbers {accepted}, got {short_repr(value)}")
+            if (positive and item <= 0) or abs(item) > limit:
+                raise self.fail(key, f"values must be {accepted}, got {short_repr(value)}")
             out.append(float(item))
         return tuple(out)
 
@@ -262,7 +261,7 @@ class _Node:
             or len(value) != 2
             or not all(isinstance(v, int) and not isinstance(v, bool) and 0 < v <= maximum for v in value)
         ):
-            raise self.fail(key, f"expected [width, height] in pixels (integers 1..{maximum}), got {_short(value)}")
+            raise self.fail(key, f"expected [width, height] in pixels (integers 1..{maximum}), got {short_repr(value)}")
         return int(value[0]), int(value[1])
 
     def items(self, key: str) -> list[_Node]:
@@ -279,12 +278,6 @@ def _entry_labels(entries: list[Any]) -> list[str]:
     usable = [isinstance(i, str) and 0 < len(i) <= MAX_TEXT_CHARS and i.isprintable() and i.strip() == i for i in ids]
     taken = [i for i, ok in zip(ids, usable, strict=True) if ok]
     return [str(i) if ok and taken.count(i) == 1 else str(index) for index, (i, ok) in enumerate(zip(ids, usable, strict=True))]
-
-
-def _short(value: object) -> str:
-    """repr for a message, cut so that a 50 MB value does not become a 50 MB error line."""
-    text = repr(value)
-    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def _pose(node: _Node) -> Transform:
@@ -357,7 +350,7 @@ def _load_camera(node: _Node, base_dir: Path) -> CameraConfig:
         raise ext.fail("parent", f"must be 'world' (the pose of the camera optical frame in world), got {parent!r}")
     version = ext.data.get("version")
     if version is not None and not isinstance(version, str):
-        raise ext.fail("version", f"expected a string, got {_short(version)}")
+        raise ext.fail("version", f"expected a string, got {short_repr(version)}")
     if version is not None:
         ext.text("version")  # bounded like every string copied into records
     return CameraConfig(
@@ -390,7 +383,7 @@ def _load_robot(node: _Node, base_dir: Path) -> RobotConfig:
         base_raw = {}
     prefix = node.data.get("joint_prefix", "")
     if not isinstance(prefix, str) or len(prefix) > MAX_TEXT_CHARS:
-        raise node.fail("joint_prefix", f"expected a string of at most {MAX_TEXT_CHARS} characters, got {_short(prefix)}")
+        raise node.fail("joint_prefix", f"expected a string of at most {MAX_TEXT_CHARS} characters, got {short_repr(prefix)}")
     return RobotConfig(node.text("id"), urdf_path, world_T_base, prefix, base_raw)
 
 
@@ -473,6 +466,12 @@ def _load_output(node: _Node) -> OutputConfig:
         global_enabled=global_enabled,
         global_size_px=global_size,
     )
+
+
+def load_sync(data: Mapping[str, Any], where: str, file: Path) -> SyncConfig:
+    """The `sync` section validated exactly as the loader validates it, for limits changed at runtime;
+    a ConfigError reads `<file>: <where>.<key>: <problem>`."""
+    return _load_sync(_Node(data, where, file))
 
 
 def _load_sync(node: _Node) -> SyncConfig:
