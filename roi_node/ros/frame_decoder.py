@@ -11,6 +11,10 @@ next frame overlaps the worker's processing of this one.
 The queue is bounded (the live node favours the newest frame): when it is
 full the oldest encoded frame is dropped and reported through `on_overflow`
 (the node counts it as `decode_overflow`).
+
+What the native codecs print while decoding (libpng, libjpeg) is captured
+(ros/codec_stderr.py) and handed to the callbacks with the frame, so a
+stream of damaged frames is counted, not printed once per frame.
 """
 
 from __future__ import annotations
@@ -18,14 +22,17 @@ from __future__ import annotations
 import threading
 from collections import deque
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ..core.errors import RoiNodeError
+from .codec_stderr import CodecStderr
 
 DecodeFn = Callable[[str, Any], np.ndarray]  # (format, data) -> pixels; raises RoiNodeError on bad data
+CodecLines = tuple[str, ...]  # what the codec printed while decoding one frame
 
 
 @dataclass(frozen=True)
@@ -39,17 +46,22 @@ class EncodedFrame:
 
 
 class FrameDecoder:
-    """One thread that decodes queued frames in arrival order and calls `on_frame(frame, pixels)`.
+    """One thread that decodes queued frames in arrival order and calls `on_frame(frame, pixels, codec_lines)`.
 
-    `on_refused(message)` gets undecodable data (RoiNodeError), `on_error(frame, exc)` any other
+    `on_refused(frame, error, codec_lines)` gets undecodable data (RoiNodeError), `on_error(frame, exc)` any other
     exception on one frame (the thread goes on), `on_overflow()` each frame dropped because the queue
-    was full; `on_failure(message)` is called once if the thread itself dies.
+    was full; `on_failure(message)` is called once if the thread itself dies. `codec_lines` are what the codec
+    printed on that frame (captured with `capture_codec_output`; always empty without it).
     """
 
-    def __init__(self, decode: DecodeFn, *, capacity: int, on_frame: Callable[[EncodedFrame, np.ndarray], None],
-                 on_refused: Callable[[str], None], on_error: Callable[[EncodedFrame, Exception], None],
-                 on_overflow: Callable[[], None], on_failure: Callable[[str], None]) -> None:
+    def __init__(self, decode: DecodeFn, *, capacity: int,
+                 on_frame: Callable[[EncodedFrame, np.ndarray, CodecLines], None],
+                 on_refused: Callable[[EncodedFrame, RoiNodeError, CodecLines], None],
+                 on_error: Callable[[EncodedFrame, Exception], None],
+                 on_overflow: Callable[[], None], on_failure: Callable[[str], None],
+                 capture_codec_output: bool = False) -> None:
         self._decode = decode
+        self._codec_stderr = CodecStderr() if capture_codec_output else None
         self._queue: deque[EncodedFrame] = deque()
         self._capacity = capacity
         self._ready = threading.Condition()
@@ -81,9 +93,13 @@ class FrameDecoder:
             self._ready.notify_all()
         self._thread.join(timeout=timeout_s)
         with self._ready:
-            left = len(self._queue) + self._discarded + (1 if self._thread.is_alive() else 0)
+            alive = self._thread.is_alive()
+            left = len(self._queue) + self._discarded + (1 if alive else 0)
             self._queue.clear()
             self._discarded = 0
+        if self._codec_stderr is not None and not alive:  # a decode still running may be writing to it
+            self._codec_stderr.close()
+            self._codec_stderr = None
         return left
 
     def _run(self) -> None:
@@ -95,10 +111,12 @@ class FrameDecoder:
                     if self._stopping:
                         return
                     frame = self._queue.popleft()
+                codec_lines: list[str] = []
                 try:
-                    pixels = self._decode(frame.fmt, frame.data)
+                    with self._captured() as codec_lines:
+                        pixels = self._decode(frame.fmt, frame.data)
                 except RoiNodeError as exc:
-                    self._on_refused(str(exc))
+                    self._on_refused(frame, exc, tuple(codec_lines))
                     continue
                 except Exception as exc:  # an unexpected failure on one frame: counted by the caller, next frame
                     self._on_error(frame, exc)
@@ -107,6 +125,9 @@ class FrameDecoder:
                     if self._stopping:  # closing: close() counts it
                         self._discarded += 1
                         return
-                self._on_frame(frame, pixels)
+                self._on_frame(frame, pixels, tuple(codec_lines))
         except BaseException as exc:  # the decoder must never die silently: the node stops and says why
             self._on_failure(f"the decoding thread failed: {type(exc).__name__}: {exc}")
+
+    def _captured(self) -> AbstractContextManager[list[str]]:
+        return self._codec_stderr.captured() if self._codec_stderr is not None else nullcontext([])

@@ -5,11 +5,18 @@ Threads: the executor thread only converts messages into engine events (a
 zero-copy view of an Image, a joint state) under one lock, so joint states
 are never starved by image work; a joint callback takes every joint state
 already queued (ros/drain.py); a CompressedImage is only queued there and
-decoded on a decoder thread (ros/frame_decoder.py); one worker thread pops
+decoded on a decoder thread (ros/frame_decoder.py), after its header's
+declared size was checked against the calibration (a decompression bomb is
+refused undecoded, as `declared_size`) and with what the codec prints
+captured and counted (`codec_warning`); one worker thread pops
 frames in stamp order, runs the pipeline outside the lock and publishes (see
 ros/spin.py for why one executor thread), the pipeline resampling the global
 view on a thread of its own meanwhile (`roi-node run` turns that on). Every rule about what is used, flagged or refused
 is the engine's; this file only moves messages.
+
+Every frame's stamp is noted as it arrives, whatever becomes of it, so gaps in
+the stamps estimate the frames lost before the node (core/frame_loss.py),
+reported apart from the node's own drops.
 
 The node never runs on pretending: a bad message is counted by kind, logged
 (throttled) and reported on /diagnostics; an exception while processing a
@@ -40,6 +47,7 @@ from visualization_msgs.msg import ImageMarker
 
 from .. import __version__
 from ..core import topics
+from ..core.compressed_header import DeclaredSizeError
 from ..core.config import RigConfig, load_rig_config
 from ..core.engine import (
     CameraInfoEvent,
@@ -65,7 +73,7 @@ from .compressed import CompressedPublishers
 from .conversions import camera_from_msg, camera_info_cdr, image_msg, stamp_ns
 from .diagnostics import StreamHealth, diagnostics_msg
 from .drain import draining_subscription
-from .frame_decoder import EncodedFrame, FrameDecoder
+from .frame_decoder import CodecLines, EncodedFrame, FrameDecoder
 from .params import NodeParams, declare_and_read
 from .runtime_params import RuntimePolicy, declare_policy, refusal, undeclare_policy
 
@@ -134,9 +142,10 @@ class StreamNode(Node):
         self._worker.start()
         if self.params.image_transport == "compressed":
             self._decoder = FrameDecoder(
-                lambda fmt, data: image_from_compressed(fmt, data, self._image_topic), capacity=self.params.max_pending_frames,
-                on_frame=self._on_decoded, on_refused=lambda message: self._refused("image", message),
+                self._decode_compressed, capacity=self.params.max_pending_frames,
+                on_frame=self._on_decoded, on_refused=self._on_decode_refused,
                 on_error=self._on_decode_error, on_overflow=self._on_decode_overflow, on_failure=self._fail,
+                capture_codec_output=True,
             )
         self._stream_entities = tuple(e for e in self._entities() if e not in before)
         self.policy = policy  # streaming from here on
@@ -231,9 +240,9 @@ class StreamNode(Node):
         """A message that could not even become an event (undecodable): counted like an engine refusal."""
         with self._lock:
             self.stats.bad_message(kind, message)
-            if kind == "image":
+            if kind in ("image", DeclaredSizeError.kind):
                 self.stats.frame_in()
-                self.stats.drop("bad_image")
+                self.stats.drop("bad_image" if kind == "image" else kind)
         self._warn(kind, message)
 
     def _on_image(self, msg: Image) -> None:
@@ -241,12 +250,34 @@ class StreamNode(Node):
 
     def _on_compressed(self, msg: CompressedImage) -> None:
         """Queued for the decoder thread: a decode here would pace how many joint states the executor takes."""
-        arrival_ns = self._frame_arrived()
+        arrival_ns = self._frame_arrived(msg.header)
         if arrival_ns is not None and self._decoder is not None:
             self._decoder.offer(EncodedFrame(msg.header, msg.format, msg.data, arrival_ns))
 
-    def _on_decoded(self, frame: EncodedFrame, pixels: Any) -> None:
-        """Decoder thread: the decoded frame goes to the engine with the time it arrived (unless deactivated meanwhile)."""
+    def _decode_compressed(self, fmt: str, data: Any) -> Any:
+        """Decoder thread: the size the header declares must be the calibration's before anything is decoded."""
+        with self._lock:
+            camera = self.engine.first_camera()
+        expected_px = (camera.width_px, camera.height_px) if camera is not None else None
+        return image_from_compressed(fmt, data, self._image_topic, expected_px)
+
+    def _on_decode_refused(self, frame: EncodedFrame, error: RoiNodeError, codec_lines: CodecLines) -> None:
+        """Undecodable data (bad_image, with what the codec said) or a declared size refused unread (declared_size)."""
+        stamp = frame.header.stamp
+        said = f"; the decoder said: {' / '.join(codec_lines)}" if codec_lines else ""
+        kind = DeclaredSizeError.kind if isinstance(error, DeclaredSizeError) else "image"
+        self._refused(kind, f"{error} (frame stamped {stamp.sec}.{stamp.nanosec:09d}){said}")
+
+    def _on_decoded(self, frame: EncodedFrame, pixels: Any, codec_lines: CodecLines) -> None:
+        """Decoder thread: the decoded frame goes to the engine with the time it arrived (unless deactivated meanwhile).
+
+        A frame the codec complained about but decoded (a damaged JPEG scan) goes on, counted as `codec_warning`."""
+        if codec_lines:
+            stamp = frame.header.stamp
+            warning = f"{self._image_topic}: frame stamped {stamp.sec}.{stamp.nanosec:09d}: {' / '.join(codec_lines)}"
+            with self._lock:
+                self.stats.bad_message("codec_warning", warning)
+            self._warn("codec_warning", warning)
         if not self.active:
             with self._lock:
                 self.stats.frame_in()
@@ -269,19 +300,22 @@ class StreamNode(Node):
             self.stats.frame_in()
             self.stats.drop("decode_overflow")
 
-    def _frame_arrived(self) -> int | None:
-        """The arrival time of a frame to take, or None for one refused (counted) because the node is inactive."""
+    def _frame_arrived(self, msg_header: Any) -> int | None:
+        """The arrival time of a frame to take, or None for one refused (counted) because the node is inactive.
+
+        Its stamp is noted either way: the frames lost before the node are estimated from the gaps."""
         arrival_ns = time.monotonic_ns()
         self.health.frame_seen(arrival_ns)
-        if self.active:
-            return arrival_ns
         with self._lock:
+            self.stats.frame_arrived(stamp_ns(msg_header))
+            if self.active:
+                return arrival_ns
             self.stats.frame_in()
             self.stats.drop("inactive")
         return None
 
     def _offer_frame(self, msg_header: Any, decode: Callable[[], Any], arrival_ns: int | None = None) -> None:
-        if arrival_ns is None and (arrival_ns := self._frame_arrived()) is None:
+        if arrival_ns is None and (arrival_ns := self._frame_arrived(msg_header)) is None:
             return
         try:
             pixels = decode()
