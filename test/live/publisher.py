@@ -4,8 +4,12 @@ Frames are drawn from the rig's own geometry (a bright marker at each arm's
 FK-projected wrist, see test/rigs.py) for a smooth bimanual trajectory;
 joint states stream at their own rate, offset in phase from the frames. The
 script publishes at wall-clock pace with wall-clock stamps, injects the
-faults its spec asks for, and writes the ground truth (stamps, positions,
-marker pixels, what was injected) as JSON for the test to check against.
+faults its spec asks for (a frame fault "png_bomb" sends the file
+`png_bomb_path` in place of a compressed frame, "png_damaged" the frame with
+a byte of its IDAT chunk flipped; `withhold_frames` are never sent, as if
+lost on the way), and writes the ground truth (stamps, positions,
+marker pixels, what was injected or withheld) as JSON for the test to check
+against.
 
     python -m test.live.publisher SPEC.json TRUTH.json
 """
@@ -34,6 +38,7 @@ from roi_node.ros.conversions import camera_info_msg, header
 from test.rigs import PANDA_HOME, draw_markers
 
 NS = 1_000_000_000
+PNG_IDAT_BYTE = 60  # past the signature, IHDR and the IDAT chunk's header: libpng fails on the damaged stream
 
 
 def positions_at(joints: list[str], t_s: float, amplitude: float) -> dict[str, float]:
@@ -84,6 +89,8 @@ def main(spec_path: str, truth_path: str) -> int:
     joint_faults: dict[int, str] = {int(k): v for k, v in spec.get("joint_faults_at_frame", {}).items()}
     no_joints_before = int(spec.get("no_joints_before_frame", 0))
     loop_at = int(spec.get("loop_at_frame", -1))
+    withheld = {int(k) for k in spec.get("withhold_frames", [])}
+    bomb = array("B", Path(spec["png_bomb_path"]).read_bytes()) if "png_bomb_path" in spec else None
 
     rclpy.init()
     node = rclpy.create_node("test_camera_publisher")
@@ -126,7 +133,8 @@ def main(spec_path: str, truth_path: str) -> int:
         else:
             pixels, markers = frames[k % distinct]["pixels"], {}
         frames.append({"index": k, "stamp_ns": stamp, "t_s": t_s, "positions": q, "pixels": pixels,
-                       "markers": {a: m.tolist() for a, m in markers.items()}, "fault": faults.get(k)})
+                       "markers": {a: m.tolist() for a, m in markers.items()}, "fault": faults.get(k),
+                       "withheld": k in withheld})
 
     events: list[tuple[int, int, str, Any]] = []  # (wall offset ns, order, kind, payload)
     for f in frames:
@@ -143,12 +151,13 @@ def main(spec_path: str, truth_path: str) -> int:
     events.sort(key=lambda e: (e[0], e[1]))
 
     # stamps are wall-clock capture times: each message goes out when its stamp comes
+    # messages are built before sending (as a driver's capture buffer would be), and before the clock starts (encoding
+    # PNGs took seconds: the first frames then went out in a burst); the stamp is set at send time
+    built = {f["index"]: image_message(0, f["pixels"], spec, None) for f in frames[:distinct] if not compressed and not f["fault"]}
+    encoded = {f["index"]: array("B", encode_compressed(f["pixels"], "png")) for f in frames[:distinct] if compressed}
     lead_ns = NS // 10 + warmup * joint_period_ns  # the earliest (warm-up) joint state goes out 0.1 s from now
     t0 = time.time_ns() + lead_ns
     start = time.monotonic_ns() + lead_ns
-    # messages are built before sending (as a driver's capture buffer would be); the stamp is set at send time
-    built = {f["index"]: image_message(0, f["pixels"], spec, None) for f in frames[:distinct] if not compressed and not f["fault"]}
-    encoded = {f["index"]: array("B", encode_compressed(f["pixels"], "png")) for f in frames[:distinct] if compressed}
     for f in frames:
         f["stamp_ns"] += t0
     sent_joint_faults: list[str] = []
@@ -157,10 +166,15 @@ def main(spec_path: str, truth_path: str) -> int:
             time.sleep(0.0005)
         if kind == "frame":
             f = payload
+            if f["withheld"]:
+                continue
             f["sent_ns"] = time.time_ns()  # a publisher that fell behind sends late: benchmarks check this
             if compressed:
-                image_pub.publish(CompressedImage(header=header(f["stamp_ns"], "front_optical"), format="png",
-                                                  data=encoded[f["index"] % distinct]))
+                data = bomb if f["fault"] == "png_bomb" and bomb is not None else encoded[f["index"] % distinct]
+                if f["fault"] == "png_damaged":
+                    data = array("B", data)
+                    data[PNG_IDAT_BYTE] ^= 0xFF
+                image_pub.publish(CompressedImage(header=header(f["stamp_ns"], "front_optical"), format="png", data=data))
             elif f["fault"]:
                 image_pub.publish(image_message(f["stamp_ns"], f["pixels"], spec, f["fault"] if f["fault"] != "wrong_size" else None))
             else:

@@ -3,7 +3,7 @@
     python -m test.live.slow_decoder_node DELAY_MS RAISE_EVERY -- <roi-node run arguments>
 
 Every decode sleeps DELAY_MS first (a busy core); the decodes whose call number % RAISE_EVERY == 0 raise
-KeyError, an exception type the node has no handler for. Everything else is the real node, started through
+KeyError, an exception type the node has no handler for (RAISE_EVERY 0: none does). Everything else is the real node, started through
 the real CLI entry point.
 """
 
@@ -25,11 +25,12 @@ def main(argv: list[str]) -> int:
     real_decode = node.image_from_compressed
     calls = itertools.count()
 
-    def decode(fmt: str, data: Any, where: str = "image_raw/compressed") -> np.ndarray:
+    def decode(fmt: str, data: Any, where: str = "image_raw/compressed", expected_size_px: tuple[int, int] | None = None
+               ) -> np.ndarray:
         time.sleep(delay_s)
-        if next(calls) % raise_every == 0:
+        if raise_every and next(calls) % raise_every == 0:
             raise KeyError(f"injected decode fault in {where}")
-        return real_decode(fmt, data, where)
+        return real_decode(fmt, data, where, expected_size_px)
 
     node.image_from_compressed = decode  # type: ignore[assignment]
     return cli.main(argv[argv.index("--") + 1:])
