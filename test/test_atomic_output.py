@@ -78,3 +78,34 @@ def test_orphaned_partials_of_dead_writers_go_and_only_the_target_s_own(tmp_path
         path.mkdir()
     assert remove_orphaned_partials(target) == [own_dead]
     assert not own_dead.exists() and own_live.exists() and other.exists()
+
+
+def _dead_pid() -> int:
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True, check=True)
+    return int(dead.stdout)  # exited and reaped: no process has this pid (short of reuse)
+
+
+def test_an_old_output_a_killed_run_set_aside_comes_back(tmp_path: Path) -> None:
+    """Killed between commit's two renames: the old output is aside, nothing is at the target; the next run puts it back."""
+    target = tmp_path / "report"
+    aside = tmp_path / f".report.replaced-{_dead_pid()}"
+    aside.mkdir()
+    (aside / "old.txt").write_text("old")
+    with pytest.raises(OutputExistsError, match="output exists"), atomic_output(target, overwrite=False):
+        pass
+    assert _tree(target) == {"old.txt": b"old"} and sorted(os.listdir(tmp_path)) == ["report"]
+
+
+def test_an_aside_left_after_the_new_output_moved_in_goes(tmp_path: Path) -> None:
+    """Killed after commit's second rename: the new output is in place; its leftover aside and partial are deleted."""
+    target = tmp_path / "report"
+    target.mkdir()
+    (target / "new.txt").write_text("new")
+    dead = _dead_pid()
+    for leftover in (tmp_path / f".report.replaced-{dead}", tmp_path / f".report.partial-{dead}"):
+        leftover.mkdir()
+        (leftover / "x.txt").write_text("x")
+    with atomic_output(target, overwrite=True) as partial:
+        partial.mkdir()
+        (partial / "newer.txt").write_text("newer")
+    assert _tree(target) == {"newer.txt": b"newer"} and sorted(os.listdir(tmp_path)) == ["report"]

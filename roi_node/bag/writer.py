@@ -165,6 +165,8 @@ class BagWriter:
             if self._in_place:
                 self._write_metadata(RECORDING)
         except OSError as exc:
+            if not self._in_place:
+                remove_path(self._dir)  # no hidden partial folder outlives a bag that could not start
             raise BagWriteError(f"{self.path}: cannot create the bag ({exc.strerror or exc})") from exc
         self._open = True
 
@@ -359,6 +361,9 @@ class BagWriter:
         if aside:
             self.final_path = keep_interrupted(self._dir, self.path)
             return
+        if self.failure is not None and self._on_error == "remove":  # a chunk was lost while finishing: not the output asked for
+            remove_path(self._dir)
+            raise BagWriteError(self.failure)
         try:
             commit(self._dir, self.path)
         except OSError as exc:

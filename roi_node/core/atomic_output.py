@@ -9,6 +9,9 @@ interrupted run never leaves a partial output under the real name, and with
 a file is replaced by one `os.replace`; a folder is renamed aside, the new
 one renamed in, then the old one deleted. The temporary sibling lives in the
 same folder as the target, so the final rename never crosses filesystems.
+A run killed mid-write leaves its hidden sibling (or, between the two
+renames, the old output set aside); the next run of that output settles both
+(`settle_killed_runs`), so nothing hidden accumulates and no old output is lost.
 Pure Python (no ROS, no bag libraries): bag/ and report/ both use it.
 """
 
@@ -33,7 +36,12 @@ class OutputExistsError(BagWriteError):
 
 
 def check_target(target: Path, overwrite: bool) -> None:
-    """Refuse an existing output unless `overwrite`; create its missing parent folders."""
+    """Refuse an existing output unless `overwrite`; create its missing parent folders.
+
+    What a killed run of the same output left is settled first (`settle_killed_runs`).
+    """
+    if target.parent.is_dir():
+        settle_killed_runs(target)
     if (target.exists() or target.is_symlink()) and not overwrite:
         raise OutputExistsError(f"{target}: output exists; choose another path or pass --overwrite")
     ensure_parent(target)
@@ -58,12 +66,35 @@ def temporary_sibling(target: Path) -> Path:
 def remove_orphaned_partials(target: Path) -> list[Path]:
     """Delete the temporary siblings of `target` whose writing process is gone (a worker killed mid-write)."""
     removed = []
-    for partial in target.parent.glob(f".{glob.escape(target.name)}{PARTIAL_TAG}*"):
-        pid = partial.name.rpartition(PARTIAL_TAG)[2]
-        if pid.isdigit() and not _running(int(pid)):
-            remove_path(partial)
-            removed.append(partial)
+    for partial in _orphans(target, PARTIAL_TAG):
+        remove_path(partial)
+        removed.append(partial)
     return removed
+
+
+def settle_killed_runs(target: Path) -> None:
+    """Undo what runs of `target` killed mid-write left: their partial outputs go, an old output set aside comes back.
+
+    A run killed between `commit`'s two renames left the old output aside and
+    nothing at `target`: it is renamed back. Killed after the second rename,
+    the new output is in place and the aside is deleted.
+    """
+    remove_orphaned_partials(target)
+    for aside in _orphans(target, ASIDE_TAG):
+        if target.exists() or target.is_symlink():
+            remove_path(aside)
+        else:
+            os.replace(aside, target)
+
+
+def _orphans(target: Path, tag: str) -> list[Path]:
+    """The hidden siblings `.<target name><tag><pid>` of `target` whose process is gone."""
+    out = []
+    for sibling in target.parent.glob(f".{glob.escape(target.name)}{tag}*"):
+        pid = sibling.name.rpartition(tag)[2]
+        if pid.isdigit() and not _running(int(pid)):
+            out.append(sibling)
+    return sorted(out)
 
 
 def _running(pid: int) -> bool:
