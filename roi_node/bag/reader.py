@@ -28,6 +28,7 @@ from rosbags.serde import SerdeError
 
 from ..core.errors import BagError
 from ..core.stamps import stamp_to_ns
+from .bag_metadata import folder_information
 from .indexed_mcap import CrcLedger, indexed_messages
 from .writer import RECORDING, STATUS_KEY, typestore
 
@@ -96,6 +97,17 @@ def check_finished(path: Path) -> None:
             f"{path}: an unfinished recording (metadata.yaml status `{RECORDING}`: the recorder did not finish it); "
             f"`roi-node recover {path}` finishes it"
         )
+
+
+def rosbags_refusal(path: Path) -> str | None:
+    """Why rosbags' reader, which replay and inspect open bags with, refuses the bag; None when it opens it."""
+    try:
+        reader = AnyReader([path], default_typestore=typestore())
+        reader.open()
+    except _READ_ERRORS as exc:
+        return str(exc).strip() or type(exc).__name__
+    reader.close()
+    return None
 
 
 @contextmanager
@@ -192,9 +204,7 @@ def bag_information(path: Path) -> dict[str, Any]:
     """
     try:
         if path.is_dir():
-            doc = yaml.safe_load((path / "metadata.yaml").read_text())
-            info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
-            return info if isinstance(info, dict) else {}
+            return folder_information(path)
         if path.suffix == ".mcap":
             with path.open("rb") as stream:
                 for record in make_reader(stream).iter_metadata():

@@ -173,13 +173,15 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "inspect",
         help="topics, counts and duration of a bag; rig, arms and lineage of an ROI bag",
         description="Print a bag's topics with types and message counts, its duration and storage; for an ROI bag also the "
-        "rig, the arms and the lineage tuples of its records. --check reads the whole bag and verifies every chunk's CRC and "
-        "counts against the index and metadata.yaml (exit 1 on damage).",
+        "rig, the arms and the lineage tuples of its records. --check reads the whole bag and verifies every MCAP record replay "
+        "relies on (magic, footer, summary CRC and offsets, schemas, channels, chunk CRCs, sizes and times, message and chunk "
+        "indexes, statistics) and the counts against metadata.yaml; each damaged record is named with its byte offset "
+        "(exit 1 on damage).",
     )
     inspect.add_argument("bag", metavar="BAG", help="bag folder or .mcap/.db3 file")
     inspect.add_argument("--json", action="store_true", help="machine-readable output")
     inspect.add_argument("--check", action="store_true",
-                         help="verify the whole bag (chunk CRCs, index, counts against metadata.yaml); exit 1 on damage")
+                         help="verify every record of the bag (CRCs, indexes, summary, counts against metadata.yaml); exit 1 on damage")
     inspect.set_defaults(func=_cmd_inspect)
 
     recover = verbs.add_parser(
