@@ -268,4 +268,111 @@ def test_inspect_check_compares_the_message_index_with_the_chunk(tmp_path: Path,
         stream.write((length - 16).to_bytes(4, "little"))
     check = _cli("inspect", "--check", bag)
     assert check.returncode == 1
-    assert f"{storage}: chunk at byte {index.chunk_start_offset}: its message index lists" in check.stdout, check.stdout
+    listed = length // 16
+    assert (f"{storage}: message index at byte {offset}: channel " in check.stdout
+            and f"the message index lists {listed - 1} messages, the chunk at byte {index.chunk_start_offset} holds {listed}"
+            in check.stdout), check.stdout
+
+
+def test_invalid_utf8_in_metadata_yaml_is_one_line_for_check_replay_and_recover(
+    tmp_path: Path, sim_bag: Path, rig: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from roi_node.cli import main
+
+    bag = tmp_path / "bad_meta"
+    shutil.copytree(sim_bag, bag)
+    meta = bag / "metadata.yaml"
+    at = meta.stat().st_size
+    with meta.open("ab") as stream:
+        stream.write(b"# \xff\n")
+    at += 2
+    why = f"{meta}: not UTF-8 text (byte {at} is 0xff); expected the rosbag2 bag information (UTF-8 YAML) that `ros2 bag record` writes"
+    verbs = {
+        "inspect": ["inspect", "--check", str(bag)],
+        "replay": ["replay", str(bag), "-o", str(tmp_path / "out"), "--config", str(rig)],
+        "recover": ["recover", str(bag), "-o", str(tmp_path / "fixed")],
+    }
+    for verb, argv in verbs.items():
+        assert main(argv) == 2, verb
+        err = capsys.readouterr().err.strip()
+        hint = "; `roi-node recover` reads the .mcap files alone once it is moved aside" if verb == "recover" else ""
+        assert err == f"roi-node {verb}: error: {why}{hint}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad_meta"]
+
+
+def test_recover_skips_a_zstd_chunk_that_does_not_decompress_and_keeps_the_rest(tmp_path: Path, rig: Path) -> None:
+    packed = write_sim_bag(rig, tmp_path / "packed", duration_s=1.0, seed=3, chunk_compression="zstd").path
+    storage = packed / "packed.mcap"
+    with storage.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+        assert summary is not None and len(summary.chunk_indexes) >= 3
+        index = summary.chunk_indexes[len(summary.chunk_indexes) // 2]
+        stream.seek(index.chunk_start_offset)
+        chunk = next(StreamReader(stream, skip_magic=True, emit_chunks=True).records)
+        in_chunk = sum(isinstance(r, Message) for r in breakup_chunk(chunk))  # type: ignore[arg-type]  # records yields any record
+    data_at = index.chunk_start_offset + 9 + 8 + 8 + 8 + 4 + 4 + len("zstd") + 8
+    with storage.open("r+b") as stream:  # the zstd frame's magic number: the frame cannot be decoded at all
+        stream.seek(data_at)
+        assert stream.read(4) == b"\x28\xb5\x2f\xfd"
+        stream.seek(data_at)
+        stream.write(b"\x00")
+    check = _cli("inspect", "--check", packed)
+    assert check.returncode == 1 and f"{storage}: chunk at byte {index.chunk_start_offset} is damaged (does not decompress" in check.stdout
+    fixed = _cli("recover", packed, "-o", tmp_path / "fixed")
+    assert fixed.returncode == 0, fixed.stderr
+    assert f"1 damaged chunks skipped (at bytes {index.chunk_start_offset})" in fixed.stdout
+    assert sum(_counts(tmp_path / "fixed").values()) == sum(_counts(packed).values()) - in_chunk > 0
+
+
+@pytest.mark.parametrize("step", ["opening the bag", "a chunk mid-run", "the last chunk and footer"])
+def test_a_disk_full_at_any_step_of_an_overwrite_keeps_the_old_output_and_leaves_nothing_hidden(
+    tmp_path: Path, sim_bag: Path, rig: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], step: str
+) -> None:
+    from roi_node.bag import storage_io
+    from roi_node.cli import main
+
+    out = tmp_path / "out"
+    assert main(["replay", str(sim_bag), "-o", str(out), "--config", str(rig)]) == 0
+    before = _digest(out)
+    size = (out / "out.mcap").stat().st_size
+    budget = {"opening the bag": 0, "a chunk mid-run": size // 2, "the last chunk and footer": size - 64}[step]
+    monkeypatch.setattr(storage_io, "_BUDGET", storage_io._Budget())
+    monkeypatch.setenv(FAULT_ENV, str(budget))
+    capsys.readouterr()
+    assert main(["replay", str(sim_bag), "-o", str(out), "--config", str(rig), "--overwrite"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith(f"roi-node replay: error: {out}: ") and err[-1].endswith("(No space left on device)"), err
+    assert storage_io._BUDGET.fired  # the fault did happen at that step
+    assert _digest(out) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no hidden partial or aside folder
+
+
+_KILLED_WRITER = """
+import sys
+from pathlib import Path
+from roi_node.bag.writer import BagWriter
+writer = BagWriter(Path(sys.argv[1]), overwrite=True)
+writer.open()
+writer.add_topic("/note", "std_msgs/msg/String")
+print("open", flush=True)
+sys.stdin.read()
+"""
+
+
+def test_a_rerun_settles_what_a_killed_run_left(tmp_path: Path, sim_bag: Path, rig: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from roi_node.cli import main
+
+    out = tmp_path / "out"
+    assert main(["replay", str(sim_bag), "-o", str(out), "--config", str(rig)]) == 0
+    before = _digest(out)
+    child = subprocess.Popen([sys.executable, "-c", _KILLED_WRITER, str(out)], cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                             text=True)
+    try:
+        assert child.stdout is not None and child.stdout.readline().strip() == "open"  # its partial bag is being written
+    finally:
+        child.kill()
+        child.wait(timeout=60)
+    partial = tmp_path / f".out.partial-{child.pid}"
+    assert partial.is_dir() and _digest(out) == before
+    assert main(["replay", str(sim_bag), "-o", str(out), "--config", str(rig), "--overwrite"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"] and _digest(out) == before

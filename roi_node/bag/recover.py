@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
+import zstandard
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, DataEnd, Footer, Message, Schema
@@ -32,13 +33,18 @@ from rosbags.rosbag2 import ReaderError
 from rosbags.rosbag2.metadata import parse_qos
 
 from ..core.errors import BagError
+from .bag_metadata import BagMetadataError
 from .integrity import storage_files
 from .mcap_file import Compression, TopicSpec
 from .progress import Progress
 from .writer import BagWriter, qos_profile
 
 RECOVERED = "recovered"
-_READ_ERRORS: tuple[type[BaseException], ...] = (McapError, ValueError, struct.error, EOFError, OSError, RuntimeError, IndexError)
+# zstandard.ZstdError: a zstd chunk that does not decompress (it derives from Exception only); MemoryError: a damaged
+# length asking for an absurd allocation
+_READ_ERRORS: tuple[type[BaseException], ...] = (
+    McapError, ValueError, struct.error, EOFError, OSError, RuntimeError, IndexError, zstandard.ZstdError, MemoryError
+)
 _NUMBER = re.compile(r"_(\d+)\.mcap$")
 
 
@@ -115,7 +121,11 @@ def recovery_inputs(source: Path) -> list[Path]:
     if not source.exists():
         raise BagError(f"{source}: no such bag; expected a bag folder or a .mcap file")
     if source.is_dir():
-        files = {p for p in storage_files(source) if p.suffix == ".mcap" and p.exists()} | set(source.glob("*.mcap"))
+        try:
+            listed = storage_files(source)
+        except BagMetadataError as exc:
+            raise BagError(f"{exc}; `roi-node recover` reads the .mcap files alone once it is moved aside") from exc
+        files = {p for p in listed if p.suffix == ".mcap" and p.exists()} | set(source.glob("*.mcap"))
         if not files:
             raise BagError(f"{source}: no .mcap storage file to recover")
         return sorted(files, key=_order)
