@@ -6,7 +6,9 @@ Generates a 720p recording of the simulated bimanual rig (30 Hz frames,
   (b) `export_lerobot` of that ROI bag at 30 fps with each codec (av1, h264, lossless):
       frames/s of dataset frames, the ratio to (a), and MB per minute of recorded data
       (videos + parquet + meta, over the episode's duration);
-  (c) `export_lerobot --config` of the recording (replay + export in one go), against (a).
+  (c) `export_lerobot --config` of the recording (replay + export in one go), against (a);
+and the grid the export made: frames dropped and duplicated (0 and 0 for a camera at the dataset's rate) and the
+largest |grid time - frame stamp|.
 Every measurement runs --rounds times, the rounds interleaved (replay, exports, replay, exports, ...), and the best
 round counts, so a burst of load from other processes on a shared machine hits one round, not one side of a ratio.
 Compare the ratios, not the absolute rates.
@@ -22,8 +24,9 @@ import time
 from pathlib import Path
 
 from roi_node.bag.replay import replay_bag
-from roi_node.core.sync import NS_PER_S
+from roi_node.core.sync import NS_PER_MS, NS_PER_S
 from roi_node.export.exporter import ExportOptions, export_lerobot
+from roi_node.export.grid import GridPlan
 from roi_node.export.video import Codec
 from roi_node.sim.bag_sink import write_sim_bag
 
@@ -48,6 +51,7 @@ def main() -> None:
         best: dict[str, float] = {}
         sizes: dict[Codec, tuple[float, float]] = {}
         frames = 0
+        plan: GridPlan | None = None
         for round_ in range(args.rounds):
             start = time.perf_counter()
             frames = replay_bag(raw, roi, RIG, overwrite=True).frames_out
@@ -56,6 +60,7 @@ def main() -> None:
                 out = tmp / f"ds_{codec}_{round_}"
                 result = export_lerobot([roi], out, ExportOptions(fps=FPS, task="bench", codec=codec))
                 best[codec] = max(best.get(codec, 0.0), result.frames_written / result.elapsed_s)
+                plan = result.episodes[0].plan
                 sizes[codec] = (folder_mb(out), folder_mb(out / "videos"))
                 shutil.rmtree(out)
             out = tmp / f"ds_config_{round_}"
@@ -74,6 +79,11 @@ def main() -> None:
                 f"{total / minutes:7.1f} MB per minute of data (videos {videos / minutes:.1f})"
             )
         print(f"(c) export --config (av1):   {best['config']:7.1f} frames/s = {best['config'] / replay_fps:5.2f} x replay alone")
+        assert plan is not None  # --rounds >= 1 exported at least once
+        print(
+            f"grid: {plan.source_count} source frames -> {plan.frames} at {FPS} fps, dropped {plan.dropped}, duplicated "
+            f"{plan.duplicated}, largest |grid time - frame stamp| {plan.worst_offset_ns / NS_PER_MS:.3f} ms"
+        )
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
