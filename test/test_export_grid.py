@@ -17,10 +17,12 @@ from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
 from roi_node.cli import main
+from roi_node.export.grid import resample
 
 from .exportbags import ExportBags, grid_oracle, grid_tolerance_ns, jitter_ns, records_by_stamp
 
@@ -69,6 +71,18 @@ def check_grid(root: Path, bag: Path, fps: int) -> list[int]:
     assert all(s - (first + Fraction(k * NS_PER_S, fps)) <= tolerance for k, s in enumerate(stamps))  # the future leaks <= tolerance
     shown: list[int] = table["roi_node.source_frame_index"]
     return shown
+
+
+@pytest.mark.parametrize(("rate_hz", "fps"), [(30, 30), (30, 15), (60, 30), (20, 30), (29.97, 30), (30.03, 30), (15, 10), (7, 30)])
+def test_the_integer_grid_agrees_with_the_exact_oracle_on_jittered_and_gapped_stamps(rate_hz: float, fps: int) -> None:
+    """Random stamps (wall-clock start, +-2 ms jitter, a few missing frames) against the Fraction oracle."""
+    rng = np.random.default_rng(round(rate_hz * 100) + fps)
+    for _ in range(3):
+        start = 1_700_000_000 * NS_PER_S + int(rng.integers(0, NS_PER_S))
+        kept = [k for k in range(100) if k == 0 or rng.random() > 0.05]
+        stamps = [start + round(k * NS_PER_S / rate_hz) + int(rng.integers(-2_000_000, 2_000_001)) for k in kept]
+        plan = resample(stamps, fps, 10**9, "bag")
+        assert [stamps[i] for i in plan.sources] == grid_oracle(stamps, fps)
 
 
 def test_a_camera_at_the_dataset_rate_with_jittered_stamps_gives_every_frame_once_and_every_other_at_half_rate(
