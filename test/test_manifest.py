@@ -64,7 +64,7 @@ def test_manifest_round_trip(dataset: Path, capsys: pytest.CaptureFixture[str]) 
     assert [seg["tuple"] for seg in main_bag["lineage"]] == [records[0]["lineage"]]
     for key in ("intrinsics_ver", "extrinsics_ver", "fk_ver"):
         assert main_bag["calibration"][key] == [records[0]["lineage"][key]]
-    assert main_bag["custom_data"] == {"roi_node.status": "complete"}
+    assert main_bag["custom_data"] == {"roi_node.implausible_stamps": "0", "roi_node.status": "complete"}
     validation = main_bag["validation"]
     assert validation["passed"] is False
     failed = {(r["gate"], r["arm"]) for r in validation["results"] if r["status"] == "fail"}

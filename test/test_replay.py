@@ -52,6 +52,7 @@ from .bagtools import (
     write_bag,
 )
 from .rigs import base_rig, marker_centroid, write_rig
+from .stampbags import with_one_joint_state_moved
 
 OUTPUT_TYPES = {
     "/roi/left/image_raw": "sensor_msgs/msg/Image",
@@ -529,3 +530,34 @@ def test_an_early_ctrl_c_starts_no_bag_and_fails_none(tmp_path: Path) -> None:
     assert complete == [], f"replayed to the end after the Ctrl-C: {complete}"
     assert not (out / "long_c_roi").exists() and not (out / "long_c_roi.interrupted").exists()
     assert not list(out.glob(".*partial*"))
+
+
+@pytest.mark.parametrize("which", ["middle", "last"])
+def test_a_joint_state_stamped_an_hour_ahead_is_named_counted_and_changes_nothing_else(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], which: str
+) -> None:
+    """The engine refuses it (the stream never follows) and pairs the frames without it, so the records cannot
+    show it: replay names it on one line and writes the count into the output's metadata for validate.
+    (`middle`: refused when the next plausible stamp arrives; `last`: still held at the end of the bag.)"""
+    rig = small_rig(tmp_path)
+    clean = write_bag(tmp_path / "clean", RoiPipeline(load_rig_config(rig)), frames=6).path
+    future = tmp_path / "future"
+    stamp, before = with_one_joint_state_moved(clean, future, which)
+    assert main(["replay", str(future), "-o", str(tmp_path / "out_future"), "--config", str(rig)]) == 0
+    out = capsys.readouterr().out
+    named = [line for line in out.splitlines() if "implausible_stamp" in line]
+    assert named == [f"skipped: {future}: /joint_states: stamp {stamp} is {(stamp - before) / 1e9:.6g} s ahead of the stream's own "
+                     f"time (its last plausible stamp {before}) and the stream did not follow it: refused as implausible_stamp, "
+                     "the frames were paired without it"]
+    assert re.search(r"joint states /joint_states \(\d+ messages, 1 skipped\)", out), out
+    assert main(["replay", str(clean), "-o", str(tmp_path / "out_clean"), "--config", str(rig)]) == 0
+    assert "implausible_stamp" not in capsys.readouterr().out
+    custom = {name: yaml.safe_load((tmp_path / name / "metadata.yaml").read_text())["rosbag2_bagfile_information"]["custom_data"]
+              for name in ("out_future", "out_clean")}
+    assert custom["out_future"]["roi_node.implausible_stamps"] == "1" and custom["out_clean"]["roi_node.implausible_stamps"] == "0"
+    records = {name: [json.loads(m.data) for _, _, m in read_decoded(tmp_path / name, "/roi/metadata")]
+               for name in ("out_future", "out_clean")}
+    assert len(records["out_future"]) == len(records["out_clean"]) == 6
+    for used, reference in zip(records["out_future"], records["out_clean"], strict=True):  # paired without it, as if it were lost
+        assert used["sync"]["status"] == "ok" and used["sync"]["joint_stamp_ns"] != stamp
+        assert used["joint_positions"] == pytest.approx(reference["joint_positions"], abs=1e-9)  # the path is linear in time

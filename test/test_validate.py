@@ -17,12 +17,17 @@ import cv2
 import numpy as np
 import pytest
 
+from roi_node.bag.replay import replay_bag
 from roi_node.cli import main
+from roi_node.core.config import load_rig_config
+from roi_node.core.pipeline import RoiPipeline
 from roi_node.report.contact_sheet import BOX_COLOURS, PREVIEW_WIDTH_PX, ROI_HEIGHT_PX, ROW_GAP_PX, TILE_BORDER_PX
 from roi_node.report.gates import GateParams, load_gates
 from roi_node.report.schema_check import RecordChecker
 from roi_node.report.validate import scan_bag
 
+from .bagtools import small_rig as input_rig
+from .bagtools import write_bag
 from .roibags import (
     CHANGE_AT,
     CHANGE_CX_PX,
@@ -39,6 +44,7 @@ from .roibags import (
     read_records,
     write_metadata_bag,
 )
+from .stampbags import with_one_joint_state_moved
 
 
 @pytest.fixture(scope="session")
@@ -460,3 +466,26 @@ def test_memory_stays_flat_with_bag_length(bags: BagSet, tmp_path: Path) -> None
     _peak_bytes(short)  # warm caches (schema, typestore) before measuring
     growth = _peak_bytes(long) - _peak_bytes(short)
     assert growth < 6000 * 200, f"peak grew by {growth} bytes for 6000 more frames"
+
+
+def test_an_input_stamp_replay_refused_fails_the_implausible_stamps_gate(
+    bags: BagSet, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """A joint state stamped an hour ahead leaves every record as it would be without it; only the count replay
+    writes into the output's metadata shows it, and validate fails that gate (no data for a bag no replay wrote)."""
+    rig = input_rig(tmp_path)
+    clean = write_bag(tmp_path / "clean", RoiPipeline(load_rig_config(rig)), frames=6).path
+    with_one_joint_state_moved(clean, tmp_path / "future", "middle")
+    for name in ("clean", "future"):
+        replay_bag(tmp_path / name, tmp_path / f"roi_{name}", rig)
+    code, doc, err = validate_json(capsys, str(tmp_path / "roi_future"))
+    gates = {(g["gate"], g["arm"]): g for g in doc["bags"][0]["gates"]}
+    assert doc["bags"][0]["bag_metrics"]["implausible_stamps"] == 1 and gates[("implausible_stamps", "-")]["status"] == "fail"
+    assert code == 1 and [line for line in err.splitlines() if line.startswith("FAIL")] == [
+        "FAIL roi_future: gate implausible_stamps failed: arm -: value 1, threshold <= 0"
+    ]
+    code, doc, _ = validate_json(capsys, str(tmp_path / "roi_clean"))
+    assert doc["bags"][0]["bag_metrics"]["implausible_stamps"] == 0 and code == 0
+    _, doc, _ = validate_json(capsys, str(write_metadata_bag(tmp_path / "records_only", read_records(bags.smooth)[:10])))
+    assert doc["bags"][0]["bag_metrics"]["implausible_stamps"] is None
+    assert {(g["gate"], g["status"]) for g in doc["bags"][0]["gates"]} >= {("implausible_stamps", "no_data")}

@@ -52,6 +52,7 @@ from .mcap_file import Compression
 from .messages import MessageFactory
 from .progress import Progress
 from .reader import DESERIALIZE_ERRORS, Cdr, check_bag_path, deserialize, open_bag, read_messages, stamp_ns, topic_stats, verify_chunks
+from .stamp_audit import IMPLAUSIBLE_STAMPS_KEY, StampAudit
 from .streams import BadMessages, Streams, read_streams
 from .summary import ReplaySummary, summary_from_stats
 from .writer import BagWriter, qos_profile
@@ -174,6 +175,7 @@ class _Replay:
         self.frames_undecodable = 0
         self._check_joint_names(streams)
         self.joint_messages = len(streams.joints)
+        self.stamp_audit = StampAudit()  # what the engine refuses as implausible without returning it
         where_info = f"{source}: {selection.camera_info_topic}"
         for stamp, camera in streams.cameras:
             self._feed(CameraInfoEvent(stamp, camera, where_info))
@@ -187,6 +189,7 @@ class _Replay:
         self._size_checked = False
 
     def _feed(self, event: Event) -> None:
+        self.stamp_audit.see(type(event).__name__, event.where, event.stamp_ns)
         refusal = self.engine.feed(event)
         if refusal is not None:
             self.bad.add(refusal.message)
@@ -236,6 +239,9 @@ class _Replay:
                         self._check_before_keeping()
                         raise
                     self.engine.finish()  # frames still held behind an unconfirmed stamp jump are refused
+                    for refused in self.stamp_audit.finish():
+                        self.bad.add(refused.line())
+                    writer.custom_data[IMPLAUSIBLE_STAMPS_KEY] = str(len(self.stamp_audit.refused))
                     if self.stats.frames_out == 0:
                         first = self.bad.examples[0] if self.bad.examples else "no frame was released"
                         raise ImageError(

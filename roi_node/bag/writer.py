@@ -2,7 +2,7 @@
 
 Bags are rosbag2 version 9 with the Jazzy message definitions and the
 offered QoS profiles recorded, so `ros2 bag info/play`, rosbags and the mcap
-readers all accept them (DESIGN.md "Images on the wire"). Storage files are
+readers all accept them. Storage files are
 written by McapFileWriter: chunk CRCs, optional lz4/zstd chunk compression.
 
 Two ways to place the output:
@@ -127,6 +127,7 @@ class BagWriter:
         self._topics: dict[str, _Topic] = {}
         self.counts: dict[str, int] = {}
         self.status = "complete"
+        self.custom_data: dict[str, str] = {}  # metadata.yaml custom_data beside the status, e.g. what replay refused
         self.final_path = self.path
         self.failure: str | None = None
         self._files: list[_FileInfo] = []
@@ -320,7 +321,7 @@ class BagWriter:
                 }
                 for f in files
             ],
-            "custom_data": {STATUS_KEY: status},
+            "custom_data": {**self.custom_data, STATUS_KEY: status},
             "ros_distro": "jazzy",
         }
 

@@ -29,9 +29,13 @@ GATES_SCHEMA = "roi_node/gates/v1"
 CALIBRATION_DELAY_GATE = "calibration_delay_error_ms"  # per bag: |measured camera delay - camera.delay_ms|
 CALIBRATION_OFFSET_GATE = "calibration_reprojection_offset_px"  # per arm: |reprojection offset|
 CALIBRATION_METRICS = (CALIBRATION_DELAY_GATE, CALIBRATION_OFFSET_GATE)
+# per bag, from the writer's metadata rather than the records: input messages replay refused for an implausible
+# stamp (bag/stamp_audit.py); no data for a bag no replay wrote (a live recording)
+IMPLAUSIBLE_STAMPS_METRIC = "implausible_stamps"
 SCOPES = {
     **dict.fromkeys(ARM_METRICS, "arm"),
     **dict.fromkeys(BAG_METRICS, "bag"),
+    IMPLAUSIBLE_STAMPS_METRIC: "bag",
     **dict.fromkeys(DRIFT_METRICS, "drift"),
     **dict.fromkeys(CALIBRATION_METRICS, "calibration"),
 }
@@ -196,7 +200,7 @@ def evaluate(
                 _verdict(gate, key, metrics[gate.metric]) for key, metrics in (calibration_metrics or {}).items() if gate.metric in metrics
             )
         elif gate.scope == "bag":
-            results.append(_verdict(gate, BAG_SCOPE, bag_metrics[gate.metric]))
+            results.append(_verdict(gate, BAG_SCOPE, bag_metrics.get(gate.metric)))  # absent: not measured for this bag
         elif gate.scope == "arm":
             results.extend(_verdict(gate, arm, metrics[gate.metric]) for arm, metrics in arm_metrics.items())
         else:

@@ -11,13 +11,14 @@ from pathlib import Path
 from typing import Any
 
 from ..bag.progress import Progress
+from ..bag.stamp_audit import IMPLAUSIBLE_STAMPS_KEY
 from ..core.atomic_output import atomic_output
 from ..core.config import RigConfig
 from ..core.errors import BagError
 from .bagfiles import fingerprint
 from .calibration import CalibrationCheck, Tolerances, carries_inputs, check_calibration
 from .drift import ArmDrift, baseline_drift, window_drift
-from .gates import GateParams, GateSet, evaluate
+from .gates import IMPLAUSIBLE_STAMPS_METRIC, GateParams, GateSet, evaluate
 from .report import JSON_NAME, prepare_report_dir, write_bag_figures, write_report
 from .results import BagScan, BagValidation, ValidationRun
 from .roibag import RoiBag
@@ -38,6 +39,17 @@ def scan_bag(path: Path, params: GateParams, *, with_samples: bool = False, prog
             shown.update(count)
         shown.finish()
         return BagScan.of(path, bag, stats, chooser.samples() if chooser is not None else [])
+
+
+def implausible_stamps(scan: BagScan) -> int | None:
+    """Input messages the replay that wrote this bag refused for an implausible stamp (its metadata's custom_data);
+    None for a bag no replay wrote: its records cannot show a refused input."""
+    value = (scan.information.get("custom_data") or {}).get(IMPLAUSIBLE_STAMPS_KEY)
+    if value is None:
+        return None
+    if not str(value).isdigit():
+        raise BagError(f"{scan.path}: metadata.yaml custom_data {IMPLAUSIBLE_STAMPS_KEY}: expected a count of messages, got {value!r}")
+    return int(value)
 
 
 def _drift_dict(arms: dict[str, ArmDrift]) -> dict[str, Any]:
@@ -65,7 +77,8 @@ def judge(
             "arms": _drift_dict(arms),
         }
     calibration_metrics = calibration.gate_metrics() if calibration is not None else None
-    results = evaluate(gates, summary.bag_metrics, summary.arm_metrics, drift_metrics, calibration_metrics)
+    bag_metrics = {**summary.bag_metrics, IMPLAUSIBLE_STAMPS_METRIC: implausible_stamps(scan)}
+    results = evaluate(gates, bag_metrics, summary.arm_metrics, drift_metrics, calibration_metrics)
     result = {
         "path": str(scan.path.resolve()),
         "name": name,
@@ -73,7 +86,7 @@ def judge(
         "log_time_range_ns": [scan.start_ns, scan.end_ns],
         "topics": [{"name": t.name, "type": t.msgtype, "count": t.count} for t in scan.topics.values()],
         "custom_data": dict(scan.information.get("custom_data") or {}),
-        "bag_metrics": summary.bag_metrics,
+        "bag_metrics": bag_metrics,
         "arms": {arm: {"metrics": metrics, "drift": drift_metrics.get(arm, {})} for arm, metrics in summary.arm_metrics.items()},
         "details": summary.details,
         "drift": {
