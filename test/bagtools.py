@@ -94,7 +94,8 @@ def write_bag(
     image: "rgb8" / "bgr8" / "mono8" raw Images, "png" CompressedImage, or an
     encoding the pipeline cannot use ("16UC1"). bad_frames: frame index ->
     "short" (data shorter than step*height), "garbage" (not CDR at all) or
-    "repeat" (the previous frame's stamp again). command_offset: also write
+    "repeat" (the previous frame's stamp again) or "withheld" (not written: a frame lost before the
+    bag). command_offset: also write
     /joint_commands, every joint `offset` rad from the measured path, at
     stamps half a joint period later. camera_info: a CameraInfo after every
     frame, stamped like it; from frame `recalibrate_at` on, with fx 1% larger.
@@ -125,6 +126,8 @@ def write_bag(
         if bad == "repeat":
             stamp = spec.frame_stamps[k] = spec.frame_stamps[k - 1]
         log = spec.frame_stamps[k] + k + FRAME_LATENCY_NS
+        if bad == "withheld":
+            continue
         if bad == "garbage":
             records.append((log, image_topic, b"\x00\x01\x00\x00not a message"))
             continue

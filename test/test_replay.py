@@ -239,6 +239,20 @@ def test_bad_frames_mid_bag_are_counted_skipped_and_reported(
     assert inspect_bag(tmp_path / "out").status == "complete"
 
 
+def test_frames_missing_from_the_bag_are_counted_from_the_stamp_gaps(
+    tmp_path: Path, pipeline: RoiPipeline, bimanual_rig_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Frames lost before the bag (a camera or transport drop) are estimated as live estimates them, apart from drops."""
+    withheld = {5: "withheld", 11: "withheld", 12: "withheld"}
+    spec = write_bag(tmp_path / "gaps", pipeline, frames=24, bad_frames=withheld)  # type: ignore[arg-type]
+    code = main(["replay", str(spec.path), "-o", str(tmp_path / "out"), "--config", str(bimanual_rig_path)])
+    stdout = capsys.readouterr().out
+    assert code == 0
+    assert "frames: 21 in, 21 out, 0 bad (skipped), dropped by sync: 0, missing (gaps in the image stamps): 3" in stdout, stdout
+    clean = write_bag(tmp_path / "clean", pipeline, frames=24)
+    assert replay_bag(clean.path, tmp_path / "clean_out", bimanual_rig_path).frames_missing == 0
+
+
 def test_commanded_joint_states_give_the_teleop_residual(
     tmp_path: Path, pipeline: RoiPipeline, bimanual_rig_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

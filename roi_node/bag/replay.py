@@ -266,6 +266,7 @@ class _Replay:
             self._bad_frame(f"{self.frame_where}: message {index} cannot be deserialized as {msgtype} ({exc})")
             return
         stamp = stamp_ns(msg.header)
+        self.stats.frame_arrived(stamp)  # every image read counts toward the gaps, whatever becomes of it (as live)
         if not self._stream_checked:
             check_frame_stream(msg, msgtype, self.frame_where)  # the rig cannot use this stream at all: fatal
             self._stream_checked = True

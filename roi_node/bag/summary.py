@@ -31,6 +31,7 @@ class ReplaySummary:
     frames_out: int  # frames written (ROIs + metadata)
     frames_bad: int  # image messages that could not be decoded: skipped, as live
     frames_dropped: dict[str, int]  # by the synchronizer (out_of_order, overflow)
+    frames_missing: int  # estimated from gaps in the readable image stamps (core/frame_loss.py), as live
     joint_messages: int
     bad_messages: int  # joint state / command / camera info messages skipped
     problems: tuple[str, ...]  # the first few bad messages, one line each
@@ -47,7 +48,8 @@ class ReplaySummary:
         dropped = ", ".join(f"{n} {reason}" for reason, n in self.frames_dropped.items() if n) or "0"
         out = [
             f"{self.input_path} -> {self.output_path} ({self.status})",
-            f"frames: {self.frames_in} in, {self.frames_out} out, {self.frames_bad} bad (skipped), dropped by sync: {dropped}",
+            f"frames: {self.frames_in} in, {self.frames_out} out, {self.frames_bad} bad (skipped), dropped by sync: {dropped}, "
+            f"missing (gaps in the image stamps): {self.frames_missing}",
             f"inputs: image {self.image_topic}; joint states {', '.join(self.joint_topics)} ({self.joint_messages} messages, "
             f"{self.bad_messages} skipped); intrinsics from {self.intrinsics_source}",
         ]
@@ -92,6 +94,7 @@ def summary_from_stats(
         frames_out=stats.frames_out,
         frames_bad=frames_bad,
         frames_dropped={"out_of_order": 0, "overflow": 0, **dict(stats.drops)},
+        frames_missing=stats.lost_before_node,
         joint_messages=joint_messages,
         bad_messages=bad_messages,
         problems=problems,
