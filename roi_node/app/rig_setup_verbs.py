@@ -1,19 +1,43 @@
-"""`roi-node camera-pose`: setting up a rig's camera.
+"""`roi-node camera-pose` and `roi-node foxglove-layout`: setting up a rig's camera and viewing its topics.
 
-It touches neither ROS nor a bag: camera-pose turns a hand-eye result or a
-look-at into the rig's `camera.extrinsics` (app/camera_pose_verb.py). Bad
-input is one line naming the file, argument or value (exit 2).
+Neither touches ROS or a bag: camera-pose turns a hand-eye result or a
+look-at into the rig's `camera.extrinsics` (app/camera_pose_verb.py),
+foxglove-layout writes a Foxglove layout for the rig's topics
+(app/foxglove_layout.py). Bad input is one line naming the file, argument or
+value (exit 2).
 """
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def _cmd_camera_pose(args: argparse.Namespace) -> int:
     from .camera_pose_verb import run_camera_pose
 
     return run_camera_pose(args)
+
+
+def _cmd_foxglove_layout(args: argparse.Namespace) -> int:
+    from ..core.atomic_output import atomic_output
+    from ..core.config import load_rig_config
+    from ..core.resources import default_rig_path, resolve_config_file
+    from .foxglove_layout import ImageTransport, foxglove_layout, layout_text
+
+    rig = load_rig_config(resolve_config_file(args.config) if args.config else default_rig_path())
+    layout = foxglove_layout([arm.id for arm in rig.arms], rig.output.global_enabled,
+                             outputs=ImageTransport(args.transport), camera=ImageTransport(args.camera_transport))
+    text = layout_text(layout)
+    if args.output is None:
+        print(text, end="")
+        return 0
+    output = Path(args.output)
+    with atomic_output(output, overwrite=args.overwrite) as partial:
+        partial.write_text(text, encoding="utf-8")
+    panels = len(layout["configById"])
+    print(f"roi-node foxglove-layout: wrote {output}: {panels} panels for rig {rig.rig_id} (arms {', '.join(a.id for a in rig.arms)})")
+    return 0
 
 
 def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -51,3 +75,21 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     pose.add_argument("--child", metavar="NAME", help="the block's child frame name (default: the rig's, else camera_optical_frame)")
     pose.add_argument("--version", metavar="TEXT", help="the block's version, recorded with every frame (default: today's date)")
     pose.set_defaults(func=_cmd_camera_pose)
+
+    layout = verbs.add_parser(
+        "foxglove-layout",
+        help="a Foxglove layout for a rig's topics: camera with the overlay, each arm's ROI, global view, metadata, diagnostics",
+        description="Write a Foxglove layout (Layouts, Import from file) for the topics a node running a rig publishes: "
+        "/image_raw with /roi/overlay drawn on it, an image panel per arm (/roi/<arm>/image_raw), the global view when the "
+        "rig has one, the /roi/metadata record and the /diagnostics summary. The bundled config/foxglove_layout.json is "
+        "this verb's output for the bundled bimanual rig. Without -o the layout is printed.",
+    )
+    layout.add_argument("--config", metavar="RIG", help="rig config (default: the bundled demo_bimanual rig)")
+    layout.add_argument("-o", "--output", metavar="FILE", help="write the layout here (default: print it)")
+    layout.add_argument("--overwrite", action="store_true", help="replace an existing -o file")
+    layout.add_argument("--transport", choices=("raw", "compressed"), default="raw",
+                        help="the ROI and global panels show the raw Image or the /compressed sibling (the node's "
+                        "output_transport; default: raw)")
+    layout.add_argument("--camera-transport", choices=("raw", "compressed"), default="raw",
+                        help="the camera panel shows /image_raw or /image_raw/compressed (default: raw)")
+    layout.set_defaults(func=_cmd_foxglove_layout)
