@@ -24,6 +24,7 @@ import re
 import shlex
 from collections.abc import Mapping
 from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -36,12 +37,17 @@ from .transforms import Transform, quat_xyzw_to_matrix
 from .yaml_file import MAX_YAML_BYTES, read_yaml
 
 QUAT_NORM_TOLERANCE = 1e-3
-EYE_ON_BASE = "eye_on_base"
-EYE_IN_HAND = "eye_in_hand"
 _STATIC_TF_NODE = re.compile(r"<node\b[^>]*static_transform_publisher[^>]*>", re.DOTALL)
 _ARGS_ATTRIBUTE = re.compile(r"\bargs\s*=\s*\"([^\"]*)\"")
 _ROS2_NUMBER_FLAGS = ("--x", "--y", "--z", "--qx", "--qy", "--qz", "--qw", "--roll", "--pitch", "--yaw")
 _ROS2_FRAME_FLAGS = ("--frame-id", "--child-frame-id")
+
+
+class CalibrationType(StrEnum):
+    """easy_handeye2's `parameters.calibration_type`: where the camera is."""
+
+    EYE_ON_BASE = "eye_on_base"  # fixed, the marker on the gripper: what a rig needs
+    EYE_IN_HAND = "eye_in_hand"  # on the arm
 
 
 class HandEyeInputError(ConfigError):
@@ -69,14 +75,15 @@ def read_easy_handeye(path: Path) -> FrameTransform:
     source = str(path)
     doc = read_yaml(path, "hand-eye calibration")
     if not isinstance(doc, Mapping):
-        raise HandEyeInputError(source, "(document)", f"expected a mapping with parameters and transform, got {type(doc).__name__}")
+        found = "an empty file" if doc is None else type(doc).__name__
+        raise HandEyeInputError(source, "(document)", f"expected a mapping with parameters and transform, got {found}")
     params = _mapping(doc, "parameters", source)
     if "calibration_type" in params:
         kind = params["calibration_type"]
-        if kind not in (EYE_ON_BASE, EYE_IN_HAND):
+        if kind not in tuple(CalibrationType):
             raise HandEyeInputError(source, "parameters.calibration_type",
-                                    f"expected {EYE_ON_BASE} or {EYE_IN_HAND}, got {short_repr(kind)}")
-        eye_in_hand = kind == EYE_IN_HAND
+                                    f"expected {' or '.join(CalibrationType)}, got {short_repr(kind)}")
+        eye_in_hand = kind == CalibrationType.EYE_IN_HAND
     elif "eye_on_hand" in params:
         if not isinstance(params["eye_on_hand"], bool):
             raise HandEyeInputError(source, "parameters.eye_on_hand", f"expected true or false, got {short_repr(params['eye_on_hand'])}")
