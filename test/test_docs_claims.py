@@ -26,7 +26,7 @@ from roi_node.ros.params import DEFAULTS, RCLPY_PARAMETERS
 REPO = Path(__file__).resolve().parents[1]
 DOCS = REPO / "docs"
 CONFIG = REPO / "config"
-PAGES = ("install", "live-node", "offline", "rig-config", "metadata", "quality", "lerobot-export", "ray", "performance", "design")
+PAGES = tuple(sorted(path.stem for path in DOCS.glob("*.md")))  # every page, also one added later
 MARKDOWN = (REPO / "README.md", *(DOCS / f"{page}.md" for page in PAGES))
 README_MAX_LINES = 200
 
@@ -151,15 +151,22 @@ def test_the_documented_urdf_short_names_are_the_known_ones_and_the_named_rigs_l
     row = next(r for r in _table_rows(DOCS / "rig-config.md", "key") if _code_name(r[0]) == "robots[].urdf")
     listed = re.search(r"short name of example-robot-data: ([a-z0-9_, ]+)", row[3])
     assert listed and set(listed.group(1).replace(" ", "").split(",")) == set(EXAMPLE_ROBOT_URDFS)
-    named = re.findall(r"\(\.\./config/(rig_[a-z_]+\.yaml)\)", _text(DOCS / "rig-config.md"))
-    assert named
-    for name in named:
-        rig = load_rig_config(CONFIG / name)
-        assert rig.robots and all(r.urdf_path.name == "panda.urdf" for r in rig.robots), name
-    bimanual = load_rig_config(CONFIG / "rig_demo_bimanual.yaml")
+    named = re.findall(r"\(\.\./config/(rig_[a-z0-9_]+\.yaml)\)", _text(DOCS / "rig-config.md"))
+    assert sorted(named) == sorted(p.name for p in CONFIG.glob("rig_*.yaml")), "the page lists every bundled rig"
+    rigs = {name: load_rig_config(CONFIG / name) for name in named}
+    tips = {name: [arm["tip"] for arm in yaml.safe_load(_text(CONFIG / name))["arms"]] for name in named}
+    bimanual = rigs["rig_demo_bimanual.yaml"]
+    assert {r.urdf_path.name for r in bimanual.robots} == {"panda.urdf"} and len(bimanual.arms) == 2
     assert sorted(r.joint_prefix for r in bimanual.robots) == ["left_", "right_"]
-    single = load_rig_config(CONFIG / "rig_panda_single.yaml")
-    assert len(single.arms) == 1 and yaml.safe_load(_text(CONFIG / "rig_panda_single.yaml"))["arms"][0]["tip"].keys() == {"position_m"}
+    single = rigs["rig_panda_single.yaml"]
+    assert [r.urdf_path.name for r in single.robots] == ["panda.urdf"]
+    assert [t.keys() for t in tips["rig_panda_single.yaml"]] == [{"position_m"}]
+    tiago = rigs["rig_tiago_dual.yaml"]
+    assert [r.urdf_path.name for r in tiago.robots] == ["tiago_dual.urdf"] and len(tiago.arms) == 2
+    assert all(t.keys() == {"frame"} for t in tips["rig_tiago_dual.yaml"])
+    xarm = rigs["rig_xarm7.yaml"]
+    assert [r.urdf_path.name for r in xarm.robots] == ["xarm7.urdf"]
+    assert [(a.ee_frame, t) for a, t in zip(xarm.arms, tips["rig_xarm7.yaml"], strict=True)] == [("link6", {"frame": "link_eef"})]
 
 
 def test_the_parameter_table_is_the_nodes_parameters_with_their_defaults() -> None:
