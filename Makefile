@@ -1,5 +1,5 @@
 # Two commands do everything on a fresh machine: `make demo` and `make test`.
-# Each bootstraps .venv (Python >= 3.10 with venv) and installs the package with
+# Each bootstraps .venv (Python >= 3.11 with venv) and installs the package with
 # its extras; a stamp file re-runs the install when the packaging changes.
 PYTHON ?= python3
 VENV := .venv

@@ -20,7 +20,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", sorted(glob("config/*.*"))),
     ],
-    python_requires=">=3.10",
+    python_requires=">=3.11",
     # OpenCV 4.x, not 5.x: a system ROS 2 Jazzy install (Ubuntu 24.04) ships
     # python3-opencv 4.6, and 5.0 reorganised calib3d/fisheye; pinning the venv
     # to the 4.x major keeps what the tests exercise equal to what a colcon
