@@ -147,21 +147,22 @@ def declare_and_read(node: Node) -> NodeParams:
 
 def declare(node: Node) -> None:
     """Declare every parameter with its default, with dynamic typing so that a wrong type reaches `read`
-    (rclpy would raise its own exception at declaration) and is refused with one line."""
-    descriptor = ParameterDescriptor(dynamic_typing=True)
+    (rclpy would raise its own exception at declaration) and is refused with one line. One descriptor each:
+    rclpy keeps the one it is given and fills in its name and type, so a shared one would describe every
+    parameter (`describe_parameters`, `param list --param-type`) as the last one declared."""
     for name, default in DEFAULTS.items():
-        node.declare_parameter(name, default, descriptor)
+        node.declare_parameter(name, default, ParameterDescriptor(dynamic_typing=True))
 
 
 def read(node: Node) -> NodeParams:
     """The declared parameters' validated values; an override that names no parameter of the node
-    (`global_veiw:=false`) is refused too instead of being silently ignored."""
+    (`global_veiw:=false`) is refused too instead of being silently ignored. rclpy's own parameters are
+    declared by then (use_sim_time, start_type_description_service: `param dump` writes both)."""
     values = {name: typed(name, default, node.get_parameter(name).value) for name, default in DEFAULTS.items()}
     unknown = sorted(
         name
         for name in getattr(node, "_parameter_overrides", {})
-        if name not in DEFAULTS
-        and name not in RCLPY_PARAMETERS
+        if not node.has_parameter(name)
         and not name.startswith(RCLPY_PREFIXES)
         and not name.startswith(POLICY_PREFIX)
     )

@@ -144,11 +144,10 @@ def _set_key(raw: dict[str, Any], keys: tuple[str, ...], value: object) -> None:
 def declare_policy(node: Node, file_rig: RigConfig, params: NodeParams) -> RuntimePolicy:
     """Declare the arms' runtime parameters (their defaults the rig file's values) and read them with the
     sync limits; a start-time override of an arm parameter the rig does not have is refused."""
-    descriptor = ParameterDescriptor(dynamic_typing=True)
     values: dict[str, object] = {}
     for param in arm_parameters(file_rig):
-        if not node.has_parameter(param.name):
-            node.declare_parameter(param.name, param.file_value, descriptor)
+        if not node.has_parameter(param.name):  # a descriptor each: rclpy fills in the one it is given (params.declare)
+            node.declare_parameter(param.name, param.file_value, ParameterDescriptor(dynamic_typing=True))
         values[param.name] = node.get_parameter(param.name).value
     for name in SYNC_LIMITS:
         values[name] = node.get_parameter(name).value
