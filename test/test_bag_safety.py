@@ -9,7 +9,6 @@ mounted), and every result is read back with rosbags and the mcap package.
 from __future__ import annotations
 
 import hashlib
-import os
 import shutil
 import subprocess
 import sys
@@ -23,20 +22,22 @@ from mcap_ros2.reader import read_ros2_messages
 from rosbags.highlevel import AnyReader
 
 from roi_node.bag.replay import replay_bag
-from roi_node.bag.storage_io import FAULT_ENV
 from roi_node.bag.writer import typestore
 from roi_node.sim.bag_sink import write_sim_bag
 
 from .bagtools import small_rig
 from .conftest import REPO
 from .roibags import read_records
+from .storage_faults import DiskFillsAfter
 
 IMAGE = "/image_raw"
 
 
-def _cli(*args: str | Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "roi_node.cli", *map(str, args)], cwd=REPO, capture_output=True, text=True,
-                          env={**os.environ, **(env or {})}, timeout=120)
+def _cli(*args: str | Path, disk_fills_after_bytes: int | None = None) -> subprocess.CompletedProcess[str]:
+    """`roi-node <args>` in its own process; with `disk_fills_after_bytes`, its storage writes then fail (ENOSPC)."""
+    entry = ["roi_node.cli"] if disk_fills_after_bytes is None else ["test.storage_faults", str(disk_fills_after_bytes)]
+    return subprocess.run([sys.executable, "-m", *entry, *map(str, args)], cwd=REPO, capture_output=True, text=True,
+                          timeout=120)
 
 
 def _digest(path: Path) -> dict[str, str]:
@@ -131,7 +132,7 @@ def test_overwrite_with_a_failing_run_keeps_the_old_output_byte_identical(tmp_pa
     first = _cli("replay", sim_bag, "-o", out, "--config", rig)
     assert first.returncode == 0, first.stderr
     before = _digest(out)
-    failed = _cli("replay", sim_bag, "-o", out, "--config", rig, "--overwrite", env={FAULT_ENV: "200000"})
+    failed = _cli("replay", sim_bag, "-o", out, "--config", rig, "--overwrite", disk_fills_after_bytes=200000)
     assert failed.returncode == 2
     assert failed.stderr.strip().splitlines()[-1].startswith("roi-node replay: error: ")
     assert "write failed (No space left on device)" in failed.stderr
@@ -224,15 +225,13 @@ def test_a_write_failure_anywhere_leaves_a_finalized_bag_of_what_was_written(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, budget: int
 ) -> None:
     """The disk fills at every kind of moment (inside a chunk, a split's footer, a new file's header): the bag still checks out."""
-    from roi_node.bag import storage_io
     from roi_node.bag.integrity import check_bag
     from roi_node.bag.messages import MessageFactory
     from roi_node.bag.writer import BagWriteError, BagWriter, SplitPolicy
 
-    monkeypatch.setattr(storage_io, "_BUDGET", storage_io._Budget())
-    monkeypatch.setenv(FAULT_ENV, str(budget))
     bag = tmp_path / "rec"
-    writer = BagWriter(bag, in_place=True, on_error="finalize", split=SplitPolicy(max_duration_ns=10**8))
+    disk = DiskFillsAfter(budget)
+    writer = BagWriter(bag, in_place=True, on_error="finalize", split=SplitPolicy(max_duration_ns=10**8), open_file=disk)
     factory = MessageFactory(writer.typestore)
     accepted = 0
     with pytest.raises(BagWriteError, match=r"write failed \(No space left on device\)"), writer:
@@ -328,7 +327,7 @@ def test_recover_skips_a_zstd_chunk_that_does_not_decompress_and_keeps_the_rest(
 def test_a_disk_full_at_any_step_of_an_overwrite_keeps_the_old_output_and_leaves_nothing_hidden(
     tmp_path: Path, sim_bag: Path, rig: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], step: str
 ) -> None:
-    from roi_node.bag import storage_io
+    from roi_node.bag import writer
     from roi_node.cli import main
 
     out = tmp_path / "out"
@@ -336,13 +335,13 @@ def test_a_disk_full_at_any_step_of_an_overwrite_keeps_the_old_output_and_leaves
     before = _digest(out)
     size = (out / "out.mcap").stat().st_size
     budget = {"opening the bag": 0, "a chunk mid-run": size // 2, "the last chunk and footer": size - 64}[step]
-    monkeypatch.setattr(storage_io, "_BUDGET", storage_io._Budget())
-    monkeypatch.setenv(FAULT_ENV, str(budget))
+    disk = DiskFillsAfter(budget)
+    monkeypatch.setattr(writer, "open_storage", disk)  # the opener every BagWriter of this process uses by default
     capsys.readouterr()
     assert main(["replay", str(sim_bag), "-o", str(out), "--config", str(rig), "--overwrite"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith(f"roi-node replay: error: {out}: ") and err[-1].endswith("(No space left on device)"), err
-    assert storage_io._BUDGET.fired  # the fault did happen at that step
+    assert disk.fired  # the fault did happen at that step
     assert _digest(out) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no hidden partial or aside folder
 

@@ -21,7 +21,6 @@ import pytest
 from mcap_ros2.reader import read_ros2_messages
 from rosbags.highlevel import AnyReader
 
-from roi_node.bag.storage_io import FAULT_ENV
 from roi_node.bag.writer import RESERVE_NAME, typestore
 
 from .conftest import CONFIG, REPO
@@ -126,8 +125,9 @@ def test_sigkilled_recorder_loses_at_most_a_second_and_recover_finishes_the_bag(
 def test_a_write_failure_stops_the_recorder_with_a_finalized_bag(tmp_path: Path) -> None:
     env = ros_env(next_domain())
     bag = tmp_path / "full"
-    fault_env = {**env, FAULT_ENV: str(40 * 10**6)}  # about 15 frames of 720p
-    with process(_record(bag, "--max-duration", "0.25"), fault_env, tmp_path / "rec.log") as rec:
+    # the recorder's process, its storage writes failing after about 15 frames of 720p (test/storage_faults.py)
+    recorder = ["-m", "test.storage_faults", str(40 * 10**6), *_record(bag, "--max-duration", "0.25")[2:]]
+    with process(recorder, env, tmp_path / "rec.log") as rec:
         pub = _publisher(tmp_path, env, frames=300, subscribers=1)
         try:
             deadline = time.monotonic() + 60

@@ -39,7 +39,7 @@ from rosbags.typesys.store import Typestore
 from ..core.atomic_output import check_target, commit, keep_interrupted, remove_path, temporary_sibling
 from ..core.errors import BagWriteError
 from .mcap_file import Compression, McapFileWriter, TopicSpec
-from .storage_io import open_storage, reserve_space
+from .storage_io import StorageOpener, open_storage, reserve_space
 
 ROSBAG2_VERSION: Literal[9] = 9
 STATUS_KEY = "roi_node.status"
@@ -114,7 +114,9 @@ class BagWriter:
         split: SplitPolicy | None = None,
         numbered: bool = False,
         in_place: bool = False,
+        open_file: StorageOpener | None = None,
     ) -> None:
+        """`open_file` opens each storage file (default `open_storage`); tests pass one whose writes fail."""
         self.path = Path(path)
         check_target(self.path, overwrite)
         self.typestore = typestore()
@@ -123,6 +125,7 @@ class BagWriter:
         self._split = split
         self._numbered = numbered or split is not None
         self._in_place = in_place
+        self._open_storage = open_file or open_storage
         self._dir = self.path if in_place else temporary_sibling(self.path)
         self._topics: dict[str, _Topic] = {}
         self.counts: dict[str, int] = {}
@@ -176,7 +179,7 @@ class BagWriter:
 
     def _open_file(self) -> None:
         path = self._dir / self._file_name()
-        self._stream = open_storage(path)
+        self._stream = self._open_storage(path)
         try:
             self._file = McapFileWriter(self._stream, compression=self.compression)
         except OSError:  # not even the header fits: leave no empty file behind
