@@ -3,8 +3,11 @@
 `FrameRecord.to_json()` is the only way a record becomes bytes (fixed key
 order, values rounded when the record is built, compact separators, no NaN),
 so the live node and offline replay publish the same bytes for the same
-inputs. Field meanings and units are in config/metadata.schema.json, which the
-tests validate every record against.
+inputs. `FrameRecord.from_json` / `from_dict` are the way back: values keep
+the JSON types they were read with (an int stays an int), so a record roi_node
+wrote reads back to the same bytes, and readers use attributes, not keys.
+Field meanings and units are in config/metadata.schema.json, which the tests
+validate every record against.
 """
 
 from __future__ import annotations
@@ -14,8 +17,18 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
+from .errors import InputDataError
 from .metadata import METADATA_SCHEMA, Lineage
 from .stamps import ns_to_stamp
+
+
+class RecordFormatError(InputDataError):
+    """A decoded metadata record lacks a field or holds one of the wrong shape (readers schema-check first)."""
+
+    def __init__(self, field: str, problem: str) -> None:
+        super().__init__(f"metadata record field {field}: {problem}")
+        self.field = field
+        self.problem = problem
 
 
 class ArmFlag(StrEnum):
@@ -41,6 +54,10 @@ class PoseRecord:
 
     def as_dict(self) -> dict[str, Any]:
         return {"xyz": list(self.xyz), "quat_xyzw": list(self.quat_xyzw)}
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> PoseRecord:
+        return cls(tuple(doc["xyz"]), tuple(doc["quat_xyzw"]))
 
 
 @dataclass(frozen=True)
@@ -90,6 +107,31 @@ class ArmRecord:
             "gripper_joints": list(self.gripper_joints),
         }
 
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> ArmRecord:
+        pose = doc["ee_pose_base"]
+        return cls(
+            arm_id=doc["arm_id"],
+            projected_center=_tuple(doc["projected_center"]),
+            offset_center=_tuple(doc["offset_center"]),
+            inward_dir=tuple(doc["inward_dir"]),
+            crop_box=tuple(doc["crop_box"]),
+            crop_size=tuple(doc["crop_size"]),
+            scale_px=doc["scale_px"],
+            scale_factor=doc["scale_factor"],
+            interpolation=doc["interpolation"],
+            depth_m=doc["depth_m"],
+            ee_pose_base=None if pose is None else PoseRecord.from_dict(pose),
+            ee_point_camera=_tuple(doc["ee_point_camera"]),
+            projection_valid=doc["projection_valid"],
+            confidence=doc["confidence"],
+            in_frame_ratio=doc["in_frame_ratio"],
+            padding_ratio=doc["padding_ratio"],
+            roi_to_image=_tuple(doc["roi_to_image"]),
+            flags=tuple(doc["flags"]),
+            gripper_joints=tuple(doc["gripper_joints"]),
+        )
+
 
 @dataclass(frozen=True)
 class SyncRecord:
@@ -100,6 +142,10 @@ class SyncRecord:
 
     def as_dict(self) -> dict[str, Any]:
         return {"policy": self.policy, "joint_stamp_ns": self.joint_stamp_ns, "residual_ms": self.residual_ms, "status": self.status}
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> SyncRecord:
+        return cls(doc["policy"], doc["joint_stamp_ns"], doc["residual_ms"], doc["status"])
 
 
 @dataclass(frozen=True)
@@ -112,6 +158,10 @@ class TeleopRecord:
 
     def as_dict(self) -> dict[str, Any]:
         return {"latency_ms": self.latency_ms, "control_hz": self.control_hz, "command_residual": self.command_residual}
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> TeleopRecord:
+        return cls(doc["latency_ms"], doc["control_hz"], doc["command_residual"])
 
 
 @dataclass(frozen=True)
@@ -148,9 +198,66 @@ class FrameRecord:
         """The one serialisation of a record: key order as built, compact, ASCII, no NaN."""
         return json.dumps(self.as_dict(), separators=(",", ":"), ensure_ascii=True, allow_nan=False)
 
+    @classmethod
+    def from_json(cls, text: str | bytes) -> FrameRecord:
+        """A record from its JSON text; `from_json(r.to_json()).to_json() == r.to_json()`."""
+        try:
+            doc = json.loads(text, parse_constant=_no_constant)
+        except ValueError as exc:
+            raise RecordFormatError("(whole record)", f"not JSON ({exc})") from exc
+        return cls.from_dict(doc)
+
+    @classmethod
+    def from_dict(cls, doc: Any) -> FrameRecord:
+        """A record from its decoded JSON (a reader that schema-checks the dict first converts it here).
+
+        The schema version and the `stamp` pair are derived on output, so they
+        must agree with what this record would write, or the bytes would not
+        read back.
+        """
+        if not isinstance(doc, dict):
+            raise RecordFormatError("(whole record)", f"expected a JSON object, got {type(doc).__name__}")
+        if doc.get("schema") != METADATA_SCHEMA:
+            raise RecordFormatError("schema", f"expected {METADATA_SCHEMA!r}, got {doc.get('schema')!r}")
+        try:
+            record = cls(
+                stamp_ns=doc["stamp_ns"],
+                frame_index=doc["frame_index"],
+                camera_id=doc["camera_id"],
+                robot_id=doc["robot_id"],
+                image_size=tuple(doc["image_size"]),
+                sync=SyncRecord.from_dict(doc["sync"]),
+                joint_positions=tuple(doc["joint_positions"].items()),
+                arms=tuple(ArmRecord.from_dict(arm) for arm in doc["arms"]),
+                teleop=TeleopRecord.from_dict(doc["teleop"]),
+                lineage=Lineage(**doc["lineage"]),
+            )
+        except KeyError as exc:
+            raise RecordFormatError(str(exc.args[0]), "missing") from exc
+        except (TypeError, AttributeError) as exc:
+            raise RecordFormatError("(a nested field)", f"of the wrong shape ({exc})") from exc
+        sec, nanosec = ns_to_stamp(record.stamp_ns)
+        if doc.get("stamp") != {"sec": sec, "nanosec": nanosec}:
+            expected = f"expected {{sec {sec}, nanosec {nanosec}}} (from stamp_ns {record.stamp_ns})"
+            raise RecordFormatError("stamp", f"{expected}, got {doc.get('stamp')!r}")
+        return record
+
     def arm(self, arm_id: str) -> ArmRecord:
         return next(a for a in self.arms if a.arm_id == arm_id)
+
+    @property
+    def joint_position_map(self) -> dict[str, float]:
+        """JointState name -> position (rad or m), in record order."""
+        return dict(self.joint_positions)
 
 
 def _list(values: tuple[Any, ...] | None) -> list[Any] | None:
     return None if values is None else list(values)
+
+
+def _tuple(values: list[Any] | None) -> tuple[Any, ...] | None:
+    return None if values is None else tuple(values)
+
+
+def _no_constant(name: str) -> float:
+    raise ValueError(f"non-finite number {name}")
