@@ -10,7 +10,7 @@
    the cv2 path measured in the same run; targets marked met / not met. These
    run as the live node runs them, the global view resampled on a thread of
    its own beside the ROIs; the exact kernel also inline, as offline work runs
-   it (core/pipeline.py, overlap_global_view).
+   it (core/pipeline.py, GlobalViewThread).
 CPU is the process's (time.process_time), so it includes the global view's thread.
 Run: `.venv/bin/python bench/core.py [--frames N]`. The machine may be shared:
 read the ratios, not the absolute times.
@@ -35,7 +35,7 @@ from roi_node.core import resample
 from roi_node.core.area_resample import resample_window, warm_up
 from roi_node.core.camera import calibration_yaml_text, camera_from_info
 from roi_node.core.config import load_rig_config
-from roi_node.core.pipeline import RoiPipeline, overlap_global_view
+from roi_node.core.pipeline import GlobalViewThread, RoiPipeline
 from roi_node.core.sync import SyncResult
 from roi_node.sim.rig_sim import SimRig
 
@@ -179,10 +179,11 @@ def bench_pipeline(width: int, height: int, frames: int, tmp: Path) -> None:
         return pipeline.process(images[i % len(images)], i, i, SyncResult("interpolate", "ok", poses[i], 0.0, i))
 
     copy_ms = timed(lambda i: images[i % len(images)].copy(), frames)
-    overlap_global_view(False)
     inline_ms = timed(lambda i: run(exact, i), frames)
     inline = [run(exact, i) for i in range(0, frames, max(1, frames // 10))]
-    overlap_global_view(True)  # as the live node runs it, from here on
+    overlapped_view = GlobalViewThread()  # as the live node runs them, from here on
+    exact = RoiPipeline(exact.rig, global_view_thread=overlapped_view)
+    pyramid = RoiPipeline(pyramid.rig, global_view_thread=overlapped_view)
     exact_ms = timed(lambda i: run(exact, i), frames)
     overlapped = [run(exact, i) for i in range(0, frames, max(1, frames // 10))]
     for a, b in zip(inline, overlapped, strict=True):  # the same bytes either way

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import threading
 from pathlib import Path
 
 import cv2
@@ -13,7 +14,7 @@ import pytest
 from roi_node.core.config import load_rig_config
 from roi_node.core.errors import ImageError
 from roi_node.core.metadata import metadata_schema
-from roi_node.core.pipeline import RoiPipeline, overlap_global_view
+from roi_node.core.pipeline import GlobalViewThread, RoiPipeline
 from roi_node.core.sync import JointStateBuffer
 
 from .rigs import (
@@ -98,19 +99,20 @@ def test_every_record_validates_and_same_inputs_give_identical_bytes(bimanual_ri
     poses = [bimanual_positions(_random_pose(rng), _random_pose(rng)) for _ in range(12)]
     poses.append(bimanual_positions({**PANDA_HOME, "panda_joint1": 1.7}, {**PANDA_HOME, "panda_joint1": -1.7}))  # toward the camera edge
     runs = []
-    for overlap in (True, False):
-        overlap_global_view(overlap)
-        try:
-            pipe = RoiPipeline(load_rig_config(bimanual_rig_path))  # a fresh instance: no hidden state
-            out = []
-            for i, positions in enumerate(poses):
-                result = pipe.process(frames[i % 3], 1_000 + i, i, ok_sync(positions))
-                jsonschema.validate(result.record.as_dict(), schema)
-                assert result.global_view is not None and result.global_view.shape == (256, 256, 3)
-                out.append((result.record_json, [r.image.tobytes() for r in result.rois], result.global_view.tobytes()))
-            runs.append(out)
-        finally:
-            overlap_global_view(False)  # the process-wide default, whatever happened
+    def global_view_threads() -> int:
+        return sum(t.name.startswith("roi_global_view") for t in threading.enumerate())
+
+    for thread in (GlobalViewThread(), None):
+        threads_before = global_view_threads()
+        pipe = RoiPipeline(load_rig_config(bimanual_rig_path), global_view_thread=thread)  # a fresh instance: no hidden state
+        out = []
+        for i, positions in enumerate(poses):
+            result = pipe.process(frames[i % 3], 1_000 + i, i, ok_sync(positions))
+            jsonschema.validate(result.record.as_dict(), schema)
+            assert result.global_view is not None and result.global_view.shape == (256, 256, 3)
+            out.append((result.record_json, [r.image.tobytes() for r in result.rois], result.global_view.tobytes()))
+        assert global_view_threads() == threads_before + (thread is not None)  # overlapped on its own thread, or inline
+        runs.append(out)
     assert runs[0] == runs[1]
 
 

@@ -23,8 +23,8 @@ import cv2
 
 from ..core.atomic_output import ensure_parent, interrupted_name, remove_orphaned_partials
 from ..core.errors import BagError, RoiNodeError
-from ..core.pipeline import overlap_global_view
 from ..process_memory import tune_malloc_for_large_frames
+from .bag_status import BagStatus
 from .reader import BAG_FILE_SUFFIXES
 from .replay import PartialOutputDiscardedError, ReplayInterrupted, replay_bag
 from .summary import ReplaySummary
@@ -44,7 +44,7 @@ class BagOutcome:
 
     @property
     def ok(self) -> bool:
-        return self.error is None and self.summary is not None and self.summary.status == "complete"
+        return self.error is None and self.summary is not None and self.summary.status == BagStatus.COMPLETE
 
 
 @dataclass(frozen=True)
@@ -102,15 +102,14 @@ def _note_interrupt(signum: int, frame: Any) -> None:
 
 def _worker_init(stop: Event) -> None:
     """A starting or idle worker only notes a Ctrl-C (its next bag then does not start); parallelism is across
-    processes, so OpenCV stays on one thread each and the global view is resampled inline, whatever the parent
-    chose."""
+    processes, so OpenCV stays on one thread each (the global view is resampled inline: replay's engine has no
+    global view thread)."""
     global _stop
     _stop = stop
     signal.signal(signal.SIGINT, _note_interrupt)
     if hasattr(signal, "pthread_sigmask"):  # started with Ctrl-C blocked (_parallel): one that came meanwhile is noted now
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     cv2.setNumThreads(1)
-    overlap_global_view(False)
     tune_malloc_for_large_frames()
 
 

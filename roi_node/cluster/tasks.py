@@ -26,20 +26,13 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
+from ..bag.bag_status import BagStatus
 from ..bag.summary import ReplaySummary
 from ..core.atomic_output import PARTIAL_TAG, remove_path
 from ..core.errors import RoiNodeError
-from ..core.pipeline import overlap_global_view
 from .errors import TransientIOError
 
 TRANSIENT_ERRNOS = frozenset({errno.EIO, errno.EAGAIN, errno.EINTR, errno.EBUSY, errno.ETIMEDOUT, errno.ESTALE, errno.ECONNRESET})
-
-
-class BagStatus(StrEnum):
-    COMPLETE = "complete"  # written (or rewritten) by this run
-    SKIPPED = "skipped"  # complete from an earlier run: verified against the manifest, not redone
-    FAILED = "failed"
-    INTERRUPTED = "interrupted"  # the driver was stopped before this bag was done: nothing of it is kept
 
 
 @dataclass(frozen=True)
@@ -124,7 +117,6 @@ def _guarded(job: ReplayJob, *, with_entry: bool) -> TaskResult:
     started = time.perf_counter()
     tune_malloc_for_large_frames()
     cv2.setNumThreads(1)  # parallelism is across tasks
-    overlap_global_view(False)
     stale = remove_stale_partials(job.target)
 
     def failed(error: str) -> TaskResult:

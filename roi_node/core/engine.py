@@ -40,7 +40,7 @@ from .camera import CameraModel
 from .config import RigConfig
 from .errors import ImageError, JointStateError, RoiNodeError
 from .metadata import M_DECIMALS, MS_DECIMALS, rnd
-from .pipeline import FrameResult, RoiPipeline
+from .pipeline import FrameResult, GlobalViewThread, RoiPipeline
 from .records import TeleopRecord
 from .resample import crop_resize
 from .roi_policy import window_around
@@ -157,8 +157,12 @@ class StreamEngine:
         urdf_from_stream: bool = False,
         max_pending: int = 8,
         stats: StreamStats | None = None,
+        overlap_global_view: bool = False,
     ) -> None:
+        """`overlap_global_view`: the pipelines resample the global view on a thread of their own beside the
+        ROIs (the live node, for latency) instead of inline (offline work); the bytes are the same."""
         self.rig = rig
+        self._global_view_thread = GlobalViewThread() if overlap_global_view else None
         self.stats = stats or StreamStats(tuple(a.id for a in rig.arms))
         self.delay_ns = round(rig.camera.delay_ms * NS_PER_MS)
         self.max_pending = max_pending
@@ -178,7 +182,7 @@ class StreamEngine:
         self._limit_refusals: dict[tuple[int, str], list[int]] = {}  # (epoch, joint) -> stamps of refused samples
         self.frames_offered = 0
         if not urdf_from_stream:
-            self._start(RoiPipeline(rig, urdf_texts=urdf_texts), -1)
+            self._start(RoiPipeline(rig, urdf_texts=urdf_texts, global_view_thread=self._global_view_thread), -1)
 
     # -- set-up ---------------------------------------------------------------------------------
 
@@ -390,7 +394,7 @@ class StreamEngine:
             return None
         urdf_texts = {r.id: event.text for r in self.rig.robots}
         try:
-            pipeline = RoiPipeline(self.rig, urdf_texts=urdf_texts)
+            pipeline = RoiPipeline(self.rig, urdf_texts=urdf_texts, global_view_thread=self._global_view_thread)
         except RoiNodeError as exc:
             return Refusal("urdf", f"{event.where}: {exc}")
         current = self.pipeline

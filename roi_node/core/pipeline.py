@@ -100,10 +100,20 @@ class RoiPipeline:
     """
 
     def __init__(
-        self, rig: RigConfig, *, intrinsics: CameraModel | None = None, urdf_texts: Mapping[str, str] | None = None
+        self,
+        rig: RigConfig,
+        *,
+        intrinsics: CameraModel | None = None,
+        urdf_texts: Mapping[str, str] | None = None,
+        global_view_thread: GlobalViewThread | None = None,
     ) -> None:
-        """`urdf_texts` (robot id -> URDF XML) replaces the rig's URDF files, e.g. from `robot_description`."""
+        """`urdf_texts` (robot id -> URDF XML) replaces the rig's URDF files, e.g. from `robot_description`.
+
+        With `global_view_thread` the global view is resampled on that thread beside the ROIs; without it,
+        inline. The bytes are the same either way (see GlobalViewThread for who wants which).
+        """
         self.rig = rig
+        self._global_view_thread = global_view_thread
         texts = urdf_texts or {}
         self.cam_T_world = rig.camera.world_T_cam.inverse()
         kinematics = {r.id: RobotKinematics(r.id, r.urdf_path, texts.get(r.id)) for r in rig.robots}
@@ -225,7 +235,8 @@ class RoiPipeline:
         assert camera is not None and lineage is not None
         output = self.rig.output
         place_global = (place_in_output, image, (0, 0), output.global_size_px, output.resize_policy, output.interpolation)
-        pending_global = _GlobalViewThread.submit(*place_global) if output.global_enabled else None
+        thread = self._global_view_thread if output.global_enabled else None
+        pending_global = thread.submit(*place_global) if thread is not None else None
         rois = tuple(self._process_arm(arm, camera, image, sync, flagged_joints) for arm in self._arms)
         global_view = None
         if output.global_enabled:
@@ -366,36 +377,26 @@ def _pose_record(base_T_ee: Transform) -> PoseRecord:
 _T = TypeVar("_T")
 
 
-class _GlobalViewThread:
-    """The thread that resamples the global view while the ROIs are cut (the area kernels release the GIL).
+class GlobalViewThread:
+    """The thread that resamples a pipeline's global view while the ROIs are cut (the area kernels release the GIL).
 
     It lowers a frame's latency when a second core is free, for extra CPU per
     frame (the hand-off and the GIL; bench/core.py prints both). Latency is
-    what the live node is for, so `roi-node run` turns it on; offline work
-    (replay, its workers, cluster tasks, export) is measured in frames per CPU
-    second, gains little wall time from it beside its own reading and writing,
-    and keeps the default, inline.
+    what the live node is for, so `roi-node run` gives its engine one; offline
+    work (replay, its workers, cluster tasks, export) is measured in frames per
+    CPU second, gains little wall time from it beside its own reading and
+    writing, and resamples inline (no thread).
+
+    The thread starts at the first frame. A forked child has none of its
+    parent's threads, so a child that inherited this object starts its own.
     """
 
-    enabled = False
-    _executor: ThreadPoolExecutor | None = None
+    def __init__(self) -> None:
+        self._executor: ThreadPoolExecutor | None = None
+        self._owner_pid = 0
 
-    @classmethod
-    def submit(cls, fn: Callable[..., _T], *args: Any) -> Future[_T] | None:
-        if not cls.enabled:
-            return None
-        if cls._executor is None:
-            cls._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="roi_global_view")
-        return cls._executor.submit(fn, *args)
-
-    @classmethod
-    def forget_after_fork(cls) -> None:
-        cls._executor = None  # a forked child has none of the parent's threads
-
-
-os.register_at_fork(after_in_child=_GlobalViewThread.forget_after_fork)
-
-
-def overlap_global_view(enabled: bool) -> None:
-    """Process-wide: resample the global view on its own thread beside the ROIs, or inline (the default)."""
-    _GlobalViewThread.enabled = enabled
+    def submit(self, fn: Callable[..., _T], *args: Any) -> Future[_T]:
+        if self._executor is None or self._owner_pid != os.getpid():
+            self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="roi_global_view")
+            self._owner_pid = os.getpid()
+        return self._executor.submit(fn, *args)

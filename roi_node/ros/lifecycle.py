@@ -48,8 +48,10 @@ EXIT_DELAY_S = 0.1  # after the shutdown transition: its ChangeState response go
 class RoiLifecycleNode(LifecycleNodeMixin, StreamNode):
     """StreamNode under the lifecycle state machine (see the module docstring)."""
 
-    def __init__(self, *, parameter_overrides: list[Parameter] | None = None) -> None:
+    def __init__(self, *, parameter_overrides: list[Parameter] | None = None, overlap_global_view: bool = False) -> None:
+        """`overlap_global_view`: resample the global view on its own thread beside the ROIs (`roi-node run` does)."""
         StreamNode.__init__(self, NODE_NAME, parameter_overrides=parameter_overrides or [])
+        self.overlap_global_view = overlap_global_view
         LifecycleNodeMixin.__init__(self, enable_communication_interface=True)
         self._perform_transition = self._service_change_state.callback
         self._service_change_state.callback = self._on_change_state

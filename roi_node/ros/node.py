@@ -97,6 +97,7 @@ class StreamNode(Node):
     active = True  # False: frames are dropped and counted ("inactive") instead of processed
     _stream_entities: tuple[Any, ...] = ()  # what `_start_stream` created, for `_stop_stream`
     _decoder: FrameDecoder | None = None  # compressed input only
+    overlap_global_view = False  # True under `roi-node run`: the global view is resampled beside the ROIs (latency first)
 
     def _start_stream(self) -> None:
         """Load the rig, build the engine, create the endpoints and start the worker thread."""
@@ -128,6 +129,7 @@ class StreamNode(Node):
             urdf_from_stream=self.params.robot_description_source == "topic",
             max_pending=self.params.max_pending_frames,
             stats=self.stats,
+            overlap_global_view=self.overlap_global_view,
         )
         try:
             self.engine.warm_up()
@@ -542,8 +544,10 @@ class StreamNode(Node):
 class RoiNode(StreamNode):
     """The live node: streams from construction until shutdown (see StreamNode)."""
 
-    def __init__(self, *, parameter_overrides: list[Parameter] | None = None) -> None:
+    def __init__(self, *, parameter_overrides: list[Parameter] | None = None, overlap_global_view: bool = False) -> None:
+        """`overlap_global_view`: resample the global view on its own thread beside the ROIs (`roi-node run` does)."""
         super().__init__(NODE_NAME, parameter_overrides=parameter_overrides or [])
+        self.overlap_global_view = overlap_global_view
         self.params = declare_and_read(self)
         self._start_stream()
         self.add_on_set_parameters_callback(self._on_set_parameters)

@@ -13,21 +13,20 @@ from pathlib import Path
 def _cmd_run(args: argparse.Namespace) -> int:
     from rclpy.parameter import Parameter
 
-    from ..core.pipeline import overlap_global_view
     from ..process_memory import tune_malloc_for_large_frames
     from .spin import spin_node
 
     tune_malloc_for_large_frames()  # this process is ours: frame buffers stay in the heap (and can be pre-faulted)
-    overlap_global_view(True)  # latency first: the global view is resampled beside the ROIs when a core is free
 
     overrides = [Parameter("config", value=str(args.config))] if args.config else []
+    # latency first: the global view is resampled beside the ROIs when a core is free
     if args.lifecycle:
         from .lifecycle import RoiLifecycleNode
 
-        return spin_node(lambda: RoiLifecycleNode(parameter_overrides=overrides), args.ros_args)
+        return spin_node(lambda: RoiLifecycleNode(parameter_overrides=overrides, overlap_global_view=True), args.ros_args)
     from .node import RoiNode
 
-    return spin_node(lambda: RoiNode(parameter_overrides=overrides), args.ros_args)
+    return spin_node(lambda: RoiNode(parameter_overrides=overrides, overlap_global_view=True), args.ros_args)
 
 
 def _cmd_record(args: argparse.Namespace) -> int:
