@@ -8,6 +8,10 @@ dump starts a second node, and the lifecycle node is a third, each in a domain o
 
 from __future__ import annotations
 
+import os
+import pty
+import select
+import signal
 import subprocess
 import sys
 import time
@@ -32,6 +36,7 @@ from roi_node.core.errors import UsageError
 from roi_node.core.stream_stats import StreamStats
 from roi_node.ros.diagnostics import diagnostics_msg
 from roi_node.ros.diagnostics_table import DiagnosticsBoard, render
+from roi_node.ros.diagnostics_view import CLEAR_SCREEN
 from roi_node.ros.param_client import ParameterEntry, dump_document, parse_value
 
 from .conftest import CONFIG, REPO
@@ -199,14 +204,14 @@ def test_unreachable_nodes_and_bad_input_are_one_line_and_exit_2(node_env: dict[
     absent, unknown, not_lifecycle, too_big, bad_name = roi_node_cli_together(
         node_env, ["param", "get", "/no_such_node", "x", "--timeout-s", "1"],
         ["param", "get", "/roi_node", "no_such_parameter"],
-        ["lifecycle", "get", "/roi_node", "--timeout-s", "1"],
+        ["lifecycle", "get", "/roi_node"],  # the default wait: the node is found first (discovery), then no service
         ["param", "set", "/roi_node", "sync.max_wait_ms", "99999999999999999999"],
         ["param", "dump", "/bad name"],
     )
     assert_one_line(absent, 2, "roi-node param: error: node /no_such_node not found within 1 s",
                     f"on ROS domain {node_env['ROS_DOMAIN_ID']} (nodes seen: ")
     assert_one_line(unknown, 2, "parameter no_such_parameter: not a parameter of /roi_node")
-    assert_one_line(not_lifecycle, 2, "service /roi_node/get_state not available within 1 s", "lifecycle node")
+    assert_one_line(not_lifecycle, 2, "service /roi_node/get_state not available within 5 s", "lifecycle node")
     assert_one_line(too_big, 2, "'99999999999999999999'", "64-bit")
     assert_one_line(bad_name, 2, "node name '/bad name'")
 
@@ -301,6 +306,30 @@ def test_diagnostics_view_prints_one_table_of_the_nodes_statuses(node_env: dict[
 
     assert_one_line(nothing, 2, "no message on /diagnostics within 1 s (no publisher on ROS domain",
                     empty["ROS_DOMAIN_ID"])
+
+
+@pytest.mark.dds
+def test_diagnostics_view_on_a_terminal_redraws_until_ctrl_c(node_env: dict[str, str]) -> None:
+    controller, terminal = pty.openpty()
+    view = subprocess.Popen([sys.executable, "-m", "roi_node.cli", "diagnostics"], cwd=REPO, env=node_env,
+                            stdin=terminal, stdout=terminal, stderr=terminal)
+    os.close(terminal)
+    shown = b""
+    try:
+        deadline = time.monotonic() + ORACLE_TIMEOUT_S
+        while shown.count(CLEAR_SCREEN.encode()) < 2 and time.monotonic() < deadline:  # a table, then its redraw
+            if select.select([controller], [], [], 0.2)[0]:
+                shown += os.read(controller, 1 << 16)
+        assert shown.count(CLEAR_SCREEN.encode()) >= 2, shown.decode(errors="replace")
+        view.send_signal(signal.SIGINT)
+        assert view.wait(timeout=15) == 0, "Ctrl-C ends the view, exit 0"
+    finally:
+        if view.poll() is None:
+            view.kill()
+            view.wait()
+        os.close(controller)
+    tables = shown.decode().split(CLEAR_SCREEN)
+    assert "roi_node: arm left" in tables[1] and "Traceback" not in shown.decode()
 
 
 def test_the_table_shows_the_rates_drops_latency_and_arms_the_node_encodes() -> None:
