@@ -34,12 +34,13 @@ from rosbags.rosbag2.metadata import parse_qos
 
 from ..core.errors import BagError
 from .bag_metadata import BagMetadataError
+from .bag_status import BagStatus
 from .integrity import storage_files
 from .mcap_file import Compression, TopicSpec
 from .progress import Progress
 from .writer import BagWriter, qos_profile
 
-RECOVERED = "recovered"
+RECOVERED = BagStatus.RECOVERED
 # zstandard.ZstdError: a zstd chunk that does not decompress (it derives from Exception only); MemoryError: a damaged
 # length asking for an absurd allocation
 _READ_ERRORS: tuple[type[BaseException], ...] = (

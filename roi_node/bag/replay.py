@@ -45,6 +45,7 @@ from ..core.engine import CameraInfoEvent, CommandEvent, Event, FrameEvent, Join
 from ..core.errors import BagError, BagWriteError, CalibrationError, ConfigError, ImageError, RoiNodeError, UsageError
 from ..core.overlay_cdr import overlay_cdr
 from ..core.pipeline import FrameResult
+from .bag_status import BagStatus
 from .indexed_mcap import CrcLedger
 from .inputs import InputSelection, check_frame_stream, decode_frame, select_inputs
 from .interrupt import DeferredInterrupt
@@ -249,9 +250,9 @@ class _Replay:
                         )
             except KeyboardInterrupt:
                 self.progress.finish()
-                raise ReplayInterrupted(self._summary(writer.final_path, "interrupted", started)) from None
+                raise ReplayInterrupted(self._summary(writer.final_path, BagStatus.INTERRUPTED, started)) from None
         self.progress.finish()
-        summary = self._summary(target, "complete", started)
+        summary = self._summary(target, BagStatus.COMPLETE, started)
         if interrupt.requested:  # Ctrl-C while the finished bag was being closed: it is complete; still stop
             raise ReplayInterrupted(summary)
         return summary
@@ -323,7 +324,7 @@ class _Replay:
         self.bad.add(message)
         self.progress.update(self.frames_read)
 
-    def _summary(self, target: Path, status: str, started: float) -> ReplaySummary:
+    def _summary(self, target: Path, status: BagStatus, started: float) -> ReplaySummary:
         intrinsics = f"{self.selection.camera_info_topic} in the bag" if self.from_bag else f"the rig config {self.rig.path}"
         return summary_from_stats(
             self.stats,

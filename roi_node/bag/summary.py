@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..core.stream_stats import StreamStats
+from .bag_status import BagStatus
 
 
 @dataclass(frozen=True)
@@ -23,7 +24,7 @@ class ArmStats:
 class ReplaySummary:
     input_path: Path
     output_path: Path
-    status: str  # complete | interrupted
+    status: BagStatus  # complete | interrupted
     image_topic: str
     joint_topics: tuple[str, ...]
     intrinsics_source: str
@@ -71,7 +72,7 @@ def summary_from_stats(
     *,
     input_path: Path,
     output_path: Path,
-    status: str,
+    status: BagStatus,
     image_topic: str,
     joint_topics: tuple[str, ...],
     intrinsics_source: str,

@@ -38,12 +38,13 @@ from rosbags.typesys.store import Typestore
 
 from ..core.atomic_output import check_target, commit, keep_interrupted, remove_path, temporary_sibling
 from ..core.errors import BagWriteError
+from .bag_status import BagStatus
 from .mcap_file import Compression, McapFileWriter, TopicSpec
 from .storage_io import StorageOpener, open_storage, reserve_space
 
 ROSBAG2_VERSION: Literal[9] = 9
 STATUS_KEY = "roi_node.status"
-RECORDING = "recording"
+RECORDING = BagStatus.RECORDING
 METADATA_NAME = "metadata.yaml"
 RESERVE_NAME = ".roi_node_space_reserve"
 RESERVE_BYTES = 4 << 20
@@ -129,7 +130,7 @@ class BagWriter:
         self._dir = self.path if in_place else temporary_sibling(self.path)
         self._topics: dict[str, _Topic] = {}
         self.counts: dict[str, int] = {}
-        self.status = "complete"
+        self.status = BagStatus.COMPLETE
         self.custom_data: dict[str, str] = {}  # metadata.yaml custom_data beside the status, e.g. what replay refused
         self.final_path = self.path
         self.failure: str | None = None
@@ -150,9 +151,9 @@ class BagWriter:
         if exc_type is None:
             self.close()
         elif issubclass(exc_type, KeyboardInterrupt):
-            self.close("interrupted", aside=True)
+            self.close(BagStatus.INTERRUPTED, aside=True)
         elif self._on_error == "finalize":
-            self.close("failed")
+            self.close(BagStatus.FAILED)
         else:
             self.discard()
 
@@ -289,7 +290,7 @@ class BagWriter:
         end = file.end_ns if file.end_ns is not None else start
         self._files.append(_FileInfo(self._file_name(), start, end, file.message_count))
 
-    def _information(self, status: str, files: list[_FileInfo], totals: Counter[str]) -> dict[str, Any]:
+    def _information(self, status: BagStatus, files: list[_FileInfo], totals: Counter[str]) -> dict[str, Any]:
         stored = [f for f in files if f.messages]
         start = min((f.start_ns for f in stored), default=0)
         end = max((f.end_ns for f in stored), default=0)
@@ -324,7 +325,7 @@ class BagWriter:
                 }
                 for f in files
             ],
-            "custom_data": {**self.custom_data, STATUS_KEY: status},
+            "custom_data": {**self.custom_data, STATUS_KEY: str(status)},  # a plain str: yaml.safe_dump refuses subclasses
             "ros_distro": "jazzy",
         }
 
@@ -334,13 +335,13 @@ class BagWriter:
         doc = self._information(self.status, [*self._files, info], self._totals + file.counts)
         return yaml.safe_dump(doc, default_flow_style=False, sort_keys=False).strip()
 
-    def _write_metadata(self, status: str) -> None:
+    def _write_metadata(self, status: BagStatus) -> None:
         doc = {"rosbag2_bagfile_information": self._information(status, self._files, self._totals)}
         tmp = self._dir / (METADATA_NAME + ".tmp")
         tmp.write_text(yaml.safe_dump(doc, default_flow_style=False, sort_keys=False))
         os.replace(tmp, self._dir / METADATA_NAME)
 
-    def close(self, status: str = "complete", *, aside: bool = False) -> None:
+    def close(self, status: BagStatus = BagStatus.COMPLETE, *, aside: bool = False) -> None:
         """Finalize (summary + metadata.yaml); `status` lands in the bag's custom data.
 
         An atomic bag is then renamed into place, or with `aside` (a Ctrl-C
@@ -349,7 +350,7 @@ class BagWriter:
         if not self._open:
             return
         self._open = False
-        self.status = "failed" if self.failure is not None and status == "complete" else status
+        self.status = BagStatus.FAILED if self.failure is not None and status == BagStatus.COMPLETE else status
         try:
             if self._file is not None:  # None: a split failed between files; the files before it are finished
                 self._finish_file()
@@ -382,4 +383,4 @@ class BagWriter:
                 self._stream.close()
         if not self._in_place:
             remove_path(self._dir)
-        self.status = "discarded"
+        self.status = BagStatus.DISCARDED

@@ -34,6 +34,7 @@ from pathlib import Path
 from rclpy.node import Node
 from rosbags.interfaces import Qos
 
+from ..bag.bag_status import BagStatus
 from ..bag.mcap_file import Compression
 from ..bag.transcode import COMPRESSED_TYPE, IMAGE_TYPE, ImageTranscoder, ImageTransport, compressed_topic
 from ..bag.writer import BagWriteError, BagWriter, SplitPolicy
@@ -193,7 +194,7 @@ class Recorder(Node):
         self.writer.write_cdr(stored_as, item.t_ns, data)
         self.written[item.topic] += 1
 
-    def close(self, status: str = "complete") -> None:
+    def close(self, status: BagStatus = BagStatus.COMPLETE) -> None:
         """Drain what was received (bounded in time) and finalize the bag."""
         self._stop.set()
         with contextlib.suppress(queue.Full):
@@ -203,7 +204,7 @@ class Recorder(Node):
             self.failure = self.failure or f"{self.writer.path}: the writer thread did not finish within {JOIN_TIMEOUT_S:.0f} s"
             return  # the thread still owns the writer: finalizing it now could tear the file; `recover` can
         try:
-            self.writer.close("failed" if self.failure else status)
+            self.writer.close(BagStatus.FAILED if self.failure else status)
         except BagWriteError as exc:
             self.failure = self.failure or str(exc)
 
