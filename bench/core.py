@@ -237,7 +237,7 @@ def main() -> None:
     parser.add_argument("--reps", type=int, default=60, help="repetitions per resampler case")
     args = parser.parse_args()
     cv2.setNumThreads(1)
-    warm_up()  # the kernels' compile (or cache load) runs on a thread started at import: not during the measurements
+    warm_up()  # the kernels' compile (or cache load) now, not during the measurements
     print(f"load average at start: {os.getloadavg()[0]:.2f} ({os.cpu_count()} CPUs)")
     for width, height in ((1920, 1080), (3840, 2160)):
         bench_resampler(width, height, args.reps)

@@ -79,15 +79,40 @@ def _compile_variants() -> None:
         resample_window(image, (-1, -1), (7, 7), out, (0, 0), (5, 5))
 
 
-# Started at import, so a node that builds its pipeline only once CameraInfo arrives
-# does not stall its callbacks on the JIT then; numba serialises compiles, so a
-# frame resampled meanwhile just waits for it.
-_warm_up_thread = threading.Thread(target=_compile_variants, name="roi_node-jit-warm-up", daemon=True)
-_warm_up_thread.start()
+class _KernelWarmUp:
+    """Compiles the kernels once per process, on a thread of its own, started by whoever needs them.
+
+    Nothing starts it at import: the live node starts it when its stream
+    starts (so a pipeline built later, once the URDF or CameraInfo arrives,
+    does not stall its callbacks on the JIT), RoiPipeline waits for it, and
+    replay waits for it before it counts threads to decide whether it may
+    fork its workers. numba serialises compiles, so a frame resampled
+    meanwhile just waits for it.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> threading.Thread:
+        with self._lock:
+            if self._thread is None:
+                self._thread = threading.Thread(target=_compile_variants, name="roi_node-jit-warm-up", daemon=True)
+                self._thread.start()
+            return self._thread
+
+
+_KERNELS = _KernelWarmUp()
+
+
+def start_warm_up() -> None:
+    """Start compiling (or loading from the disk cache) the kernels in the background, if not yet started."""
+    _KERNELS.start()
 
 
 def warm_up(timeout_s: float | None = None) -> bool:
-    """Wait until the kernels are compiled (RoiPipeline calls it: the first frame is not slow); False if `timeout_s`
-    passed first."""
-    _warm_up_thread.join(timeout_s)
-    return not _warm_up_thread.is_alive()
+    """Compile the kernels (starting that if nobody did) and wait until they are ready; False if `timeout_s`
+    passed first. RoiPipeline calls it, so the first frame is not slow."""
+    thread = _KERNELS.start()
+    thread.join(timeout_s)
+    return not thread.is_alive()

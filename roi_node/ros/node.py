@@ -47,6 +47,7 @@ from visualization_msgs.msg import ImageMarker
 
 from .. import __version__
 from ..core import topics
+from ..core.area_resample import start_warm_up
 from ..core.compressed_header import DeclaredSizeError
 from ..core.config import RigConfig, load_rig_config
 from ..core.engine import (
@@ -102,6 +103,8 @@ class StreamNode(Node):
     def _start_stream(self) -> None:
         """Load the rig, build the engine, create the endpoints and start the worker thread."""
         before = self._entities()
+        # a pipeline built later (URDF from the topic) must not stall a callback on the kernels' first compile
+        start_warm_up()
         # OpenCV's thread pool costs more than it saves on 256 px resizes (bench/live.py shows CPU per frame)
         cv2.setNumThreads(self.params.opencv_threads)
         policy = declare_policy(self, load_rig_config(resolve_config_file(self.params.config)), self.params)
