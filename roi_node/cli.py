@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 from . import __version__
 from .core.errors import RoiNodeError
+from .ray_options import ray_requested
 
 EXIT_ERROR = 2
 DEBUG_FLAG = "--debug"
@@ -23,7 +24,6 @@ VERB_MODULES = (
     "roi_node.ros.verbs", "roi_node.bag.verbs", "roi_node.report.verbs", "roi_node.app.verbs", "roi_node.export.verbs",
     "roi_node.app.rig_verbs", "roi_node.ros.tool_verbs",
     "roi_node.app.rig_setup_verbs",
-    "roi_node.cluster.verbs",  # last: it adds --ray to replay and export lerobot
 )
 
 
@@ -50,7 +50,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.ros_args = ros_args
     args.debug = debug
     try:
-        code: int = args.func(args)
+        code: int = (_run_on_ray if ray_requested(args) else args.func)(args)
     except KeyboardInterrupt:
         print(f"roi-node {args.verb}: interrupted", file=sys.stderr)
         return 130
@@ -63,6 +63,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"roi-node {args.verb}: error: {describe_failure(exc)}", file=sys.stderr)
         return EXIT_ERROR
     return code
+
+
+def _run_on_ray(args: argparse.Namespace) -> int:
+    """A verb given --ray (replay, export lerobot): only now is the cluster package, the only Ray code, imported."""
+    from .cluster.verbs import run_on_ray
+
+    return run_on_ray(args)
 
 
 def describe_failure(exc: BaseException) -> str:

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..arg_types import int_at_least
+from ..ray_options import RayJob, add_ray_options
 
 if TYPE_CHECKING:
     from .summary import ReplaySummary
@@ -41,8 +42,10 @@ def _interrupted_note(summary: ReplaySummary) -> str:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
+    from ..core.area_resample import start_warm_up
     from ..process_memory import tune_malloc_for_large_frames
 
+    start_warm_up()  # the kernels compile while the bags open; the pipeline and the decision to fork workers wait for them
     tune_malloc_for_large_frames()  # this process is ours: keep frame buffers in the heap
     inputs = [Path(p) for p in args.inputs]
     if len(inputs) == 1:
@@ -167,6 +170,7 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     replay.add_argument(
         "--intrinsics-from-bag", action="store_true", help="use the bag's CameraInfo even when the rig config has intrinsics"
     )
+    add_ray_options(replay, RayJob.REPLAY, "bag")
     replay.set_defaults(func=_cmd_replay)
 
     inspect = verbs.add_parser(
