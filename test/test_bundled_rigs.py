@@ -58,19 +58,19 @@ def scaled_rig(bundled: Path, folder: Path, scale: float) -> Path:
     """The bundled rig seen at `scale` of its resolution: intrinsics and every pixel length of its arms scaled.
 
     Distortion coefficients act on normalised coordinates and stay; K and P
-    scale about the pixel-centre convention (u + 0.5). Depth windows keep
-    their alpha and radius (l follows f_x), and their px clips, the inward
-    offset and fixed sizes scale, so each window covers what it covers at
-    full size.
+    scale about pixel centres (u + 0.5 is the distance from the image's
+    left edge). Depth windows keep their alpha and radius (l follows f_x),
+    and their px clips, the inward offset and fixed sizes scale, so each
+    window covers what it covers at full size.
     """
     rig = load_rig_config(bundled)
     source = rig.camera.intrinsics
     assert source is not None, f"{bundled.name}: the bundled rigs carry a calibration file"
-    k = source.k.copy()
-    k[:2, :2] *= scale
-    k[:2, 2] = (k[:2, 2] + 0.5) * scale - 0.5
-    p = source.p.copy()
-    p[:2, :3] = k[:2, :3] if np.allclose(source.p[:2, :3], source.k[:2, :3]) else p[:2, :3] * scale
+    k, p = source.k.copy(), source.p.copy()
+    for matrix in (k, p):
+        matrix[:2, :2] *= scale
+        matrix[:2, 2] = (matrix[:2, 2] + 0.5) * scale - 0.5
+    p[:2, 3] *= scale  # a stereo camera's baseline term, in px
     small = camera_from_info(
         width_px=round(source.width_px * scale), height_px=round(source.height_px * scale),
         distortion_model=source.distortion_model, d=source.d, k=k, r=source.r, p=p, rectified=rig.camera.rectified,
