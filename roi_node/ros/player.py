@@ -15,7 +15,6 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import rclpy
-from rclpy._rclpy_pybind11 import RCLError
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -81,7 +80,7 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
                     last_clock = log_ns
                 try:
                     publishers[connection.id].publish(bytes(raw))
-                except RCLError:
+                except RuntimeError:  # rclpy's RCLError ("publisher's context is invalid") is a RuntimeError
                     if rclpy.ok(context=node.context):
                         raise
                     raise KeyboardInterrupt from None  # the signal arrived while publishing
