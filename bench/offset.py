@@ -37,10 +37,10 @@ def samples(world: SimRig, rig: RigConfig, frames: list[int], truths: dict[int, 
     """(ee depth m, centre error px, ROI side px) of every arm in view."""
     _, compared = run(world, Perturbation(rig), frames, truths)
     rows = [
-        (a.record["ee_point_camera"][2], a.centre_error_px, a.record["scale_px"])
+        (a.record.ee_point_camera[2], a.centre_error_px, a.record.scale_px)
         for frame in compared
         for a in frame
-        if isinstance(a, FrameArm) and a.centre_error_px is not None and a.record["projection_valid"]
+        if isinstance(a, FrameArm) and a.centre_error_px is not None and a.record.projection_valid and a.record.ee_point_camera
     ]
     return np.array(rows)
 

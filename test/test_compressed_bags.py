@@ -63,7 +63,7 @@ def test_compressed_replay_has_the_nodes_topics_and_images_within_jpeg_tolerance
             assert f"/roi/{arm}/image_raw" not in names
         # RoiBag.image finds the compressed topic for the raw name and decodes it
         sample = records[len(records) // 2]
-        via_roibag = bag.image(roi_image_topic("left"), sample.log_ns, sample.record["stamp_ns"])
+        via_roibag = bag.image(roi_image_topic("left"), sample.log_ns, sample.record.stamp_ns)
     assert "/roi/global/image_raw/compressed" in names and "/roi/global/image_raw" not in names
     assert records_by_stamp(jpeg) == records_by_stamp(raw)
     for topic in ["/roi/global/image_raw"] + [f"/roi/{arm}/image_raw" for arm in ARMS]:
@@ -71,7 +71,7 @@ def test_compressed_replay_has_the_nodes_topics_and_images_within_jpeg_tolerance
         assert sorted(got) == sorted(want) and len(got) == len(records)
         assert min(psnr_db(want[s], got[s]) for s in want) >= MIN_PSNR_DB
     assert via_roibag is not None
-    assert np.array_equal(via_roibag, jpeg_images(jpeg, "/roi/left/image_raw/compressed")[sample.record["stamp_ns"]])
+    assert np.array_equal(via_roibag, jpeg_images(jpeg, "/roi/left/image_raw/compressed")[sample.record.stamp_ns])
 
 
 def test_the_overlay_in_a_replayed_bag_draws_each_records_crop_box(bags: tuple[Path, Path, Path]) -> None:

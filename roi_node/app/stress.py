@@ -27,10 +27,12 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
+from ..bag.bag_status import BagStatus
 from ..core.camera import CameraModel
 from ..core.config import RigConfig
 from ..core.errors import ConfigError
 from ..core.kinematics import RobotKinematics
+from ..core.records import FrameRecord
 from ..core.transforms import Transform
 from ..report.gates import CALIBRATION_DELAY_GATE, CALIBRATION_OFFSET_GATE, GateSet, evaluate, gate_threshold
 from ..report.stats import BagStats
@@ -191,27 +193,27 @@ def _lengthen(urdf: str, joint: str, extra_m: float) -> str:
 
 
 def _measure(
-    records: list[dict[str, Any]], frames: list[list[FrameArm]], gates: GateSet, baseline: dict[int, list[Any]] | None
+    records: list[FrameRecord], frames: list[list[FrameArm]], gates: GateSet, baseline: dict[int, list[tuple[float, float] | None]] | None
 ) -> SizeResult:
     arms = [a for f in frames for a in f]
     coverage = np.array([a.coverage for a in arms if a.coverage is not None])
     errors = np.array([a.centre_error_px for a in arms if a.centre_error_px is not None])
     flags: dict[str, int] = {}
     for a in arms:
-        for flag in a.record["flags"]:
+        for flag in a.record.flags:
             flags[flag] = flags.get(flag, 0) + 1
     stats = BagStats(stamp_gap_factor=gates.params.stamp_gap_factor)
     for position, record in enumerate(records):
         stats.add(record, position)
-    summary = stats.finish("complete")
+    summary = stats.finish(BagStatus.COMPLETE)
     failed = sorted({f"{g.gate}" for g in evaluate(gates, summary.bag_metrics, summary.arm_metrics, {}) if g.failed})
     shift = None
     if baseline is not None:
         moves = [
-            math.hypot(a["projected_center"][0] - b[0], a["projected_center"][1] - b[1])
+            math.hypot(a.projected_center[0] - b[0], a.projected_center[1] - b[1])
             for record in records
-            for a, b in zip(record["arms"], baseline.get(record["frame_index"], []), strict=False)
-            if a["projected_center"] is not None and b is not None
+            for a, b in zip(record.arms, baseline.get(record.frame_index, []), strict=False)
+            if a.projected_center is not None and b is not None
         ]
         shift = float(np.mean(moves)) if moves else None
     n = max(len(arms), 1)
@@ -220,9 +222,9 @@ def _measure(
         coverage_mean=float(coverage.mean()) if coverage.size else None,
         coverage_p05=float(np.percentile(coverage, 5)) if coverage.size else None,
         centre_error_px=float(errors.mean()) if errors.size else None,
-        in_frame_mean=float(np.mean([a.record["in_frame_ratio"] for a in arms])) if arms else 0.0,
-        confidence_mean=float(np.mean([a.record["confidence"] for a in arms])) if arms else 0.0,
-        flagged_share=sum(bool(a.record["flags"]) for a in arms) / n,
+        in_frame_mean=float(np.mean([a.record.in_frame_ratio for a in arms])) if arms else 0.0,
+        confidence_mean=float(np.mean([a.record.confidence for a in arms])) if arms else 0.0,
+        flagged_share=sum(bool(a.record.flags) for a in arms) / n,
         flag_shares={k: v / n for k, v in sorted(flags.items())},
         failed_gates=failed,
         shift_px=shift,
@@ -321,7 +323,7 @@ def run_stress(
     frame_indices = list(range(0, world.frame_count(DURATION_S), QUICK_EVERY if quick else 1))
     truths: dict[int, FrameTruth] = {}
     records, frames = run(world, Perturbation(rig), frame_indices, truths)
-    baseline = {r["frame_index"]: [a["projected_center"] for a in r["arms"]] for r in records}
+    baseline = {r.frame_index: [a.projected_center for a in r.arms] for r in records}
     out = []
     for sweep in SWEEPS:
         results = []

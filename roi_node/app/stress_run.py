@@ -14,13 +14,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import cv2
 import numpy as np
 
 from ..core.config import RigConfig
 from ..core.engine import FrameEvent, JointStateEvent, StreamEngine
+from ..core.records import ArmRecord, FrameRecord
 from ..core.stamps import NS_PER_MS, NS_PER_S
 from ..sim.rig_sim import SimRig
 from ..sim.truth import FrameTruth, GripperTruth
@@ -48,12 +48,12 @@ class FrameArm:
 
     coverage: float | None  # visible gripper area inside the crop box / visible gripper area; None when not visible
     centre_error_px: float | None  # ROI centre to the visible gripper's centroid
-    record: dict[str, Any]
+    record: ArmRecord
 
 
 def run(
     world: SimRig, view: Perturbation, frame_indices: Sequence[int], truths: dict[int, FrameTruth]
-) -> tuple[list[dict[str, Any]], list[list[FrameArm]]]:
+) -> tuple[list[FrameRecord], list[list[FrameArm]]]:
     """Metadata records and per-frame, per-arm comparisons with the truth for the world's frames `frame_indices`.
 
     Joint states are fed only around each frame's (perturbed) capture time, so a sparse set of frames
@@ -78,7 +78,7 @@ def run(
     camera = view.rig.camera.intrinsics
     assert camera is not None
     blank = np.zeros((camera.height_px, camera.width_px, 3), np.uint8)
-    records: list[dict[str, Any]] = []
+    records: list[FrameRecord] = []
     frames: list[list[FrameArm]] = []
     pending: dict[int, FrameTruth] = {}
     for k in frame_indices:
@@ -90,14 +90,14 @@ def run(
             result = engine.run(ready)
             if result is None:
                 continue
-            record = result.record.as_dict()  # as a bag carries it: the gates read records in this form
+            record = result.record
             records.append(record)
             truth = pending.pop(ready.payload.stamp_ns)
-            frames.append([_compare(truth.gripper(arm["arm_id"]), arm, camera.width_px, camera.height_px) for arm in record["arms"]])
+            frames.append([_compare(truth.gripper(arm.arm_id), arm, camera.width_px, camera.height_px) for arm in record.arms])
     return records, frames
 
 
-def _compare(truth: GripperTruth, arm: dict[str, Any], width_px: int, height_px: int) -> FrameArm:
+def _compare(truth: GripperTruth, arm: ArmRecord, width_px: int, height_px: int) -> FrameArm:
     if len(truth.polygon_px) < 3:
         return FrameArm(None, None, arm)
     polygon = truth.polygon_px.astype(np.float32)
@@ -105,13 +105,13 @@ def _compare(truth: GripperTruth, arm: dict[str, Any], width_px: int, height_px:
     visible_area, visible = cv2.intersectConvexConvex(polygon, image)
     if visible_area < MIN_VISIBLE_PX2 or visible is None:
         return FrameArm(None, None, arm)
-    if not arm["projection_valid"]:
+    if not arm.projection_valid:
         return FrameArm(0.0, None, arm)
-    x0, y0, x1, y1 = arm["crop_box"]
+    x0, y0, x1, y1 = arm.crop_box
     inside, _ = cv2.intersectConvexConvex(visible.reshape(-1, 2), _box(x0 - 0.5, y0 - 0.5, x1 - 0.5, y1 - 0.5))
     moments = cv2.moments(visible.reshape(-1, 1, 2))
     centroid = np.array([moments["m10"], moments["m01"]]) / moments["m00"] if moments["m00"] else polygon.mean(axis=0)
-    error = float(np.hypot(*(np.asarray(arm["offset_center"]) - centroid)))
+    error = float(np.hypot(*(np.asarray(arm.offset_center) - centroid)))
     return FrameArm(float(np.clip(inside / visible_area, 0.0, 1.0)), error, arm)
 
 

@@ -11,16 +11,16 @@ byte for byte.
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
 from ..core import topics
+from ..core.records import FrameRecord
+from ..core.sync import SyncPolicy, SyncStatus
 from .reader import open_bag
 
-LIVE_ONLY_TELEOP = ("latency_ms",)
-DEGRADED_STATUS = ("stale", "extrapolated", "missing")
+DEGRADED_STATUS = (SyncStatus.STALE, SyncStatus.EXTRAPOLATED, SyncStatus.MISSING)
 
 
 @dataclass
@@ -34,8 +34,8 @@ class Comparison:
         return self.frames > 0 and not self.differences
 
 
-def _outputs(bag: Path) -> tuple[dict[int, dict[str, Any]], dict[str, dict[int, bytes]]]:
-    records: dict[int, dict[str, Any]] = {}
+def _outputs(bag: Path) -> tuple[dict[int, FrameRecord], dict[str, dict[int, bytes]]]:
+    records: dict[int, FrameRecord] = {}
     images: dict[str, dict[int, bytes]] = {}
     with open_bag(bag) as reader:
         outputs = (topics.STRING_TYPE, topics.IMAGE_TYPE)
@@ -43,8 +43,8 @@ def _outputs(bag: Path) -> tuple[dict[int, dict[str, Any]], dict[str, dict[int, 
         for connection, _, raw in reader.messages(connections=wanted):
             msg: Any = reader.deserialize(raw, connection.msgtype)
             if connection.msgtype == topics.STRING_TYPE:
-                record = json.loads(msg.data)
-                records[int(record["stamp_ns"])] = record
+                record = FrameRecord.from_json(msg.data)
+                records[int(record.stamp_ns)] = record
             else:
                 stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
                 images.setdefault(connection.topic, {})[stamp] = bytes(msg.data)
@@ -62,19 +62,22 @@ def compare_live_offline(live_bag: Path, offline_bag: Path) -> Comparison:
         result.differences.append(f"frame stamps differ: only live {only_live}, only offline {only_offline}")
     for stamp in sorted(live_records.keys() & offline_records.keys()):
         live, offline = live_records[stamp], offline_records[stamp]
-        released_early = live["sync"]["status"] in DEGRADED_STATUS and offline["sync"]["status"] == "ok"
-        if released_early or live["sync"]["policy"] == "latest":
+        released_early = live.sync.status in DEGRADED_STATUS and offline.sync.status == SyncStatus.OK
+        if released_early or live.sync.policy == SyncPolicy.LATEST:
             result.exempt += 1
             continue
         result.frames += 1
-        for key in LIVE_ONLY_TELEOP:
-            live["teleop"].pop(key, None)
-            offline["teleop"].pop(key, None)
+        live, offline = _without_live_only(live), _without_live_only(offline)
         if live != offline:
-            diff = sorted(k for k in live if live.get(k) != offline.get(k))
+            diff = sorted(f.name for f in fields(FrameRecord) if getattr(live, f.name) != getattr(offline, f.name))
             result.differences.append(f"frame {stamp}: metadata differs in {diff}")
             continue
         for topic, frames in live_images.items():
             if frames.get(stamp) != offline_images.get(topic, {}).get(stamp):
                 result.differences.append(f"frame {stamp}: {topic} pixels differ")
     return result
+
+
+def _without_live_only(record: FrameRecord) -> FrameRecord:
+    """The record without its live-only field (`teleop.latency_ms`), which offline cannot have."""
+    return replace(record, teleop=replace(record.teleop, latency_ms=None))

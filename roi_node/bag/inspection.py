@@ -7,7 +7,6 @@ many frames carry each, so a bag mixing two calibrations shows it at a glance.
 
 from __future__ import annotations
 
-import json
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,13 +15,15 @@ from typing import Any
 from rosbags.highlevel import AnyReader
 
 from ..core import topics
+from ..core.metadata import Lineage
+from ..core.records import FrameRecord, RecordFormatError
 from .reader import DESERIALIZE_ERRORS, bag_information, deserialize, open_bag, read_messages, topic_stats
 from .writer import STATUS_KEY
 
 METADATA_TOPIC = topics.absolute(topics.METADATA)
 STORAGE_BY_SUFFIX = {".mcap": "mcap", ".db3": "sqlite3"}
 # a record that is not the JSON object the metadata schema describes
-_RECORD_ERRORS: tuple[type[BaseException], ...] = (*DESERIALIZE_ERRORS, KeyError, AttributeError)
+_RECORD_ERRORS: tuple[type[BaseException], ...] = (*DESERIALIZE_ERRORS, RecordFormatError, AttributeError)
 
 
 @dataclass(frozen=True)
@@ -146,19 +147,17 @@ def _roi_contents(reader: AnyReader, path: Path) -> RoiContents:
     robots: Counter[str] = Counter()
     cameras: Counter[str] = Counter()
     arms: Counter[str] = Counter()
-    lineages: Counter[str] = Counter()
-    lineage_of: dict[str, dict[str, str]] = {}  # canonical text -> the tuple as first seen (record key order)
+    lineages: Counter[Lineage] = Counter()
     frames = unreadable = 0
     first = last = None
     connections = [c for c in reader.connections if c.topic == METADATA_TOPIC]
     for connection, _, raw in read_messages(reader, connections, path):
         try:
             msg: Any = deserialize(reader, raw, connection.msgtype)
-            record = json.loads(msg.data)
-            lineage = json.dumps(record["lineage"], sort_keys=True)
-            lineage_of.setdefault(lineage, dict(record["lineage"]))
-            robot, camera, stamp = str(record["robot_id"]), str(record["camera_id"]), int(record["stamp_ns"])
-            arm_ids = [str(arm["arm_id"]) for arm in record["arms"]]
+            record = FrameRecord.from_json(msg.data)
+            lineage = record.lineage
+            robot, camera, stamp = str(record.robot_id), str(record.camera_id), int(record.stamp_ns)
+            arm_ids = [str(arm.arm_id) for arm in record.arms]
         except _RECORD_ERRORS:
             unreadable += 1
             continue
@@ -175,7 +174,7 @@ def _roi_contents(reader: AnyReader, path: Path) -> RoiContents:
         robot_ids=dict(robots.most_common()),
         camera_ids=dict(cameras.most_common()),
         arms=dict(arms.most_common()),
-        lineages=[(lineage_of[text], n) for text, n in lineages.most_common()],
+        lineages=[(lineage.as_dict(), n) for lineage, n in lineages.most_common()],
         first_stamp_ns=first,
         last_stamp_ns=last,
     )

@@ -211,16 +211,17 @@ class FrameRecord:
     def from_dict(cls, doc: Any) -> FrameRecord:
         """A record from its decoded JSON (a reader that schema-checks the dict first converts it here).
 
-        The schema version and the `stamp` pair are derived on output, so they
-        must agree with what this record would write, or the bytes would not
-        read back.
+        `schema` must be this version. `stamp` is not read: it is derived from
+        `stamp_ns` on output, and readers have always taken `stamp_ns`, so a
+        record whose pair disagrees is read as it was before (and writes the
+        pair its `stamp_ns` gives).
         """
         if not isinstance(doc, dict):
             raise RecordFormatError("(whole record)", f"expected a JSON object, got {type(doc).__name__}")
         if doc.get("schema") != METADATA_SCHEMA:
             raise RecordFormatError("schema", f"expected {METADATA_SCHEMA!r}, got {doc.get('schema')!r}")
         try:
-            record = cls(
+            return cls(
                 stamp_ns=doc["stamp_ns"],
                 frame_index=doc["frame_index"],
                 camera_id=doc["camera_id"],
@@ -236,19 +237,9 @@ class FrameRecord:
             raise RecordFormatError(str(exc.args[0]), "missing") from exc
         except (TypeError, AttributeError) as exc:
             raise RecordFormatError("(a nested field)", f"of the wrong shape ({exc})") from exc
-        sec, nanosec = ns_to_stamp(record.stamp_ns)
-        if doc.get("stamp") != {"sec": sec, "nanosec": nanosec}:
-            expected = f"expected {{sec {sec}, nanosec {nanosec}}} (from stamp_ns {record.stamp_ns})"
-            raise RecordFormatError("stamp", f"{expected}, got {doc.get('stamp')!r}")
-        return record
 
     def arm(self, arm_id: str) -> ArmRecord:
         return next(a for a in self.arms if a.arm_id == arm_id)
-
-    @property
-    def joint_position_map(self) -> dict[str, float]:
-        """JointState name -> position (rad or m), in record order."""
-        return dict(self.joint_positions)
 
 
 def _list(values: tuple[Any, ...] | None) -> list[Any] | None:

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.records import FrameRecord
 from .errors import DatasetError
 
 STATE_KEY = "observation.state"
@@ -157,23 +158,24 @@ class FrameColumns:
         self.states: list[np.ndarray] = []
         self.roi: dict[str, list[Any]] = {roi_key(arm, field): [] for arm in arms for field in RoiField}
 
-    def add(self, record: Mapping[str, Any], where: str) -> None:
-        positions = record["joint_positions"]
+    def add(self, record: FrameRecord, where: str) -> None:
+        positions = dict(record.joint_positions)
         if set(positions) != set(self.joint_names):
             missing = sorted(set(self.joint_names) - set(positions))
             extra = sorted(set(positions) - set(self.joint_names))
             raise DatasetError(f"{where}: joint_positions names differ from the first record's (missing {missing}, extra {extra})")
-        by_arm = {arm["arm_id"]: arm for arm in record["arms"]}
+        by_arm = {arm.arm_id: arm for arm in record.arms}
         if tuple(by_arm) != self.arms:
             raise DatasetError(f"{where}: arms {', '.join(by_arm)} differ from the first record's {', '.join(self.arms)}")
-        self.stamps_ns.append(int(record["stamp_ns"]))
-        self.frame_indices.append(int(record["frame_index"]))
+        self.stamps_ns.append(int(record.stamp_ns))
+        self.frame_indices.append(int(record.frame_index))
         self.states.append(np.array([positions[name] for name in self.joint_names], dtype=np.float32))
         for arm_id, arm in by_arm.items():
-            self.roi[roi_key(arm_id, RoiField.CROP_BOX)].append(np.asarray(arm["crop_box"], dtype=np.float32))
-            for field in (RoiField.CONFIDENCE, RoiField.IN_FRAME_RATIO, RoiField.PADDING_RATIO):
-                self.roi[roi_key(arm_id, field)].append(float(arm[field]))
-            self.roi[roi_key(arm_id, RoiField.PROJECTION_VALID)].append(1.0 if arm["projection_valid"] else 0.0)
+            self.roi[roi_key(arm_id, RoiField.CROP_BOX)].append(np.asarray(arm.crop_box, dtype=np.float32))
+            self.roi[roi_key(arm_id, RoiField.CONFIDENCE)].append(float(arm.confidence))
+            self.roi[roi_key(arm_id, RoiField.IN_FRAME_RATIO)].append(float(arm.in_frame_ratio))
+            self.roi[roi_key(arm_id, RoiField.PADDING_RATIO)].append(float(arm.padding_ratio))
+            self.roi[roi_key(arm_id, RoiField.PROJECTION_VALID)].append(1.0 if arm.projection_valid else 0.0)
 
     def __len__(self) -> int:
         return len(self.stamps_ns)

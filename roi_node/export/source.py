@@ -77,11 +77,11 @@ def read_source(path: Path, params: GateParams) -> RoiSource:
             record = message.record
             stats.add(record, message.position)
             if columns is None:
-                arms = tuple(arm["arm_id"] for arm in record["arms"])
+                arms = tuple(arm.arm_id for arm in record.arms)
                 check_arm_ids(arms, f"{path}: {METADATA_TOPIC}")
-                columns = FrameColumns(arms, tuple(record["joint_positions"]))
-                robot_id = str(record["robot_id"])
-            columns.add(record, f"{path}: {METADATA_TOPIC} message {message.position} (frame_index {record['frame_index']})")
+                columns = FrameColumns(arms, tuple(name for name, _ in record.joint_positions))
+                robot_id = str(record.robot_id)
+            columns.add(record, f"{path}: {METADATA_TOPIC} message {message.position} (frame_index {record.frame_index})")
         assert columns is not None  # RoiBag refuses a bag without records
         video_topics = _video_topics(bag, columns.arms)
         sizes, stamps = _image_stamps(bag, video_topics)

@@ -10,11 +10,11 @@ pointing to it, so out-of-frame cases are visible on the sheet too.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
 import cv2
 import numpy as np
 
+from ..core.records import FrameRecord
 from ..core.resample import output_layout
 
 BOX_COLOURS = ((255, 80, 80), (80, 160, 255), (80, 255, 120), (255, 220, 60))
@@ -25,33 +25,33 @@ ROW_GAP_PX = 4
 ARROW_PX = 36
 
 
-def preview_scale(record: dict[str, Any]) -> float:
+def preview_scale(record: FrameRecord) -> float:
     """Preview pixels per original-image pixel."""
-    return PREVIEW_WIDTH_PX / float(record["image_size"][0])
+    return PREVIEW_WIDTH_PX / float(record.image_size[0])
 
 
-def contact_row(frame_rgb: np.ndarray, record: dict[str, Any], rois: Sequence[np.ndarray], caption: str | None = None) -> np.ndarray:
+def contact_row(frame_rgb: np.ndarray, record: FrameRecord, rois: Sequence[np.ndarray], caption: str | None = None) -> np.ndarray:
     """One row: the frame (scaled to 640 wide) with crop boxes, then each ROI at 256 px height.
 
     `caption` (e.g. why this frame was chosen) goes at the bottom left of the frame.
     """
-    h = record["image_size"][1]
+    h = record.image_size[1]
     scale = preview_scale(record)
     size = (PREVIEW_WIDTH_PX, round(h * scale))
     shrinking = frame_rgb.shape[1] >= size[0]
     preview = cv2.resize(_rgb(frame_rgb), size, interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
     row_h = max(preview.shape[0], ROI_HEIGHT_PX + 2 * TILE_BORDER_PX)
-    for i, arm in enumerate(record["arms"]):
+    for i, arm in enumerate(record.arms):
         colour = BOX_COLOURS[i % len(BOX_COLOURS)]
-        if arm["projection_valid"] and arm["offset_center"] is not None:
-            x0, y0, x1, y1 = (round(v * scale) for v in arm["crop_box"])
+        if arm.projection_valid and arm.offset_center is not None:
+            x0, y0, x1, y1 = (round(v * scale) for v in arm.crop_box)
             cv2.rectangle(preview, (x0, y0), (x1 - 1, y1 - 1), colour, 2)
-            u, v = (round(c * scale) for c in arm["offset_center"])
+            u, v = (round(c * scale) for c in arm.offset_center)
             if 0 <= u < size[0] and 0 <= v < size[1]:
                 cv2.drawMarker(preview, (u, v), colour, cv2.MARKER_CROSS, 12, 2)
             else:
                 _border_arrow(preview, (u, v), colour)
-        label = f"{arm['arm_id']} in={arm['in_frame_ratio']:.2f} c={arm['confidence']:.2f}"
+        label = f"{arm.arm_id} in={arm.in_frame_ratio:.2f} c={arm.confidence:.2f}"
         cv2.putText(preview, label, (8, 22 + 22 * i), cv2.FONT_HERSHEY_SIMPLEX, 0.55, colour, 2, cv2.LINE_AA)
     if caption:
         org = (8, size[1] - 10)

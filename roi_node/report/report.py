@@ -72,16 +72,16 @@ def _sample_images(scan: BagScan) -> list[tuple[Sample, np.ndarray, list[np.ndar
     with RoiBag(scan.path) as bag:
         for sample in scan.samples:
             record = sample.record
-            stamp = record["stamp_ns"]
+            stamp = record.stamp_ns
             frame = bag.image(source, sample.log_ns, stamp) if source is not None else None
             if frame is None:
                 view = bag.image(GLOBAL_TOPIC, sample.log_ns, stamp)
                 if view is None:
                     continue
-                frame = unresize_global(view, tuple(record["image_size"]), record["lineage"]["resize_policy"])
+                frame = unresize_global(view, record.image_size, record.lineage.resize_policy)
             rois = []
-            for arm in record["arms"]:
-                roi = bag.image(roi_image_topic(arm["arm_id"]), sample.log_ns, stamp)
+            for arm in record.arms:
+                roi = bag.image(roi_image_topic(arm.arm_id), sample.log_ns, stamp)
                 rois.append(roi if roi is not None else np.zeros((256, 256, 3), np.uint8))
             out.append((sample, frame, rois))
     return out
@@ -99,7 +99,7 @@ def write_bag_figures(scan: BagScan, validation: BagValidation, gates: GateSet, 
     images: dict[str, np.ndarray] = {}
     if sampled:
         rows = [
-            contact_row(frame, sample.record, rois, f"frame_index {sample.record['frame_index']}: {sample.reason}")
+            contact_row(frame, sample.record, rois, f"frame_index {sample.record.frame_index}: {sample.reason}")
             for sample, frame, rois in sampled
         ]
         images["contact_sheet"] = contact_sheet(rows)

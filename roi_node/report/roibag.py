@@ -1,7 +1,9 @@
 """Reading ROI bags (the output of `roi-node replay` / `record`) for validation and manifests.
 
 Metadata records are streamed one at a time, parsed and checked against the
-shipped schema; nothing keeps them. Images are read only on request, for the
+shipped schema, then handed on as typed FrameRecords; nothing keeps them. The
+schema check needs the raw decoded JSON (a wrong type or an extra key is
+only visible there), so it runs before the conversion. Images are read only on request, for the
 handful of frames a contact sheet shows, by seeking to their log time.
 """
 
@@ -24,6 +26,7 @@ from ..core import topics
 from ..core.compressed_outputs import compressed_topic
 from ..core.errors import BagError, ImageError
 from ..core.metadata import METADATA_SCHEMA, metadata_schema
+from ..core.records import FrameRecord
 from .schema_check import RecordChecker
 
 METADATA_TOPIC = topics.absolute(topics.METADATA)
@@ -49,7 +52,7 @@ def image_topic_in(bag_topics: dict[str, TopicStats], topic: str) -> str | None:
 class MetadataMessage:
     log_ns: int
     position: int  # 0-based position of the message on /roi/metadata
-    record: dict[str, Any]
+    record: FrameRecord
 
 
 def _no_constants(name: str) -> float:
@@ -138,7 +141,7 @@ class RoiBag:
             problem = checker.problem(record)
             if problem is not None:
                 raise BagError(f"{self.path}: {where}: does not match the metadata schema: {problem}")
-            yield MetadataMessage(log_ns, position, record)
+            yield MetadataMessage(log_ns, position, FrameRecord.from_dict(record))
 
     def image(self, topic: str, log_ns: int, frame_stamp_ns: int) -> np.ndarray | None:
         """The image on `topic` (or, without it, on its `/compressed`) whose header stamp is the frame's, or None.

@@ -8,10 +8,10 @@ the gates are about. Only the chosen records are kept.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
+from ..core.records import ArmRecord, FrameRecord
 from .roibag import MetadataMessage
 
 EVEN_SAMPLES = 6
@@ -23,7 +23,7 @@ class Sample:
 
     position: int
     log_ns: int
-    record: dict[str, Any]
+    record: FrameRecord
     reason: str
 
 
@@ -40,11 +40,11 @@ class SampleChooser:
 
     def offer(self, message: MetadataMessage) -> None:
         reasons = ["sampled"] if message.position in self.targets else []
-        for arm in message.record["arms"]:
+        for arm in message.record.arms:
             case = _case(arm)
             if case is not None and case not in self.seen_cases:
                 self.seen_cases.add(case)
-                reasons.append(f"first frame {case}: {arm['arm_id']}")
+                reasons.append(f"first frame {case}: {arm.arm_id}")
         if reasons:
             self.chosen[message.position] = Sample(message.position, message.log_ns, message.record, "; ".join(reasons))
 
@@ -53,11 +53,11 @@ class SampleChooser:
         return [self.chosen[k] for k in sorted(self.chosen)]
 
 
-def _case(arm: dict[str, Any]) -> str | None:
-    if not arm["projection_valid"]:
+def _case(arm: ArmRecord) -> str | None:
+    if not arm.projection_valid:
         return SampleChooser.CASES[0]
-    if arm["in_frame_ratio"] == 0.0:
+    if arm.in_frame_ratio == 0.0:
         return SampleChooser.CASES[1]
-    if arm["in_frame_ratio"] < 1.0:
+    if arm.in_frame_ratio < 1.0:
         return SampleChooser.CASES[2]
     return None

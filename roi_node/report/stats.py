@@ -19,6 +19,9 @@ from typing import Any
 
 import numpy as np
 
+from ..bag.bag_status import BagStatus
+from ..core.metadata import Lineage
+from ..core.records import ArmRecord, FrameRecord
 from ..core.sync import STATUS_ORDER
 
 NAN = float("nan")
@@ -147,22 +150,22 @@ class _ArmColumns:
         self.flags: Counter[str] = Counter()
         self.interpolation: Counter[str] = Counter()
 
-    def add(self, arm: dict[str, Any]) -> None:
-        projected, centre = arm["projected_center"], arm["offset_center"]
+    def add(self, arm: ArmRecord) -> None:
+        projected, centre = arm.projected_center, arm.offset_center
         self.u.append(NAN if projected is None else projected[0])
         self.v.append(NAN if projected is None else projected[1])
         self.cu.append(NAN if centre is None else centre[0])
         self.cv.append(NAN if centre is None else centre[1])
-        valid = arm["projection_valid"]
-        self.scale.append(arm["scale_px"] if valid else NAN)
-        self.in_frame.append(arm["in_frame_ratio"])
-        self.padding.append(arm["padding_ratio"])
-        self.confidence.append(arm["confidence"])
-        flags = arm["flags"]
+        valid = arm.projection_valid
+        self.scale.append(arm.scale_px if valid else NAN)
+        self.in_frame.append(arm.in_frame_ratio)
+        self.padding.append(arm.padding_ratio)
+        self.confidence.append(arm.confidence)
+        flags = arm.flags
         if flags:
             self.flagged += 1
             self.flags.update(flags)
-        self.interpolation[arm["interpolation"]] += 1
+        self.interpolation[arm.interpolation] += 1
 
     def add_absent(self) -> None:
         for column in (self.u, self.v, self.cu, self.cv, self.scale, self.in_frame, self.padding, self.confidence):
@@ -224,7 +227,7 @@ class BagSummary:
 
 @dataclass
 class _Lineage:
-    tuple_: dict[str, str]
+    tuple_: Lineage
     first_frame_index: int
     first_message: int
     frames: int = 0
@@ -254,25 +257,25 @@ class BagStats:
     def frames(self) -> int:
         return len(self._index)
 
-    def add(self, record: dict[str, Any], message: int) -> None:
+    def add(self, record: FrameRecord, message: int) -> None:
         """One schema-valid record (the `message`-th on /roi/metadata)."""
         rows = len(self._index)
-        self._stamp.append(record["stamp_ns"])
-        self._index.append(record["frame_index"])
-        sync, teleop = record["sync"], record["teleop"]
-        self._residual.append(_num(sync["residual_ms"]))
-        self._status[sync["status"]] += 1
-        self._policies[sync["policy"]] += 1
-        self._latency.append(_num(teleop["latency_ms"]))
-        self._control_hz.append(_num(teleop["control_hz"]))
-        self._command.append(_num(teleop["command_residual"]))
-        self._camera_ids[record["camera_id"]] += 1
-        self._robot_ids[record["robot_id"]] += 1
-        self._image_sizes[(record["image_size"][0], record["image_size"][1])] += 1
-        self._joint_names.update(record["joint_positions"])
+        self._stamp.append(record.stamp_ns)
+        self._index.append(record.frame_index)
+        sync, teleop = record.sync, record.teleop
+        self._residual.append(_num(sync.residual_ms))
+        self._status[sync.status] += 1
+        self._policies[sync.policy] += 1
+        self._latency.append(_num(teleop.latency_ms))
+        self._control_hz.append(_num(teleop.control_hz))
+        self._command.append(_num(teleop.command_residual))
+        self._camera_ids[record.camera_id] += 1
+        self._robot_ids[record.robot_id] += 1
+        self._image_sizes[(record.image_size[0], record.image_size[1])] += 1
+        self._joint_names.update(name for name, _ in record.joint_positions)
         seen = set()
-        for arm in record["arms"]:
-            arm_id = arm["arm_id"]
+        for arm in record.arms:
+            arm_id = arm.arm_id
             if arm_id in seen:
                 continue  # the schema cannot forbid a repeated arm_id; the first one counts
             seen.add(arm_id)
@@ -283,16 +286,17 @@ class BagStats:
         for arm_id, columns in self._arms.items():
             if arm_id not in seen:
                 columns.add_absent()
-        lineage = record["lineage"]
+        lineage = record.lineage
         if not self._lineage or self._lineage[-1].tuple_ != lineage:
-            self._lineage.append(_Lineage(lineage, record["frame_index"], message))
+            self._lineage.append(_Lineage(lineage, record.frame_index, message))
         self._lineage[-1].frames += 1
 
     def finish(self, writer_status: str | None = None) -> BagSummary:
         """`writer_status`: the bag's custom_data roi_node.status (None when its writer did not set one)."""
         series = self._series()
         arm_metrics = {arm_id: self._arm_metrics(series, arm_id) for arm_id in series.arms}
-        bag_metrics = {"incomplete_bag": int(writer_status not in (None, "complete")), **self._bag_metrics(series)}
+        incomplete = writer_status is not None and writer_status != BagStatus.COMPLETE
+        bag_metrics = {"incomplete_bag": int(incomplete), **self._bag_metrics(series)}
         details = {"writer_status": writer_status, **self._details(series, bag_metrics, arm_metrics)}
         return BagSummary(series, bag_metrics, arm_metrics, details)
 
@@ -411,15 +415,16 @@ class BagStats:
                 "null_residual_frames": int(np.isnan(series.residual_ms).sum()),
             },
             "lineage": [
-                {"first_frame_index": seg.first_frame_index, "first_message": seg.first_message, "frames": seg.frames, "tuple": seg.tuple_}
+                {"first_frame_index": seg.first_frame_index, "first_message": seg.first_message, "frames": seg.frames,
+                 "tuple": seg.tuple_.as_dict()}
                 for seg in self._lineage
             ],
             "teleop": {
                 name: {"present_frames": count, **{stat: bag[f"{name}_{stat}"] for stat in DIST_STATS}} for name, count in present.items()
             },
             "governance": {
-                "padding_modes": sorted({seg.tuple_["padding_mode"] for seg in self._lineage}),
-                "resize_policies": sorted({seg.tuple_["resize_policy"] for seg in self._lineage}),
+                "padding_modes": sorted({seg.tuple_.padding_mode for seg in self._lineage}),
+                "resize_policies": sorted({seg.tuple_.resize_policy for seg in self._lineage}),
                 "flags": {arm_id: dict(sorted(self._arms[arm_id].flags.items())) for arm_id in arms},
                 "interpolation": {arm_id: dict(sorted(self._arms[arm_id].interpolation.items())) for arm_id in arms},
             },
