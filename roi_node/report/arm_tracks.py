@@ -11,6 +11,8 @@ line to well under a tenth of a pixel.
 The skeleton is the chain of joint origins from the root to the ee frame,
 then the ee -> tip axis, each segment sampled at a few points: the moving
 silhouette of an arm lies along it, whatever the robot's link meshes look like.
+Every point knows the segment it lies on (`axis_from`, `axis_to`): the limb's
+direction in the image, across which its cross-section is measured.
 """
 
 from __future__ import annotations
@@ -82,6 +84,8 @@ class ArmTrack:
     points_px: Float64Array  # T x P x 2 raw pixels; NaN where a point does not project
     gripper: NDArray[np.bool_]  # P: the points on the ee -> tip axis
     reach_px: Float64Array  # T: half the arm's ROI side at the ee depth (NaN behind the camera): how big the hand looks
+    axis_from: NDArray[np.int64]  # P: the point where each point's segment starts ...
+    axis_to: NDArray[np.int64]  # P: ... and where it ends (the gripper's: ee -> tip)
 
     @property
     def stop_ns(self) -> int:
@@ -161,8 +165,24 @@ def arm_tracks(
         mask = gripper_mask if gripper_mask is not None else np.zeros(0, bool)
         ee_depth = points_cam[:, int(np.argmax(mask)), 2] if mask.any() else np.full(len(times), np.nan)
         reach = np.array([0.5 * scale_px(arm, camera.fx_px, z)[0] if z > rig.camera.z_min_m else np.nan for z in ee_depth])
-        tracks.append(ArmTrack(arm.id, int(start_ns), int(step_ns), uv.reshape(len(times), n_points, 2), mask, reach))
+        axis_from, axis_to = _segment_ends(mask)
+        tracks.append(ArmTrack(arm.id, int(start_ns), int(step_ns), uv.reshape(len(times), n_points, 2), mask, reach, axis_from, axis_to))
     return tuple(tracks)
+
+
+def _segment_ends(gripper: NDArray[np.bool_]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(start, end) point of the segment each point lies on: link samples come SAMPLES_PER_LINK to a segment,
+    whose end is the next segment's start (the last one's, the ee: the first gripper point); the gripper points
+    lie on the ee -> tip axis."""
+    links = int((~gripper).sum())
+    first, last = links, len(gripper) - 1
+    starts = np.arange(links) // SAMPLES_PER_LINK * SAMPLES_PER_LINK
+    ends = np.minimum(starts + SAMPLES_PER_LINK, first)
+    n_gripper = len(gripper) - links
+    return (
+        np.concatenate([starts, np.full(n_gripper, first)]).astype(np.int64),
+        np.concatenate([ends, np.full(n_gripper, last)]).astype(np.int64),
+    )
 
 
 def _points(poses: list[Transform], n_origins: int, tip_offset: Float64Array | None) -> tuple[Float64Array, Float64Array]:
@@ -176,4 +196,3 @@ def _points(poses: list[Transform], n_origins: int, tip_offset: Float64Array | N
     s = np.linspace(0.0, 1.0, SAMPLES_PER_GRIPPER)[:, None]
     gripper = ee.translation_m + s * (tip - ee.translation_m)
     return links, gripper
-

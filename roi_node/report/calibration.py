@@ -12,8 +12,8 @@ or trained: the evidence is the difference from the bag's own static scene.
 Before fitting, the inputs are screened (calibration_inputs): joint states
 beyond the URDF limits, joints that hold still while the images move, and
 bags where nothing moves cannot be measured, and the check says so instead
-of fitting. The offsets are fitted only at a delay the evidence resolves.
-What the fits support is judged in calibration_verdict.
+of fitting. The delay and the offsets are fitted jointly (calibration_fit);
+what the fits support is judged in calibration_verdict.
 
 The bag is read in two passes over the image topic: frames sampled across
 the bag for the static scene, then every frame for the evidence around each
@@ -41,18 +41,24 @@ from ..core.errors import BagError, CalibrationError, ImageError
 from ..core.kinematics import RobotKinematics
 from ..core.sync import NS_PER_MS
 from .arm_tracks import ArmTrack, JointSeries, arm_tracks
-from .calibration_fit import FrameEvidence, fit_delay, fit_offsets, skeleton_motion
+from .calibration_fit import fit_alignment, skeleton_motion
 from .calibration_inputs import images_move, screen_joint_limits, screen_motion
 from .calibration_verdict import MIN_MOVING_FRAMES, CalibrationCheck, Tolerances
-from .motion_evidence import EvidenceCrop, StaticScene, WorkingScale, arm_mask, background, box_around, noise_threshold
+from .motion_evidence import (
+    EvidenceCrop,
+    FrameEvidence,
+    StaticScene,
+    WorkingScale,
+    arm_mask,
+    background,
+    box_around,
+    noise_threshold,
+)
 
 SEARCH_MS = (-50.0, 250.0)
 BACKGROUND_FRAMES = 32  # frames sampled across the bag for the static-scene median
 TRACK_STEP_NS = 5 * NS_PER_MS
 OFFSET_RADIUS_PX = 48.0  # raw px: the largest reprojection offset searched
-REFINE_ROUNDS = 2  # delay and offsets fitted again, each with the other's estimate
-# an offset below this (raw px) is within the method's own bias on a well-calibrated rig: the delay is not refitted for it
-REFIT_MIN_OFFSET_PX = 3.0
 LINK_MASK_SHARE = 0.4  # of the hand's mask radius: how wide a link is masked in the static scene
 _CROP_DELAYS = 16  # candidate delays whose points bound an arm's crop
 SKIPPED_FRAME_ERRORS: tuple[type[BaseException], ...] = (ImageError, *DESERIALIZE_ERRORS)  # a bad frame is left out
@@ -76,8 +82,9 @@ def check_calibration(
         if reader.message_count == 0:
             raise BagError(f"{path}: the bag is empty (no messages)")
         selection = select_inputs(path, topic_stats(reader), need_camera_info=rig.camera.intrinsics is None)
-        unmeasured = partial(CalibrationCheck, path, selection.image_topic, arm_ids=arm_ids, configured_delay_ms=rig.camera.delay_ms,
-                             tolerances=tolerances)
+        unmeasured = partial(
+            CalibrationCheck, path, selection.image_topic, arm_ids=arm_ids, configured_delay_ms=rig.camera.delay_ms, tolerances=tolerances
+        )
         first = _FirstPass(reader, selection, path, rig.camera.rectified)
         camera = rig.camera.intrinsics
         if camera is None:
@@ -112,24 +119,8 @@ def check_calibration(
     motionless = screen_motion(skeleton_moving, len(evidence), images_move([image for _, image in sampled]))
     if motionless is not None:
         return unmeasured(frames=len(evidence), blocked=motionless, skeleton_moving_frames=skeleton_moving)
-    measured = partial(unmeasured, frames=len(evidence), skeleton_moving_frames=skeleton_moving)
-    delay = fit_delay(evidence, tracks, scale, search_ms, {})
-    if not measured(delay=delay).delay_resolved:
-        return measured(delay=delay)  # offsets are fitted at the delay: without one they would be fitted anywhere
-    # a miscalibrated camera shifts the skeleton off the arm, which the delay alone would try to absorb:
-    # fit the delay, then the offsets at that delay, then the delay again with the skeleton shifted by them
-    offsets = fit_offsets(evidence, tracks, scale, round(delay.delay_ms * NS_PER_MS), radius_work)
-    for round_index in range(REFINE_ROUNDS):
-        shifts = {
-            a: np.asarray(f.offset_px) * scale.factor
-            for a, f in offsets.items()
-            if f.offset_px is not None and not f.at_search_edge and math.hypot(*f.offset_px) >= REFIT_MIN_OFFSET_PX
-        }
-        if not shifts:
-            break
-        delay = fit_delay(evidence, tracks, scale, search_ms, shifts, previous=delay if round_index else None)
-        offsets = fit_offsets(evidence, tracks, scale, round(delay.delay_ms * NS_PER_MS), radius_work, previous=offsets)
-    return measured(delay=delay, offsets=offsets)
+    delay, offsets = fit_alignment(evidence, tracks, scale, search_ms, radius_work)
+    return unmeasured(frames=len(evidence), skeleton_moving_frames=skeleton_moving, delay=delay, offsets=offsets)
 
 
 def _joint_limits(rig: RigConfig, kinematics: dict[str, RobotKinematics], names: list[str]) -> dict[str, tuple[float, float]]:

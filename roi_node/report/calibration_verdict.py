@@ -4,10 +4,19 @@ A verdict is only as good as the estimate behind it. Each estimate comes
 with its own 95% uncertainty (a block bootstrap over frames: an interval for
 the delay, a radius for an arm's offset), and the verdict compares that
 whole range with the tolerance: `ok` when all of it is inside, `off` when
-all of it is outside, and `unknown` (cannot tell) otherwise, or when the
-range is wider than RESOLVED_SHARE of the tolerance. So a noisy estimate never raises
-an alarm, and the hint that goes with `off` is only given for a value the
-evidence pins down.
+all of it is outside, and `unknown` (cannot tell) when it reaches across.
+
+The two sides ask different things of the range's width. `off` says the
+calibration is wrong and hints at the value to set: that needs the range to
+lie outside the tolerance, and to be at most as wide as the tolerance on
+each side, so the hinted value is itself within the tolerance of the truth
+(a wider range can lie outside the tolerance and still leave the fix
+unknown). `ok` says nothing needs doing, and a wide range is where the
+bootstrap is least to be trusted: it resamples the frames, not the model, so
+a systematic error (a part the skeleton does not describe, a shadow) shows
+first as a wide range, and inside it a real error can hide. So `ok` also
+needs the range within RESOLVED_SHARE of the tolerance. A bag judged on
+neither side says why (`uncertain`), never `ok`, and never raises an alarm.
 
 Some bags cannot be measured at all, and saying so is the answer: joint
 states beyond the URDF limits (FK of them is no pose the arm held), joint
@@ -31,9 +40,8 @@ CALIBRATION_SCHEMA = "roi_node/calibration/v2"
 MIN_MOVING_FRAMES = 10
 DEFAULT_DELAY_TOLERANCE_MS = 10.0
 DEFAULT_OFFSET_TOLERANCE_PX = 8.0
-# an estimate is judged only when its 95% uncertainty (half the delay interval, the offset radius) is at most this
-# share of the tolerance: a wider one says the evidence cannot resolve the question (its bootstrap also misses
-# systematic errors, which show first as a wide interval)
+# `ok` needs the 95% uncertainty (half the delay interval, the offset radius) within this share of the tolerance;
+# `off` needs it within the tolerance (see the module docstring)
 RESOLVED_SHARE = 0.5
 
 
@@ -51,8 +59,8 @@ class CannotTell(StrEnum):
     NO_MOTION = "no_motion"  # neither the images nor the joint states move
     TOO_LITTLE_MOTION = "too_little_motion"  # too few frames where the arm moves over a part of the scene that is known
     OUTSIDE_SEARCH = "outside_search"  # the best value is the edge of the range searched: the truth is beyond it, or nowhere
-    UNCERTAIN = "uncertain"  # the 95% uncertainty is as wide as the tolerance, or reaches across it
-    DELAY_UNKNOWN = "delay_unknown"  # offsets are measured at the fitted delay: without one there is none
+    UNCERTAIN = "uncertain"  # the 95% uncertainty reaches across the tolerance, or is too wide for the side it lies on
+    DELAY_UNKNOWN = "delay_unknown"  # offsets are fitted with the delay: without a delay estimate there is none
     NOT_SEEN = "not_seen"  # the arm is never where the images can show it
 
 
@@ -89,7 +97,8 @@ class Tolerances:
 
 
 def _round(value: float | None, digits: int) -> float | None:
-    return None if value is None else round(value, digits)
+    """A value for the JSON: None when there is none, or when it is no number (a bootstrap with nothing to resample)."""
+    return None if value is None or not math.isfinite(value) else round(value, digits)
 
 
 @dataclass(frozen=True)
@@ -107,7 +116,7 @@ class CalibrationCheck:
     tolerances: Tolerances
     blocked: Reason | None = None
     delay: DelayFit | None = None
-    offsets: dict[str, OffsetFit] | None = None  # None when the delay was not resolved (offsets are fitted at it)
+    offsets: dict[str, OffsetFit] | None = None  # None when nothing was fitted
     skeleton_moving_frames: int | None = None  # frames in which FK moves an arm, whatever the images show
 
     # --- the delay ---------------------------------------------------------------------------
@@ -115,11 +124,6 @@ class CalibrationCheck:
     def delay_estimated(self) -> bool:
         """Whether delay_ms is an estimate: a fit whose maximum is inside the range searched."""
         return self.delay is not None and not self.delay.at_search_edge and self.delay.moving_frames >= MIN_MOVING_FRAMES
-
-    @property
-    def delay_resolved(self) -> bool:
-        """An estimate whose 95% interval is narrow enough to judge (RESOLVED_SHARE of the tolerance) and to fit the offsets at."""
-        return self.delay_estimated and self.delay is not None and self.delay.half_width_ms <= RESOLVED_SHARE * self.tolerances.delay_ms
 
     @property
     def delay_error_ms(self) -> float | None:
@@ -146,15 +150,18 @@ class CalibrationCheck:
             return Finding(Verdict.UNKNOWN, Reason(CannotTell.OUTSIDE_SEARCH, "the images fit best at an end of the delays searched"))
         low, high = (v - self.configured_delay_ms for v in d.ci_ms)
         interval = f"the 95% interval {d.ci_ms[0]:.1f} .. {d.ci_ms[1]:.1f} ms"
-        if not self.delay_resolved:
-            detail = f"{interval} is too wide to judge a tolerance of +-{tol:g} ms (at most +-{RESOLVED_SHARE * tol:g} ms needed)"
-            return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, detail))
+        band = f"configured {self.configured_delay_ms:g} +- {tol:g} ms"
         if -tol <= low and high <= tol:
-            return Finding(Verdict.OK)
+            if d.half_width_ms <= RESOLVED_SHARE * tol:
+                return Finding(Verdict.OK)
+            detail = f"{interval} lies within {band} but is too wide to call it ok (at most +-{RESOLVED_SHARE * tol:g} ms)"
+            return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, detail))
         if high < -tol or low > tol:
-            return Finding(Verdict.OFF)
-        detail = f"{interval} reaches across the tolerance (configured {self.configured_delay_ms:g} +- {tol:g} ms)"
-        return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, detail))
+            if d.half_width_ms <= tol:
+                return Finding(Verdict.OFF)
+            detail = f"{interval} lies outside {band} but is too wide to say what to set (at most +-{tol:g} ms)"
+            return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, detail))
+        return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, f"{interval} reaches across {band}"))
 
     # --- the offsets -------------------------------------------------------------------------
     def offset_fit(self, arm_id: str) -> OffsetFit | None:
@@ -172,8 +179,8 @@ class CalibrationCheck:
     def offset_finding(self, arm_id: str) -> Finding:
         if self.blocked is not None:
             return Finding(Verdict.UNKNOWN, self.blocked)
-        if not self.delay_resolved:
-            detail = "the offset is measured at the camera delay, and the delay is not known well enough"
+        if not self.delay_estimated:
+            detail = "the offset is fitted with the camera delay, and the delay could not be estimated"
             return Finding(Verdict.UNKNOWN, Reason(CannotTell.DELAY_UNKNOWN, detail))
         fit = self.offset_fit(arm_id)
         if fit is None or fit.offset_px is None or fit.ci_radius_px is None:
@@ -184,15 +191,18 @@ class CalibrationCheck:
         if fit.at_search_edge:
             return Finding(Verdict.UNKNOWN, Reason(CannotTell.OUTSIDE_SEARCH, "the images fit best at the edge of the offsets searched"))
         size, radius, tol = math.hypot(*fit.offset_px), fit.ci_radius_px, self.tolerances.reprojection_px
-        if radius > RESOLVED_SHARE * tol:
-            detail = f"95% of the estimates lie within {radius:.1f} px: too wide to judge a tolerance of {tol:g} px"
-            return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, detail))
+        estimate = f"{size:.1f} +- {radius:.1f} px"
         if size + radius <= tol:
-            return Finding(Verdict.OK)
+            if radius <= RESOLVED_SHARE * tol:
+                return Finding(Verdict.OK)
+            detail = f"{estimate} lies within the tolerance of {tol:g} px, too uncertain to call it ok (at most +-{RESOLVED_SHARE * tol:g})"
+            return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, detail))
         if size - radius > tol:
-            return Finding(Verdict.OFF)
-        detail = f"{size:.1f} +- {radius:.1f} px reaches across the tolerance of {tol:g} px"
-        return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, detail))
+            if radius <= tol:
+                return Finding(Verdict.OFF)
+            detail = f"{estimate} lies beyond the tolerance of {tol:g} px but is too uncertain to say how far (at most +-{tol:g} px)"
+            return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, detail))
+        return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, f"{estimate} reaches across the tolerance of {tol:g} px"))
 
     # --- the bag -----------------------------------------------------------------------------
     @property
@@ -254,7 +264,7 @@ class CalibrationCheck:
             "moving_frames": None if self.delay is None else self.delay.moving_frames,
             "delay_ms": None if d is None else round(d.delay_ms, 2),
             "delay_ci_ms": None if d is None else [round(v, 2) for v in d.ci_ms],
-            "delay_std_ms": None if d is None else round(d.std_ms, 3),
+            "delay_std_ms": None if d is None else _round(d.std_ms, 3),
             "delay_confidence": _round(self.delay_confidence, 3),
             "configured_delay_ms": self.configured_delay_ms,
             "delay_error_ms": _round(self.delay_error_ms, 2),

@@ -147,8 +147,29 @@ def evidence(frame: np.ndarray, static: np.ndarray, threshold: float) -> np.ndar
     mask: np.ndarray = (_strongest(cv2.absdiff(frame, static)) > threshold).astype(np.uint8)
     opened = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _KERNEL)  # isolated noise pixels
     closed = cv2.morphologyEx(opened, cv2.MORPH_CLOSE, _KERNEL)  # pinholes inside a part
-    inside = cv2.distanceTransform(closed, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    inside = cv2.distanceTransform(fill_enclosed(closed), cv2.DIST_L2, cv2.DIST_MASK_5)  # within a few % of exact, 5x faster
     return cv2.GaussianBlur(np.minimum(inside, MAX_DEPTH_PX), (0, 0), _BLUR_SIGMA_PX)
+
+
+def fill_enclosed(mask: np.ndarray) -> np.ndarray:
+    """The mask (uint8 0/1) with every enclosed hole at most 2 * MAX_DEPTH_PX across filled.
+
+    A part whose colour is close to the scene behind it differs from it only at its outline (a rim, a
+    shading edge): the outline is foreground, its inside is not, and the distance ridge would run
+    along the outline instead of the part's centre line. A part is a closed region, so what its
+    outline encloses is part of it; a hole wider than any part is the scene seen through a loop of
+    parts and stays background.
+    """
+    contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    if hierarchy is None:
+        return mask
+    holes = [c for c, (_, _, _, parent) in zip(contours, hierarchy[0], strict=True) if parent >= 0]  # the inner boundaries
+    small = [c for c in holes if min(cv2.boundingRect(c)[2:]) <= 2 * MAX_DEPTH_PX]
+    if not small:
+        return mask
+    filled = mask.copy()
+    cv2.drawContours(filled, small, -1, 1, cv2.FILLED)
+    return filled
 
 
 def box_around(points_work: Float64Array, margin_px: float, shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
@@ -201,3 +222,9 @@ class EvidenceCrop:
         maps = (mx.reshape(rows, cols), my.reshape(rows, cols))
         out = cv2.remap(table, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         return out.reshape(-1)[:n].astype(np.float64).reshape(shape)
+
+
+@dataclass(frozen=True)
+class FrameEvidence:
+    stamp_ns: int
+    crops: dict[str, EvidenceCrop]  # arm id -> the region of the foreground the arm can be in
