@@ -11,7 +11,6 @@ the aspect, inside bars).
 
 from __future__ import annotations
 
-import json
 from fractions import Fraction
 from pathlib import Path
 from typing import Any
@@ -24,6 +23,7 @@ from ..bag.reader import open_bag
 from ..core import topics
 from ..core.config import ResizePolicy
 from ..core.image_codec import image_from_msg
+from ..core.records import FrameRecord
 
 FPS = 30
 TILE_PX = 256
@@ -47,9 +47,10 @@ def write_strip(bag: Path, arm_ids: list[str], out: Path, max_frames: int = 900)
             wanted = len({c.topic for c in connections})
             for connection, _, raw in reader.messages(connections=connections):
                 msg: Any = reader.deserialize(raw, connection.msgtype)
+                part: FrameRecord | np.ndarray
                 if connection.topic == metadata:
-                    record = json.loads(msg.data)
-                    stamp, part = int(record["stamp_ns"]), record
+                    record = FrameRecord.from_json(msg.data)
+                    stamp, part = int(record.stamp_ns), record
                 else:
                     stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
                     part = image_from_msg(msg, connection.topic)
@@ -72,11 +73,11 @@ def write_strip(bag: Path, arm_ids: list[str], out: Path, max_frames: int = 900)
     return out if encoder is not None and encoder.frames else None
 
 
-def _global_width_px(record: dict[str, Any] | None) -> int:
+def _global_width_px(record: FrameRecord | None) -> int:
     """The global tile's width at the source image's aspect (even: yuv420p), TILE_PX high."""
-    if record is None or record.get("lineage", {}).get("resize_policy") != ResizePolicy.STRETCH:
+    if record is None or record.lineage.resize_policy != ResizePolicy.STRETCH:
         return TILE_PX
-    width_px, height_px = record["image_size"]
+    width_px, height_px = record.image_size
     return 2 * max(1, round(TILE_PX * width_px / height_px / 2))
 
 
