@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import ClassVar
 
+from .drop_kinds import DropKind
 from .errors import ImageError
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -63,7 +64,7 @@ class DeclaredSizeError(ImageError):
     """A compressed image declaring a size other than the camera's (or, uncalibrated, a larger one than any camera's):
     refused before it is decoded. Counted under its own kind, `kind`."""
 
-    kind: ClassVar[str] = "declared_size"
+    kind: ClassVar[DropKind] = DropKind.DECLARED_SIZE
 
     def __init__(self, where: str, declared: DeclaredImage, expected_px: tuple[int, int] | None) -> None:
         size = f"{declared.width_px}x{declared.height_px}"

@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 
 from .camera import CameraModel
 from .config import RigConfig
+from .drop_kinds import DropKind
 from .errors import ImageError, JointStateError, RoiNodeError
 from .metadata import M_DECIMALS, MS_DECIMALS, rnd
 from .pipeline import FrameResult, GlobalViewThread, RoiPipeline
@@ -100,7 +101,7 @@ Event = StampedEvent | UrdfEvent
 class Refusal:
     """An input the engine did not use: its kind (the diagnostics counter) and one line naming it."""
 
-    kind: str
+    kind: DropKind
     message: str
 
 
@@ -261,7 +262,7 @@ class StreamEngine:
             held.append(event)
             return None
         if not check.accepted:
-            return Refusal(check.verdict.value, f"{event.where}: stamp {event.stamp_ns} refused: {check.reason}")
+            return Refusal(DropKind(check.verdict.value), f"{event.where}: stamp {event.stamp_ns} refused: {check.reason}")
         if check.release_held:
             for confirmed in held:
                 if isinstance(confirmed, FrameEvent) and isinstance(event, FrameEvent):
@@ -276,7 +277,7 @@ class StreamEngine:
     @staticmethod
     def _stray(event: Event) -> Refusal:
         return Refusal(
-            StampVerdict.IMPLAUSIBLE.value,
+            DropKind.IMPLAUSIBLE_STAMP,
             f"{event.where}: stamp {event.stamp_ns} refused: far from the stream's own time, and the stream did not follow it",
         )
 
@@ -298,7 +299,7 @@ class StreamEngine:
 
     def _use_frame(self, event: FrameEvent, epoch: int) -> Refusal | None:
         if self.synchronizer is None:
-            self.stats.drop("waiting_for_urdf")
+            self.stats.drop(DropKind.WAITING_FOR_URDF)
             return None
         index = self.frames_offered
         self.frames_offered += 1
@@ -312,12 +313,12 @@ class StreamEngine:
         if not names:
             return None
         if not positions:
-            return Refusal("joint_state", f"{where}: {len(names)} names but no positions (effort/velocity only?)")
+            return Refusal(DropKind.JOINT_STATE, f"{where}: {len(names)} names but no positions (effort/velocity only?)")
         assert self.synchronizer is not None
         pipeline = self._pipelines.values[-1]
         assert isinstance(pipeline, RoiPipeline)
         if len(names) != len(positions):
-            return Refusal("joint_state", f"{where}: {len(names)} names but {len(positions)} positions")
+            return Refusal(DropKind.JOINT_STATE, f"{where}: {len(names)} names but {len(positions)} positions")
         out_of_limits = self._out_of_limits(pipeline, names, positions)
         if out_of_limits:
             for name, _value, _limits in out_of_limits:
@@ -331,18 +332,19 @@ class StreamEngine:
         try:
             skipped = self.synchronizer.add_joint_state(event.stamp_ns, names, positions, where=where, epoch=epoch)
         except JointStateError as exc:
-            return Refusal("joint_state", str(exc))
+            return Refusal(DropKind.JOINT_STATE, str(exc))
         if out_of_limits:
             name, value, (lo, hi) = out_of_limits[0]
             more = f" (and {len(out_of_limits) - 1} more)" if len(out_of_limits) > 1 else ""
             return Refusal(
-                "joint_out_of_limits", f"{where}: {name} = {value:.6g} is outside its URDF limits [{lo:g}, {hi:g}]{more}; sample refused"
+                DropKind.JOINT_OUT_OF_LIMITS,
+                f"{where}: {name} = {value:.6g} is outside its URDF limits [{lo:g}, {hi:g}]{more}; sample refused",
             )
         if skipped:
-            return Refusal("joint_state_nan", f"{where}: non-finite position for {', '.join(skipped)}")
+            return Refusal(DropKind.JOINT_STATE_NAN, f"{where}: non-finite position for {', '.join(skipped)}")
         if not set(names) & set(pipeline.state_joints):
             return Refusal(
-                "joint_state_unknown_names",
+                DropKind.JOINT_STATE_UNKNOWN_NAMES,
                 f"{where}: none of {names[:3]}... is a joint of this rig (expected names like {list(pipeline.required_joints[:3])})",
             )
         return None
@@ -369,7 +371,7 @@ class StreamEngine:
         try:
             self.commands.add(event.stamp_ns, list(event.names), list(event.positions), where=event.where)
         except JointStateError as exc:
-            return Refusal("command", str(exc))
+            return Refusal(DropKind.COMMAND, str(exc))
         return None
 
     def _use_camera_info(self, event: CameraInfoEvent, epoch: int) -> Refusal | None:
@@ -377,7 +379,7 @@ class StreamEngine:
         camera = event.camera
         if rig_camera is not None and (camera.width_px, camera.height_px) != (rig_camera.width_px, rig_camera.height_px):
             return Refusal(
-                "camera_info",
+                DropKind.CAMERA_INFO,
                 f"{event.where}: CameraInfo is for {camera.width_px}x{camera.height_px} but the rig calibration is for "
                 f"{rig_camera.width_px}x{rig_camera.height_px}",
             )
@@ -396,11 +398,11 @@ class StreamEngine:
         try:
             pipeline = RoiPipeline(self.rig, urdf_texts=urdf_texts, global_view_thread=self._global_view_thread)
         except RoiNodeError as exc:
-            return Refusal("urdf", f"{event.where}: {exc}")
+            return Refusal(DropKind.URDF, f"{event.where}: {exc}")
         current = self.pipeline
         if current is not None and pipeline.required_joints != current.required_joints:
             return Refusal(
-                "urdf",
+                DropKind.URDF,
                 f"{event.where}: the new URDF changes the joints the rig's arms need "
                 f"({', '.join(current.required_joints)} -> {', '.join(pipeline.required_joints)}); restart with it instead",
             )
@@ -488,17 +490,18 @@ class StreamEngine:
         assert isinstance(pipeline, RoiPipeline)
         camera = self.camera_at(stamp, ready.epoch)
         if camera is None:
-            self._refuse_frame(Refusal("no_intrinsics", f"{payload.where}: frame stamp {stamp}: no CameraInfo stamped at or before it"))
+            no_camera = f"{payload.where}: frame stamp {stamp}: no CameraInfo stamped at or before it"
+            self._refuse_frame(Refusal(DropKind.NO_INTRINSICS, no_camera))
             return None
         pipeline.set_intrinsics(camera)
         try:
             pipeline.check_image(payload.image, f"{payload.where} (stamp {stamp})")
         except ImageError as exc:
-            self._refuse_frame(Refusal("image", str(exc)), "bad_image")
+            self._refuse_frame(Refusal(DropKind.IMAGE, str(exc)), DropKind.BAD_IMAGE)
             return None
         return PreparedFrame(ready, pipeline, self._flagged_joints(ready))
 
-    def _refuse_frame(self, refusal: Refusal, drop_reason: str | None = None) -> None:
+    def _refuse_frame(self, refusal: Refusal, drop_reason: DropKind | None = None) -> None:
         self.stats.bad_message(refusal.kind, refusal.message)
         self.stats.drop(drop_reason or refusal.kind)
 

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from .drop_kinds import DropKind
 from .frame_loss import FrameLossEstimator
 from .records import FrameRecord
 from .stamps import NS_PER_S
@@ -86,11 +87,11 @@ class StreamStats:
         """A frame reached the driver (in arrival order, whatever becomes of it): its stamp, for `lost_before_node`."""
         self._arrivals.frame(stamp_ns)
 
-    def drop(self, reason: str, count: int = 1) -> None:
+    def drop(self, reason: DropKind, count: int = 1) -> None:
         self.drops[reason] += count
         self._window.drops[reason] += count
 
-    def bad_message(self, kind: str, error: str) -> None:
+    def bad_message(self, kind: DropKind, error: str) -> None:
         self.bad[kind] += 1
         self.last_error[kind] = error
 

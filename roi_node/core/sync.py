@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Generic, TypeVar
 
+from .drop_kinds import DropKind
 from .errors import ConfigError, JointStateError
 from .kinematics import wrap_angle
 from .stamps import NS_PER_MS, NS_PER_S
@@ -320,7 +321,7 @@ class FrameSynchronizer(Generic[P]):
         continuous_joints: Iterable[str] = (),
         extra_joints: Sequence[str] = (),
         max_pending: int = 8,
-        on_drop: Callable[[PendingFrame[P], str], None] | None = None,
+        on_drop: Callable[[PendingFrame[P], DropKind], None] | None = None,
         extra_ready: Callable[[PendingFrame[P]], bool] | None = None,
     ) -> None:
         """`extra_joints` are resolved too (for the record) but never held back for; `extra_ready` is a
@@ -372,15 +373,15 @@ class FrameSynchronizer(Generic[P]):
     def add_frame(self, capture_ns: int, payload: P, arrival_ns: int = 0, epoch: int = 0) -> None:
         frame = PendingFrame(capture_ns, arrival_ns, payload, epoch)
         if self._last_released is not None and frame.order <= self._last_released:
-            self._drop(frame, "out_of_order")
+            self._drop(frame, DropKind.OUT_OF_ORDER)
             return
         self.counters.epochs = max(self.counters.epochs, epoch + 1)
         bisect.insort(self._pending, frame, key=lambda f: f.order)
         while len(self._pending) > self.max_pending:
-            self._drop(self._pending.pop(0), "overflow")
+            self._drop(self._pending.pop(0), DropKind.OVERFLOW)
 
-    def _drop(self, frame: PendingFrame[P], reason: str) -> None:
-        if reason == "overflow":
+    def _drop(self, frame: PendingFrame[P], reason: DropKind) -> None:
+        if reason == DropKind.OVERFLOW:
             self.counters.dropped_overflow += 1
         else:
             self.counters.dropped_out_of_order += 1

@@ -50,6 +50,7 @@ from ..core import topics
 from ..core.area_resample import start_warm_up
 from ..core.compressed_header import DeclaredSizeError
 from ..core.config import RigConfig, load_rig_config
+from ..core.drop_kinds import DropKind
 from ..core.engine import (
     CameraInfoEvent,
     CommandEvent,
@@ -241,13 +242,13 @@ class StreamNode(Node):
         if refusal is not None:
             self._warn(refusal.kind, refusal.message)
 
-    def _refused(self, kind: str, message: str) -> None:
+    def _refused(self, kind: DropKind, message: str) -> None:
         """A message that could not even become an event (undecodable): counted like an engine refusal."""
         with self._lock:
             self.stats.bad_message(kind, message)
-            if kind in ("image", DeclaredSizeError.kind):
+            if kind in (DropKind.IMAGE, DropKind.DECLARED_SIZE):
                 self.stats.frame_in()
-                self.stats.drop("bad_image" if kind == "image" else kind)
+                self.stats.drop(DropKind.BAD_IMAGE if kind == DropKind.IMAGE else kind)
         self._warn(kind, message)
 
     def _on_image(self, msg: Image) -> None:
@@ -270,7 +271,7 @@ class StreamNode(Node):
         """Undecodable data (bad_image, with what the codec said) or a declared size refused unread (declared_size)."""
         stamp = frame.header.stamp
         said = f"; the decoder said: {' / '.join(codec_lines)}" if codec_lines else ""
-        kind = DeclaredSizeError.kind if isinstance(error, DeclaredSizeError) else "image"
+        kind = DeclaredSizeError.kind if isinstance(error, DeclaredSizeError) else DropKind.IMAGE
         self._refused(kind, f"{error} (frame stamped {stamp.sec}.{stamp.nanosec:09d}){said}")
 
     def _on_decoded(self, frame: EncodedFrame, pixels: Any, codec_lines: CodecLines) -> None:
@@ -281,12 +282,12 @@ class StreamNode(Node):
             stamp = frame.header.stamp
             warning = f"{self._image_topic}: frame stamped {stamp.sec}.{stamp.nanosec:09d}: {' / '.join(codec_lines)}"
             with self._lock:
-                self.stats.bad_message("codec_warning", warning)
-            self._warn("codec_warning", warning)
+                self.stats.bad_message(DropKind.CODEC_WARNING, warning)
+            self._warn(DropKind.CODEC_WARNING, warning)
         if not self.active:
             with self._lock:
                 self.stats.frame_in()
-                self.stats.drop("inactive")
+                self.stats.drop(DropKind.INACTIVE)
             return
         self._offer_frame(frame.header, lambda: pixels, frame.arrival_ns)
 
@@ -295,7 +296,7 @@ class StreamNode(Node):
         with self._lock:
             self.stats.frame_in()
             line = self.stats.processing_error(exc)
-            self.stats.drop("processing_error")
+            self.stats.drop(DropKind.PROCESSING_ERROR)
         stamp = frame.header.stamp
         self._warn("processing", f"decoding the frame stamped {stamp.sec}.{stamp.nanosec:09d}: {line}", error_level=True)
         self._check_persistent_failure(line)
@@ -303,7 +304,7 @@ class StreamNode(Node):
     def _on_decode_overflow(self) -> None:
         with self._lock:
             self.stats.frame_in()
-            self.stats.drop("decode_overflow")
+            self.stats.drop(DropKind.DECODE_OVERFLOW)
 
     def _frame_arrived(self, msg_header: Any) -> int | None:
         """The arrival time of a frame to take, or None for one refused (counted) because the node is inactive.
@@ -316,7 +317,7 @@ class StreamNode(Node):
             if self.active:
                 return arrival_ns
             self.stats.frame_in()
-            self.stats.drop("inactive")
+            self.stats.drop(DropKind.INACTIVE)
         return None
 
     def _offer_frame(self, msg_header: Any, decode: Callable[[], Any], arrival_ns: int | None = None) -> None:
@@ -326,7 +327,7 @@ class StreamNode(Node):
             pixels = decode()
             stamp = stamp_ns(msg_header)
         except RoiNodeError as exc:
-            self._refused("image", str(exc))
+            self._refused(DropKind.IMAGE, str(exc))
             return
         self._frame_id = msg_header.frame_id
         self._feed(FrameEvent(stamp, pixels, arrival_ns, self._image_topic))
@@ -346,7 +347,7 @@ class StreamNode(Node):
         try:
             camera = camera_from_msg(msg, self.rig.camera.rectified, where)
         except RoiNodeError as exc:
-            self._refused("camera_info", str(exc))
+            self._refused(DropKind.CAMERA_INFO, str(exc))
             return
         first = self.engine.waiting_for() is not None
         self._feed(CameraInfoEvent(stamp_ns(msg.header), camera, where))
@@ -394,13 +395,13 @@ class StreamNode(Node):
             result = self.engine.process(prepared, latency_ms)
             if not self.active:  # deactivated while this frame was in hand
                 with self._lock:
-                    self.stats.drop("inactive")
+                    self.stats.drop(DropKind.INACTIVE)
                 return
             self._publish(result, frame_id)
         except Exception as exc:  # any failure on one frame is counted and reported; the next frame is tried
             with self._lock:
                 line = self.stats.processing_error(exc)
-                self.stats.drop("processing_error")
+                self.stats.drop(DropKind.PROCESSING_ERROR)
             self._warn("processing", f"frame stamp {prepared.ready.payload.stamp_ns}: {line}", error_level=True)
             self._check_persistent_failure(line)
             return
@@ -524,7 +525,7 @@ class StreamNode(Node):
             self.engine.finish()
             self.stats.frame_in(undecoded)
             if self.engine.pending + undecoded:
-                self.stats.drop("shutdown", self.engine.pending + undecoded)
+                self.stats.drop(DropKind.SHUTDOWN, self.engine.pending + undecoded)
             summary = self.stats.summary_line()
         self.get_logger().info(f"stopped: {summary}")
 
