@@ -253,6 +253,18 @@ def test_frames_missing_from_the_bag_are_counted_from_the_stamp_gaps(
     assert replay_bag(clean.path, tmp_path / "clean_out", bimanual_rig_path).frames_missing == 0
 
 
+def test_a_bundled_rig_is_found_by_name_from_any_folder(
+    tmp_path: Path, pipeline: RoiPipeline, bimanual_rig_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`--config rig_demo_bimanual.yaml` means the bundled rig when no such file is in the working folder."""
+    spec = write_bag(tmp_path / "in", pipeline, frames=3)
+    monkeypatch.chdir(tmp_path)
+    assert not (tmp_path / bimanual_rig_path.name).exists()
+    assert main(["replay", str(spec.path), "-o", str(tmp_path / "by_name"), "--config", bimanual_rig_path.name]) == 0
+    by_path = replay_bag(spec.path, tmp_path / "by_path", bimanual_rig_path)
+    assert _roi_payloads(tmp_path / "by_name") == _roi_payloads(by_path.output_path)
+
+
 def test_commanded_joint_states_give_the_teleop_residual(
     tmp_path: Path, pipeline: RoiPipeline, bimanual_rig_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

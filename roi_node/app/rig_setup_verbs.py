@@ -22,10 +22,10 @@ def _cmd_camera_pose(args: argparse.Namespace) -> int:
 def _cmd_foxglove_layout(args: argparse.Namespace) -> int:
     from ..core.atomic_output import atomic_output
     from ..core.config import load_rig_config
-    from ..core.resources import default_rig_path, resolve_config_file
+    from ..core.resources import default_rig_path
     from .foxglove_layout import ImageTransport, foxglove_layout, layout_text
 
-    rig = load_rig_config(resolve_config_file(args.config) if args.config else default_rig_path())
+    rig = load_rig_config(args.config or default_rig_path())
     layout = foxglove_layout([arm.id for arm in rig.arms], rig.output.global_enabled,
                              outputs=ImageTransport(args.transport), camera=ImageTransport(args.camera_transport))
     text = layout_text(layout)

@@ -19,10 +19,9 @@ def _cmd_check_config(args: argparse.Namespace) -> int:
     from ..core.arm_joints import arm_joints
     from ..core.config import load_rig_config
     from ..core.kinematics import RobotKinematics
-    from ..core.resources import resolve_config_file
     from ..core.rig_view import resolved_rig
 
-    rig = load_rig_config(resolve_config_file(args.rig))
+    rig = load_rig_config(args.rig)
     kinematics = {robot.id: RobotKinematics(robot.id, robot.urdf_path) for robot in rig.robots}
     arms: dict[str, Any] = {}
     for arm in rig.arms:

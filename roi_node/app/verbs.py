@@ -48,7 +48,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
 def _cmd_stress(args: argparse.Namespace) -> int:
     from ..core.config import load_rig_config
     from ..core.errors import ConfigError
-    from ..core.resources import default_rig_path, resolve_config_file
+    from ..core.resources import default_rig_path
     from ..report.gates import load_gates
     from .stress import run_stress, write_json
     from .stress_figures import write_figures
@@ -56,7 +56,7 @@ def _cmd_stress(args: argparse.Namespace) -> int:
     out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"{out}: exists and is not a folder; choose another -o")
-    rig = load_rig_config(resolve_config_file(args.config) if args.config else default_rig_path())
+    rig = load_rig_config(args.config or default_rig_path())
     gates = load_gates(Path(args.gates) if args.gates else None)
     result = run_stress(rig, gates, quick=args.quick, seed=args.seed, on_run=lambda line: print(line, file=sys.stderr))
     out.mkdir(parents=True, exist_ok=True)

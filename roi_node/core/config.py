@@ -23,6 +23,7 @@ from typing import Any
 
 from .camera import CameraModel, load_calibration_yaml
 from .errors import CalibrationError, ConfigError
+from .resources import resolve_config_file
 from .robot_models import EXAMPLE_ROBOT_DATA_PREFIX, resolve_robot_reference
 from .short_repr import short_repr
 from .sync import SyncPolicy
@@ -293,8 +294,13 @@ def _resolve_path(base: Path, value: str) -> Path:
 
 
 def load_rig_config(path: str | Path) -> RigConfig:
-    """Load and validate a rig config; raises ConfigError naming file, key and problem."""
-    file = Path(path)
+    """Load and validate a rig config; raises ConfigError naming file, key and problem.
+
+    A relative path that does not exist in the working directory is looked up
+    among the bundled configs (core/resources.py), so every verb that takes a
+    rig takes `rig_ur5.yaml` from any folder, as `check-config` and the node do.
+    """
+    file = resolve_config_file(path)
     doc = read_yaml(file, "rig config")
     root = _Node(doc, "", file)
     root.check_keys(("schema", "rig_id", "camera", "robots", "arms", "output", "sync"))

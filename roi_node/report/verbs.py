@@ -46,9 +46,8 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 def _rig(path: str) -> RigConfig:
     from ..core.config import load_rig_config
-    from ..core.resources import resolve_config_file
 
-    return load_rig_config(resolve_config_file(path))
+    return load_rig_config(path)
 
 
 def _cmd_check_calibration(args: argparse.Namespace) -> int:

@@ -65,7 +65,6 @@ from ..core.errors import ConfigError, ParameterError, RoiNodeError
 from ..core.image_codec import image_from_compressed, image_from_msg
 from ..core.overlay_cdr import overlay_cdr
 from ..core.pipeline import FrameResult
-from ..core.resources import resolve_config_file
 from ..core.short_repr import short_text
 from ..core.stamps import NS_PER_MS, NS_PER_S
 from ..core.status_line import StatusWindow
@@ -108,7 +107,7 @@ class StreamNode(Node):
         start_warm_up()
         # OpenCV's thread pool costs more than it saves on 256 px resizes (bench/live.py shows CPU per frame)
         cv2.setNumThreads(self.params.opencv_threads)
-        policy = declare_policy(self, load_rig_config(resolve_config_file(self.params.config)), self.params)
+        policy = declare_policy(self, load_rig_config(self.params.config), self.params)
         self.rig: RigConfig = policy.rig
         self._lock = threading.Condition()
         self._stop = threading.Event()
