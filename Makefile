@@ -14,7 +14,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export MALLOC_MMAP_THRESHOLD_ := 33554432
 export MALLOC_TRIM_THRESHOLD_ := 4000000000
 
-.PHONY: test test-lerobot demo bench lint venv clean
+.PHONY: test test-fast test-lerobot demo bench lint venv clean
 
 venv: $(STAMP)
 
@@ -29,6 +29,11 @@ test: $(STAMP)
 	$(PY) -c "from roi_node.core.area_resample import warm_up; warm_up()"  # nor the resampling kernels' first JIT compile
 	# two workers: the DDS and Ray tests one at a time on one (xdist group "serial", test/conftest.py), the other modules beside them
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-71} $(PY) -m pytest -q -n 2 --dist loadgroup test
+
+# The edit loop: everything but the DDS, Ray, colcon and demo tests (markers dds and ray; see pyproject.toml).
+test-fast: $(STAMP)
+	$(PY) -c "from roi_node.core.area_resample import warm_up; warm_up()"
+	$(PY) -m pytest -q -n 2 -m "not dds and not ray" test
 
 # Opt-in, not part of `make test`: the real LeRobot reader (lerobot pulls torch, several GB) in its own
 # venv loads what `roi-node export lerobot` writes. Offline: nothing is fetched from the Hub.
