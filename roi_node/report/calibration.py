@@ -116,7 +116,7 @@ def check_calibration(
             f"({search_ms[0]:g} .. {search_ms[1]:g} ms before their stamps); the check needs at least {MIN_MOVING_FRAMES}"
         )
     skeleton_moving = skeleton_motion(evidence, tracks, scale, search_ms)
-    motionless = screen_motion(skeleton_moving, len(evidence), images_move([image for _, image in sampled]))
+    motionless = screen_motion(skeleton_moving, len(evidence), images_move([image for _, image in sampled], static.median))
     if motionless is not None:
         return unmeasured(frames=len(evidence), blocked=motionless, skeleton_moving_frames=skeleton_moving)
     delay, offsets = fit_alignment(evidence, tracks, scale, search_ms, radius_work)

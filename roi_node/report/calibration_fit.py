@@ -329,8 +329,7 @@ def _offset_fit(
     along = solution.residual_px[mine, None] * sections.normal[mine]
     spread = 1.4826 * np.median(np.abs(along - np.median(along, axis=0)), axis=0) / scale.factor
     distances = np.hypot(*(resampled_work - offset_work).T)
-    tail = (1.0 - CI_LEVEL) / 2
-    bounded = np.isnan(distances).mean() <= tail
+    bounded = np.isnan(distances).mean() <= 1.0 - CI_LEVEL  # the radius is one-sided
     radius_work_95 = float(np.nanquantile(distances, CI_LEVEL)) + unsettled_work if bounded else float(radius_work)
     offset = (float(offset_work[0] / scale.factor), float(offset_work[1] / scale.factor))
     frames = len(np.unique(sections.frame[mine]))

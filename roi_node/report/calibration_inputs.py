@@ -52,11 +52,10 @@ def screen_joint_limits(joints: JointSeries, limits: Mapping[str, tuple[float, f
     return joints, Reason(CannotTell.JOINTS_OUT_OF_LIMITS, detail)
 
 
-def images_move(sampled: Sequence[np.ndarray]) -> bool:
+def images_move(sampled: Sequence[np.ndarray], median: np.ndarray) -> bool:
     """Whether the frames sampled across the bag differ from their median image (something in view moves)."""
     if len(sampled) < 2:
         return False
-    median = np.median(np.stack(sampled), axis=0).astype(np.uint8)
     shares = sorted(moving_share(frame, median) for frame in sampled)
     return shares[-1 - min(_MOTION_OUTLIERS, len(shares) - 1)] >= IMAGE_MOTION_MIN_SHARE
 

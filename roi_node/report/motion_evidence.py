@@ -39,7 +39,7 @@ WORK_WIDTH_PX = 640  # working resolution across: enough for sub-pixel alignment
 _NOISE_FACTOR = 3.0  # foreground: this many median differences from the static scene ...
 _THRESHOLD_FLOOR = 12.0  # ... plus this many grey levels (the threshold in a noise-free frame)
 _NOISE_STRIDE = 4  # the noise level is measured on every 4th pixel of every 4th row
-_MASKED = np.uint16(1 << 15)  # sorts after every uint8 value
+_BELOW, _ABOVE = np.int16(-1), np.int16(256)  # order before and after every uint8 value
 _KERNEL = np.ones((3, 3), np.uint8)
 MAX_DEPTH_PX = 31.0  # working px: the evidence saturates this deep inside a part
 _DEPTH_LEVELS = 8.0  # uint8 levels per working px in a stored crop
@@ -91,6 +91,7 @@ class StaticScene:
 
     image: np.ndarray  # H x W x C uint8
     known: np.ndarray  # H x W bool: at least MIN_FREE_SAMPLES sampled frames had no arm at the pixel
+    median: np.ndarray  # H x W x C uint8: the median of every sampled frame, arms and all
 
 
 def background(frames: list[np.ndarray], arm_masks: list[np.ndarray]) -> StaticScene:
@@ -102,19 +103,28 @@ def background(frames: list[np.ndarray], arm_masks: list[np.ndarray]) -> StaticS
     stack = np.stack(frames)
     shape = stack.shape[1:]
     n = len(frames)
-    samples = stack.reshape(n, -1).T.astype(np.uint16)  # pixel-major: each row sorts contiguously
-    plain = np.sort(samples, axis=1)[:, n // 2]
+    kth = (n - 1) // 2  # the (lower) median's rank
+    samples = stack.reshape(n, -1).T.astype(np.int16)  # pixel-major: each row partitions contiguously
+    plain = np.partition(samples, kth, axis=1)[:, kth]
     masked = np.stack(arm_masks).reshape(n, -1).T
     free = n - masked.sum(axis=1)
     if len(shape) == 3:
         masked = np.repeat(masked, shape[2], axis=0)  # the same mask for every channel of a pixel
-    samples[masked] = _MASKED
-    samples.sort(axis=1)  # masked samples last
-    count = n - masked.sum(axis=1)
-    rows = np.arange(len(samples))
-    median = samples[rows, np.maximum(count - 1, 0) // 2]
-    out = np.where(count > 0, median, plain)
-    return StaticScene(out.astype(np.uint8).reshape(shape), (free >= min(MIN_FREE_SAMPLES, n)).reshape(shape[:2]))
+        free_rows = np.repeat(free, shape[2])
+    else:
+        free_rows = free
+    out = plain.copy()
+    partly = np.flatnonzero((free_rows > 0) & (free_rows < n))  # elsewhere the plain median is the free samples' one
+    some, mask = samples[partly], masked[partly]
+    # the median of a pixel's free samples is the kth of all once `below` of its masked samples are sent below
+    # every value and the others above every value: one partition instead of a sort of every row
+    below = kth - (free_rows[partly] - 1) // 2
+    sent_below = mask & (np.cumsum(mask, axis=1, dtype=np.int16) <= below[:, None])
+    some[sent_below] = _BELOW
+    some[mask & ~sent_below] = _ABOVE
+    out[partly] = np.partition(some, kth, axis=1)[:, kth]
+    known = (free >= min(MIN_FREE_SAMPLES, n)).reshape(shape[:2])
+    return StaticScene(out.astype(np.uint8).reshape(shape), known, plain.astype(np.uint8).reshape(shape))
 
 
 def moving_share(frame: np.ndarray, static: np.ndarray) -> float:
