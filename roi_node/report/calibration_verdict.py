@@ -168,8 +168,10 @@ class CalibrationCheck:
         return None if self.offsets is None else self.offsets.get(arm_id)
 
     def offset_estimated(self, arm_id: str) -> bool:
+        """Whether an arm's offset_px is an estimate: fitted inside the offsets searched, with a delay that is one too."""
         fit = self.offset_fit(arm_id)
-        return fit is not None and fit.offset_px is not None and fit.ci_radius_px is not None and not fit.at_search_edge
+        usable = fit is not None and fit.offset_px is not None and fit.ci_radius_px is not None and not fit.at_search_edge
+        return usable and self.delay_estimated
 
     def offset_px(self, arm_id: str) -> float | None:
         """The size of an arm's estimated offset (raw px); None when there is no estimate."""
