@@ -31,3 +31,22 @@ def float_at_least(minimum: float) -> Callable[[str], float]:
 
     parse.__name__ = "float"  # argparse names the type in "invalid float value: 'x'"
     return parse
+
+
+def float_within(minimum: float, maximum: float, *, minimum_allowed: bool = True) -> Callable[[str], float]:
+    """A finite number from `minimum` to `maximum` (above `minimum` when not `minimum_allowed`: durations, rates).
+
+    The upper bound keeps a number the program turns into nanosecond stamps,
+    frame counts or message fields from overflowing them deep inside a run.
+    """
+    lower = f"from {minimum:g}" if minimum_allowed else f"above {minimum:g}"
+
+    def parse(text: str) -> float:
+        value = float(text)
+        above_minimum = value >= minimum if minimum_allowed else value > minimum
+        if not (math.isfinite(value) and above_minimum and value <= maximum):
+            raise argparse.ArgumentTypeError(f"must be a finite number {lower} to {maximum:g}, got {text}")
+        return value
+
+    parse.__name__ = "float"  # argparse names the type in "invalid float value: 'x'"
+    return parse

@@ -242,12 +242,39 @@ def test_sim_flags_refuse_bad_values_in_one_line(small_rig: Path, tmp_path: Path
         main(["sim", "--config", str(small_rig), "--bag", str(tmp_path / "b"), "--camera-delay-ms", "-5"])
     assert exited.value.code == 2
     assert capsys.readouterr().err.splitlines()[-1].endswith(
-        "error: argument --camera-delay-ms: must be a finite number of at least 0, got -5")
+        "error: argument --camera-delay-ms: must be a finite number from 0 to 10000, got -5")
     assert main(["sim", "--config", str(small_rig), "--bag", str(tmp_path / "b"), "--render-budget-mb", "10"]) == 2
     err = capsys.readouterr().err
     assert err == ("roi-node sim: error: sim: --render-budget-mb and --late-frames apply to live runs; "
                    "--bag writes every frame, one at a time\n")
     assert not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize(("flag", "value", "accepted"), [
+    ("--duration", "nan", "above 0 to 86400"), ("--duration", "1e300", "above 0 to 86400"), ("--duration", "0", "above 0 to 86400"),
+    ("--rate-hz", "1e9", "above 0 to 1000"), ("--rate-hz", "inf", "above 0 to 1000"),
+    ("--joint-rate-hz", "inf", "above 0 to 1000"), ("--joint-rate-hz", "-1", "above 0 to 1000"),
+    ("--camera-delay-ms", "1e300", "from 0 to 10000"), ("--camera-delay-ms", "-1", "from 0 to 10000"),
+])
+def test_sim_numbers_out_of_range_are_argparse_lines_before_anything_runs(
+    small_rig: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], flag: str, value: str, accepted: str
+) -> None:
+    """A NaN or a value that overflows stamps or frame counts is refused by the parser, not deep inside the simulator."""
+    for target in (["--bag", str(tmp_path / "b")], ["live"]):
+        with pytest.raises(SystemExit) as exited:
+            main(["sim", "--config", str(small_rig), *target, flag, value])
+        assert exited.value.code == 2
+        err = capsys.readouterr().err
+        assert err.splitlines()[-1] == f"roi-node sim: error: argument {flag}: must be a finite number {accepted}, got {value}"
+    assert not (tmp_path / "b").exists()
+
+
+def test_sim_camera_delay_bound_is_the_rig_loaders() -> None:
+    """What sim accepts as --camera-delay-ms is what a rig's camera.delay_ms may be, no more."""
+    from roi_node.core.config import MAX_TIME_MS
+    from roi_node.sim.limits import MAX_SIM_CAMERA_DELAY_MS
+
+    assert MAX_SIM_CAMERA_DELAY_MS == MAX_TIME_MS
 
 
 # --- live, over DDS ----------------------------------------------------------------------------

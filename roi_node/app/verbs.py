@@ -6,9 +6,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..arg_types import float_at_least, int_at_least
+from ..arg_types import float_at_least, float_within, int_at_least
 from ..core.errors import UsageError
+from ..sim.limits import MAX_SIM_CAMERA_DELAY_MS, MAX_SIM_DURATION_S, MAX_SIM_RATE_HZ
 from ..sim.render_budget import DEFAULT_RENDER_BUDGET_MIB
+
+SIM_DURATION_S = float_within(0.0, MAX_SIM_DURATION_S, minimum_allowed=False)
+SIM_RATE_HZ = float_within(0.0, MAX_SIM_RATE_HZ, minimum_allowed=False)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -89,12 +93,12 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     sim.add_argument("--compression", choices=("none", "lz4", "zstd"), default="none",
                      help="--bag: per-chunk compression of the MCAP storage (default: none)")
     sim.add_argument("--compressed", nargs="?", const="png", choices=["png", "jpeg"], help="--bag: CompressedImage (png or jpeg)")
-    sim.add_argument("--duration", type=float, default=20.0, help="seconds (default: 20)")
-    sim.add_argument("--rate-hz", type=float, default=30.0, help="camera rate (default: 30)")
-    sim.add_argument("--joint-rate-hz", type=float, default=200.0, help="joint state rate (default: 200)")
+    sim.add_argument("--duration", type=SIM_DURATION_S, default=20.0, help="seconds (default: 20)")
+    sim.add_argument("--rate-hz", type=SIM_RATE_HZ, default=30.0, help="camera rate (default: 30)")
+    sim.add_argument("--joint-rate-hz", type=SIM_RATE_HZ, default=200.0, help="joint state rate (default: 200)")
     sim.add_argument("--seed", type=int_at_least(0), default=0, help="trajectory and scene seed (default: 0)")
     sim.add_argument("--min-subscribers", type=int, default=1, help="live: wait for this many subscribers first (default: 1)")
-    sim.add_argument("--camera-delay-ms", type=float_at_least(0.0), metavar="MS",
+    sim.add_argument("--camera-delay-ms", type=float_within(0.0, MAX_SIM_CAMERA_DELAY_MS), metavar="MS",
                      help="simulated camera delay: each image's header stamp is its capture time + MS, as a driver that "
                      "stamps on arrival does (default: the rig's camera.delay_ms, which the node uses to recover capture time)")
     sim.add_argument("--render-budget-mb", type=float_at_least(0.0), metavar="MIB",
@@ -115,8 +119,8 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     demo.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
     demo.add_argument("--config", help="rig config (default: the bundled demo_bimanual rig)")
-    demo.add_argument("--duration", type=float, default=20.0, help="seconds of simulated time (default: 20)")
-    demo.add_argument("--rate-hz", type=float, default=30.0, help="camera rate (default: 30)")
+    demo.add_argument("--duration", type=SIM_DURATION_S, default=20.0, help="seconds of simulated time (default: 20)")
+    demo.add_argument("--rate-hz", type=SIM_RATE_HZ, default=30.0, help="camera rate (default: 30)")
     demo.add_argument("--seed", type=int_at_least(0), default=7, help="trajectory seed (default: 7)")
     demo.set_defaults(func=_cmd_demo)
 
