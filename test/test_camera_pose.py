@@ -287,6 +287,10 @@ def _bad(tmp_path: Path) -> list[tuple[list[str], str]]:
          "no robot 'middle_panda'"),
         (["--tf-args", "0 0 1 0 0 x world camera_link"], "--tf-args: argument 6: expected a finite number"),
         (["--position", "nan", "0", "1", "--look-at", "0", "0", "0"], "--position: expected 3 finite numbers"),
+        (["--position", "1e300", "0", "1", "--look-at", "0", "0", "0"], "--position: expected 3 finite numbers within +-1000 m"),
+        (["--position", "0", "0", "1", "--look-at", "0", "0", "-2000"], "--look-at: expected 3 finite numbers within +-1000 m"),
+        (["--tf-args", "1e300 0 1 0 0 0 1 world camera_link"],
+         "the camera centre in world is 1e+300, 0, 1 m; a rig's camera.extrinsics translation is within +-1000 m"),
     ]
 
 

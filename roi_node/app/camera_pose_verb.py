@@ -26,7 +26,7 @@ import numpy as np
 
 from ..core.atomic_output import atomic_output
 from ..core.camera_pose import CameraFrame, LookAtError, look_at, optical_pose
-from ..core.config import RigConfig, load_rig_config
+from ..core.config import MAX_DISTANCE_M, RigConfig, load_rig_config
 from ..core.errors import ConfigError, UsageError
 from ..core.handeye_results import FrameTransform, parse_static_transform_args, read_easy_handeye, read_moveit_launch
 from ..core.resources import resolve_config_file
@@ -53,6 +53,10 @@ def run_camera_pose(args: argparse.Namespace) -> int:
     measured = _measured_pose(args)
     world_T_base, base_label = _base_in_world(args.base, measured, rig)
     world_T_optical = world_T_base @ measured.base_T_optical
+    if not all(abs(v) <= MAX_DISTANCE_M for v in world_T_optical.translation_m):
+        centre = ", ".join(f"{v:g}" for v in world_T_optical.translation_m)
+        raise ConfigError(f"{measured.source}: the camera centre in world is {centre} m; a rig's camera.extrinsics "
+                          f"translation is within +-{MAX_DISTANCE_M:g} m")
     child = args.child or (str(rig.camera.extrinsics_raw.get("child")) if rig and rig.camera.extrinsics_raw.get("child")
                            else DEFAULT_CHILD_FRAME)
     block = ExtrinsicsBlock(child=child, world_T_optical=world_T_optical, version=args.version or datetime.date.today().isoformat())
@@ -83,9 +87,12 @@ def _measured_pose(args: argparse.Namespace) -> MeasuredPose:
             raise UsageError("a look-at needs both --position X Y Z and --look-at X Y Z")
         if args.inverse or args.camera_frame:
             raise UsageError("--inverse and --camera-frame apply to a transform, not to a look-at")
-        for flag, values in (("--position", args.position), ("--look-at", args.look_at), ("--up", args.up)):
-            if not all(math.isfinite(v) for v in values):
-                raise LookAtError(flag, f"expected 3 finite numbers, got {' '.join(repr(v) for v in values)}")
+        for flag, values in (("--position", args.position), ("--look-at", args.look_at)):
+            if not all(abs(v) <= MAX_DISTANCE_M for v in values):  # also refuses NaN
+                raise LookAtError(flag, f"expected 3 finite numbers within +-{MAX_DISTANCE_M:g} m, "
+                                  f"got {' '.join(repr(v) for v in values)}")
+        if not all(math.isfinite(v) for v in args.up):
+            raise LookAtError("--up", f"expected 3 finite numbers, got {' '.join(repr(v) for v in args.up)}")
         pose = look_at(np.asarray(args.position), np.asarray(args.look_at), np.asarray(args.up))
         description = f"a look-at from {_vector(args.position)} to {_vector(args.look_at)}, up {_vector(args.up)}"
         return MeasuredPose(pose, None, "--position", description)
