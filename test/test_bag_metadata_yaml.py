@@ -27,13 +27,21 @@ def message_counts(bag: Path) -> dict[str, int]:
         return {c.topic: c.msgcount for c in reader.connections}
 
 
+@pytest.mark.parametrize(("text", "problem"), [
+    (NOT_YAML, "not readable YAML ("),
+    ("", "holds no rosbag2_bagfile_information mapping (it is empty)"),
+    ("[1, 2]\n", "holds no rosbag2_bagfile_information mapping (it is a list)"),
+    ("rosbag2_bagfile_information: 7\n", "holds no rosbag2_bagfile_information mapping (it holds 7)"),
+])
 def test_metadata_yaml_that_is_not_yaml_is_one_line_and_recover_reads_the_mcap_alone(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, problem: str
 ) -> None:
+    """YAML that holds no bag information (empty, a list) is as unusable as a file that is not YAML: rosbags' own
+    words for it ('NoneType' object is not subscriptable) named neither the file nor what was expected."""
     bag = write_sim_bag(RIG, tmp_path / "bag", duration_s=0.3, seed=1).path
     expected = message_counts(bag)
     meta = bag / "metadata.yaml"
-    meta.write_text(NOT_YAML)
+    meta.write_text(text)
     verbs = {
         "inspect": ["inspect", "--check", str(bag)],
         "replay": ["replay", str(bag), "-o", str(tmp_path / "out"), "--config", str(RIG)],
@@ -43,7 +51,7 @@ def test_metadata_yaml_that_is_not_yaml_is_one_line_and_recover_reads_the_mcap_a
         assert main(argv) == 2, verb
         out, err = capsys.readouterr()
         lines = err.strip().splitlines()
-        assert len(lines) == 1 and lines[0].startswith(f"roi-node {verb}: error: {meta}: not readable YAML ("), (verb, err)
+        assert len(lines) == 1 and lines[0].startswith(f"roi-node {verb}: error: {meta}: {problem}"), (verb, err)
         assert "Traceback" not in err and out == "", verb
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bag"], "a refused run leaves nothing"
 
