@@ -122,13 +122,18 @@ def main(spec_path: str, truth_path: str) -> int:
 
     loop_back_ns = int(spec.get("loop_back_s", 3.0) * NS)
     distinct = int(spec.get("distinct_frames", n))  # > 0 and < n: frames repeat (sustained-load runs)
+    # "texture": "noise": full-range noise frames without markers, as a camera's texture costs (benchmarks)
+    noise = np.random.default_rng(int(spec.get("seed", 0))) if spec.get("texture", "markers") == "noise" else None
+    camera_size = (pipeline.camera.width_px, pipeline.camera.height_px) if pipeline.camera is not None else (0, 0)
     frames = []
     for k in range(n):
         stamp = k * period_ns - (loop_back_ns if k >= loop_at >= 0 else 0)  # relative until t0 is known
         t_s = k * period_ns / NS
         q = positions_at(joints, t_s, amplitude)
         size = tuple(spec["wrong_size"]) if faults.get(k) == "wrong_size" else None
-        if k < distinct:
+        if k < distinct and noise is not None:
+            pixels, markers = noise.integers(0, 256, (*reversed(size or camera_size), 3), dtype=np.uint8), {}
+        elif k < distinct:
             pixels, markers = draw_markers(pipeline, q, size)  # type: ignore[arg-type]
         else:
             pixels, markers = frames[k % distinct]["pixels"], {}
@@ -161,9 +166,12 @@ def main(spec_path: str, truth_path: str) -> int:
     for f in frames:
         f["stamp_ns"] += t0
     sent_joint_faults: list[str] = []
+    # "pace": "poll" wakes every 0.5 ms until a message is due; "sleep" sleeps until then in one call, as a driver
+    # blocked on its device does: polling keeps a core awake, which makes everything else on the machine look faster
+    poll = spec.get("pace", "poll") == "poll"
     for rel, _, kind, payload in events:
-        while time.monotonic_ns() - start < rel:
-            time.sleep(0.0005)
+        while (left_ns := rel - (time.monotonic_ns() - start)) > 0:
+            time.sleep(0.0005 if poll else left_ns / NS)
         if kind == "frame":
             f = payload
             if f["withheld"]:
