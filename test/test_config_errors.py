@@ -158,6 +158,10 @@ def test_document_that_is_not_a_mapping_is_rejected(tmp_path: Path) -> None:
         pytest.param(
             ("arms", 0, "tip", "position_m"), [0, 0, 0], "arms[hand].tip.position_m", ["must not be zero"], id="tip-zero-position"
         ),
+        pytest.param(
+            ("arms", 0, "tip"), {"frame": "panda_hand"}, "arms[hand].tip.frame", ["is the ee_frame 'panda_hand'", "no direction ee -> tip"],
+            id="tip-frame-is-ee-frame",
+        ),
         pytest.param(("arms", 0, "scale", "min_px"), 800, "arms[hand].scale.min_px", ["<= max_px (720", "got 800"], id="min-above-max"),
         pytest.param(("arms", 0, "scale", "alpha"), -2.0, "arms[hand].scale.alpha", ["> 0", "got -2.0"], id="negative-alpha"),
         pytest.param(

@@ -417,6 +417,10 @@ def _load_arm(node: _Node, robot_ids: set[str]) -> ArmConfig:
         raise node.fail("tip", "give exactly one of position_m: [x, y, z] or frame: <URDF frame>")
     if tip_node.has("frame"):
         tip = TipSpec(frame=tip_node.text("frame"))
+        if node.has("ee_frame") and tip.frame == node.text("ee_frame"):
+            raise tip_node.fail("frame", f"is the ee_frame {tip.frame!r}: a tip in the ee frame's origin gives no direction "
+                                "ee -> tip, which defines the inward direction d_in; name a frame ahead of it (a TCP or "
+                                "fingertip link) or give position_m: [x, y, z]")
     else:
         x, y, z = tip_node.numbers("position_m", 3, limit=10.0)
         if x == y == z == 0.0:
