@@ -150,7 +150,7 @@ def _basin(
         found = score.max() > 0
         centre = grid[int(np.argmax(score))] if found else np.zeros(2)
         offsets.append(centre)
-        at_edge.append(bool(found and np.abs(centre).max() >= radius_work))
+        at_edge.append(bool(found and np.abs(centre).max() >= np.abs(grid).max()))
     return _Basin(float(delays_ms[best]), contrast, best in (0, len(delays_ms) - 1), offsets, at_edge)
 
 
