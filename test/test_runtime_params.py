@@ -53,6 +53,11 @@ def test_each_arm_has_the_parameters_of_its_own_policy(tmp_path: Path) -> None:
     ("name", "value", "says"),
     [
         ("arms.left.offset_px", "forty", "parameter arms.left.offset_px: expected a double, got 'forty' (string)"),
+        # YAML 1.1 (ros2 param set, --params-file) reads these as text: the refusal says how to write the number
+        ("sync.max_skew_ms", "1e-3", "parameter sync.max_skew_ms: expected a double, got '1e-3' (string; YAML reads it as "
+         "text: write 0.001)"),
+        ("arms.left.offset_px", "nan", "parameter arms.left.offset_px: expected a double, got 'nan' (string; YAML reads it as "
+         "text: write .nan)"),
         ("arms.left.scale.min_px", 800.0, "parameter arms.left.scale.min_px: must be <= max_px (720.0), got 800.0"),
         ("arms.right.aspect", [1.0, 1.0, 1.0], "parameter arms.right.aspect: expected a list of 2 numbers"),
         ("arms.right.aspect", [20.0, 1.0], "parameter arms.right.aspect: values must be > 0 and <= 10, got [20.0, 1.0]"),

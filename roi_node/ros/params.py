@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import yaml
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -135,8 +136,25 @@ def typed(name: str, default: object, value: object) -> object:
         return list(value)
     if _type_name(value) != expected:
         article = "an" if expected[0] in "aeiou" else "a"
-        raise ParameterError(name, f"expected {article} {expected}, got {short_repr(value)} ({_type_name(value)})")
+        got = f"{short_repr(value)} ({_type_name(value)}{_yaml_number_hint(value) if expected == 'double' else ''})"
+        raise ParameterError(name, f"expected {article} {expected}, got {got}")
     return value
+
+
+def _yaml_number_hint(value: object) -> str:
+    """How to write a number that YAML 1.1 (ros2 param set, --params-file) read as text: `1e-3`, `nan`, `inf`.
+
+    Python reads those as numbers, so a user who typed one sees a refusal of
+    a number unless the line says YAML took it for a string, and its spelling.
+    """
+    if not isinstance(value, str):
+        return ""
+    try:
+        number = float(value)
+    except ValueError:
+        return ""
+    spelling = yaml.safe_dump(number).splitlines()[0]
+    return f"; YAML reads it as text: write {spelling}"
 
 
 def declare_and_read(node: Node) -> NodeParams:
