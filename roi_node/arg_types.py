@@ -39,13 +39,13 @@ def float_within(minimum: float, maximum: float, *, minimum_allowed: bool = True
     The upper bound keeps a number the program turns into nanosecond stamps,
     frame counts or message fields from overflowing them deep inside a run.
     """
-    lower = f"from {minimum:g}" if minimum_allowed else f"above {minimum:g}"
+    lower = f"from {minimum:.15g}" if minimum_allowed else f"above {minimum:.15g}"
 
     def parse(text: str) -> float:
         value = float(text)
         above_minimum = value >= minimum if minimum_allowed else value > minimum
         if not (math.isfinite(value) and above_minimum and value <= maximum):
-            raise argparse.ArgumentTypeError(f"must be a finite number {lower} to {maximum:g}, got {text}")
+            raise argparse.ArgumentTypeError(f"must be a finite number {lower} to {maximum:.15g}, got {text}")
         return value
 
     parse.__name__ = "float"  # argparse names the type in "invalid float value: 'x'"

@@ -255,6 +255,7 @@ def test_sim_flags_refuse_bad_values_in_one_line(small_rig: Path, tmp_path: Path
     ("--rate-hz", "1e9", "above 0 to 1000"), ("--rate-hz", "inf", "above 0 to 1000"),
     ("--joint-rate-hz", "inf", "above 0 to 1000"), ("--joint-rate-hz", "-1", "above 0 to 1000"),
     ("--camera-delay-ms", "1e300", "from 0 to 10000"), ("--camera-delay-ms", "-1", "from 0 to 10000"),
+    ("--render-budget-mb", "1e308", "from 0 to 1048576"), ("--render-budget-mb", "nan", "from 0 to 1048576"),
 ])
 def test_sim_numbers_out_of_range_are_argparse_lines_before_anything_runs(
     small_rig: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], flag: str, value: str, accepted: str

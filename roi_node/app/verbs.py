@@ -6,9 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..arg_types import float_at_least, float_within, int_at_least
+from ..arg_types import float_within, int_at_least
 from ..core.errors import UsageError
-from ..sim.limits import MAX_SIM_CAMERA_DELAY_MS, MAX_SIM_DURATION_S, MAX_SIM_RATE_HZ
+from ..sim.limits import MAX_SIM_CAMERA_DELAY_MS, MAX_SIM_DURATION_S, MAX_SIM_RATE_HZ, MAX_SIM_RENDER_BUDGET_MIB
 from ..sim.render_budget import DEFAULT_RENDER_BUDGET_MIB
 
 SIM_DURATION_S = float_within(0.0, MAX_SIM_DURATION_S, minimum_allowed=False)
@@ -97,11 +97,11 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     sim.add_argument("--rate-hz", type=SIM_RATE_HZ, default=30.0, help="camera rate (default: 30)")
     sim.add_argument("--joint-rate-hz", type=SIM_RATE_HZ, default=200.0, help="joint state rate (default: 200)")
     sim.add_argument("--seed", type=int_at_least(0), default=0, help="trajectory and scene seed (default: 0)")
-    sim.add_argument("--min-subscribers", type=int, default=1, help="live: wait for this many subscribers first (default: 1)")
+    sim.add_argument("--min-subscribers", type=int_at_least(0), default=1, help="live: wait for this many subscribers first (default: 1)")
     sim.add_argument("--camera-delay-ms", type=float_within(0.0, MAX_SIM_CAMERA_DELAY_MS), metavar="MS",
                      help="simulated camera delay: each image's header stamp is its capture time + MS, as a driver that "
                      "stamps on arrival does (default: the rig's camera.delay_ms, which the node uses to recover capture time)")
-    sim.add_argument("--render-budget-mb", type=float_at_least(0.0), metavar="MIB",
+    sim.add_argument("--render-budget-mb", type=float_within(0.0, MAX_SIM_RENDER_BUDGET_MIB), metavar="MIB",
                      help="live: memory for rendered frames, in MiB; a run whose frames fit is rendered before the clock "
                      f"starts, a longer or larger one on the fly, at most this much ahead (default: {DEFAULT_RENDER_BUDGET_MIB:g})")
     sim.add_argument("--late-frames", choices=("drop", "send"), default="drop",
