@@ -91,8 +91,18 @@ def set_fps_text(doc: dict[str, object]) -> dict[str, object]:
             "meta/tasks.parquet",
             "no column task_index; not what lerobot writes there",
         ),
+        (  # the episodes an append continues must still be there: appending to a dataset that lost one says so
+            lambda ds: (ds / "data/chunk-000/file-000.parquet").write_bytes(b"PAR1 truncated"),
+            "data/chunk-000/file-000.parquet",
+            "not a readable parquet file (",
+        ),
+        (
+            lambda ds: (ds / "videos/observation.images.global/chunk-000/file-000.mp4").unlink(),
+            "videos/observation.images.global/chunk-000/file-000.mp4",
+            "missing or empty; episode 0 (meta/episodes/chunk-000/file-000.parquet) has its frames there",
+        ),
     ],
-    ids=["info-list", "fps-text", "episodes-damaged", "tasks-column"],
+    ids=["info-list", "fps-text", "episodes-damaged", "tasks-column", "data-damaged", "video-missing"],
 )
 def test_an_append_onto_a_damaged_dataset_names_the_file_and_field(
     damage: Callable[[Path], None], file: str, problem: str, base: Path, bags: ExportBags, tmp_path: Path,

@@ -20,7 +20,7 @@ import pyarrow.parquet as pq
 
 from .errors import DatasetError, DatasetFileError
 from .features import EpisodeSpec
-from .layout import CHUNKS_SIZE, CODEBASE_VERSION, INFO_PATH, STATS_PATH, TASKS_PATH, FileIndex
+from .layout import CHUNKS_SIZE, CODEBASE_VERSION, INFO_PATH, STATS_PATH, TASKS_PATH, FileIndex, data_path, video_path
 from .limits import MAX_FPS, MIN_FPS
 from .provenance import Provenance, read_provenance
 from .stats import Stats, from_json
@@ -131,17 +131,39 @@ def _stats(path: Path) -> dict[str, Stats]:
 
 
 def _last_episode(root: Path, spec: EpisodeSpec) -> dict[str, FileIndex]:
-    """Where the last episode's data, metadata and videos are (the append's new files follow them), by file group."""
+    """Where the last episode's data, metadata and videos are (the append's new files follow them), by file group.
+
+    Every episode's data and video files are checked on the way (_check_episode_files): an append onto a
+    dataset that lost one would report a dataset of N episodes that LeRobot cannot load.
+    """
     files = sorted((root / "meta" / "episodes").glob("*/*.parquet"))
     if not files:
         raise DatasetError(f"{root}: no meta/episodes/*/*.parquet; not a complete LeRobot v3.0 dataset")
     groups = ["data", "meta/episodes", *(f"videos/{key}" for key in spec.video_sizes())]
     columns = ["episode_index", *(f"{group}/{part}" for group in groups for part in ("chunk_index", "file_index"))]
-    rows = _read_parquet(files[-1], columns).to_pylist()
-    if not rows:
-        raise DatasetFileError(files[-1], "no episode rows")
-    for row in rows:
-        for name in columns:
-            _integer(row, name, files[-1], 0)
-    last = max(rows, key=lambda row: row["episode_index"])
+    every_row: list[dict[str, Any]] = []
+    checked: set[Path] = set()
+    for file in files:
+        rows = _read_parquet(file, columns).to_pylist()
+        if not rows:
+            raise DatasetFileError(file, "no episode rows")
+        for row in rows:
+            for name in columns:
+                _integer(row, name, file, 0)
+            _check_episode_files(root, spec, row, file.relative_to(root), checked)
+        every_row.extend(rows)
+    last = max(every_row, key=lambda row: row["episode_index"])
     return {group: FileIndex(last[f"{group}/chunk_index"], last[f"{group}/file_index"]) for group in groups}
+
+
+def _check_episode_files(root: Path, spec: EpisodeSpec, row: dict[str, Any], listed_in: Path, checked: set[Path]) -> None:
+    """The row's data file is a readable parquet file and its video files are there and not empty (each file once)."""
+    data = root / data_path(FileIndex(row["data/chunk_index"], row["data/file_index"]))
+    if data not in checked:
+        _read_parquet(data, ())
+        checked.add(data)
+    for key in spec.video_sizes():
+        video = root / video_path(key, FileIndex(row[f"videos/{key}/chunk_index"], row[f"videos/{key}/file_index"]))
+        if video not in checked and not (video.is_file() and video.stat().st_size > 0):
+            raise DatasetFileError(video, f"missing or empty; episode {row['episode_index']} ({listed_in}) has its frames there")
+        checked.add(video)
