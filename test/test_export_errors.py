@@ -1,7 +1,7 @@
 """`export lerobot` refusals and failures: one line naming the file, field or value, exit 2, nothing left behind.
 
 An append onto a damaged dataset (info.json not an object, a field of the
-wrong type, an unreadable episodes parquet), an --fps or --max-age-ms out of
+wrong type, an unreadable episodes parquet, a lost data or video file), an --fps or --max-age-ms out of
 range, a task that is not UTF-8, a disk that fills while the dataset is
 written (the fault injected where pyarrow and Python raise it, without a file
 name), and a run SIGKILLed mid-append whose temporary folder the next run
@@ -11,6 +11,7 @@ removes. The old dataset must be byte-identical after each failure.
 from __future__ import annotations
 
 import errno
+import hashlib
 import json
 import os
 import selectors
@@ -26,6 +27,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from roi_node.cli import main
+from roi_node.core.resources import config_dir
 from roi_node.export.errors import ExportOptionError
 from roi_node.export.exporter import ExportOptions
 from roi_node.export.video import VideoFileWriter
@@ -275,3 +277,21 @@ def test_a_rerun_after_a_sigkilled_append_removes_the_temporary_folder(
     doc = json.loads((ds / "meta/info.json").read_text())
     assert doc["total_episodes"] == 2
     assert all(tree_digest(ds)[p] == digest for p, digest in before.items() if p.startswith(("data/", "videos/", "meta/episodes/")))
+
+
+def test_a_bundled_rig_given_by_name_regenerates_and_is_recorded_as_the_bundled_file(
+    bags: ExportBags, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """--config takes a bundled rig by name as every verb does: the provenance hashed the name as a path in the
+    working directory, so the export failed with 'No such file or directory' after the rig had loaded."""
+    monkeypatch.chdir(tmp_path)  # no rig of that name here: only the bundled one can be meant
+    rig_name = bags.rig.name
+    code = main(["export", "lerobot", str(bags.raw(0)), "-o", "ds", "--fps", str(FPS), "--task", TASK, "--codec", "lossless",
+                 "--config", rig_name])
+    _, err = capsys.readouterr()
+    assert code == 0, err
+    provenance = json.loads((tmp_path / "ds/meta/roi_node_provenance.json").read_text())
+    bundled = config_dir() / rig_name
+    assert provenance["episodes"][0]["roi"]["rig_config"] == {
+        "path": str(bundled.resolve()), "sha256": hashlib.sha256(bundled.read_bytes()).hexdigest()
+    }

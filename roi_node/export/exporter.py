@@ -29,6 +29,7 @@ from typing import Any
 from ..bag.replay import replay_bag
 from ..core.atomic_output import commit, ensure_parent, remove_orphaned_partials, remove_path, temporary_sibling
 from ..core.errors import BagError
+from ..core.resources import resolve_config_file
 from ..core.sync import NS_PER_MS
 from ..report.gates import GateSet, load_gates
 from ..report.manifest import hash_files
@@ -238,8 +239,10 @@ def _actions(bag: Path, selected: dict[str, Any], joint_names: tuple[str, ...], 
 
 
 def _roi_origin(config: Path | None) -> dict[str, Any]:
+    """Where the episode's ROIs came from; a regenerating rig is the file the loader read (a bundled rig by name too)."""
     if config is None:
         return {"kind": "recorded", "rig_config": None}
+    config = resolve_config_file(config)
     text = config.read_bytes()
     return {"kind": "regenerated", "rig_config": {"path": str(config.resolve()), "sha256": hashlib.sha256(text).hexdigest()}}
 
