@@ -167,7 +167,7 @@ def main(spec_path: str, truth_path: str) -> int:
         f["stamp_ns"] += t0
     sent_joint_faults: list[str] = []
     # "pace": "poll" wakes every 0.5 ms until a message is due; "sleep" sleeps until then in one call, as a driver
-    # blocked on its device does: polling keeps a core awake, which makes everything else on the machine look faster
+    # blocked on its device does (a benchmark should not add 2000 wake-ups a second that no camera makes)
     poll = spec.get("pace", "poll") == "poll"
     for rel, _, kind, payload in events:
         while (left_ns := rel - (time.monotonic_ns() - start)) > 0:
