@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
+from roi_node.cli import main
 from roi_node.core.camera import load_calibration_yaml
 from roi_node.core.config import DepthScale, FixedScale, RigConfig, load_rig_config
 from roi_node.core.errors import CalibrationError, ConfigError, KinematicsError
@@ -278,6 +279,30 @@ def test_unknown_tip_frame_fails_pipeline_construction(tmp_path: Path) -> None:
         RoiPipeline(rig)
     message = str(info.value)
     _assert_error(message, rig.source, "<file>: arms[hand].tip.frame: ", "'panda_hand_tpc'", "did you mean the link 'panda_hand_tcp'?")
+
+
+@pytest.mark.parametrize("prefix", ["left_", ""])
+def test_two_robots_whose_joint_names_collide_are_refused_by_the_pipeline_and_check_config(
+    tmp_path: Path, prefix: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Two SO-101s given one joint_prefix read the same JointState names: the right arm followed the left arm's
+    joints with exit 0. The names a robot's joints take in JointState must be its own."""
+    doc = yaml.safe_load((CONFIG / "rig_so101_dual.yaml").read_text())
+    doc["camera"]["intrinsics"] = str(CONFIG / doc["camera"]["intrinsics"])
+    for robot in doc["robots"]:
+        robot["joint_prefix"] = prefix
+    path = tmp_path / "rig.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    expected = (f"{path}: robots[right_so101].joint_prefix: {prefix!r} gives its joints the JointState names of "
+                f"robots[left_so101]'s (")
+    shared = "; 6 in all): one arm would follow the other's joints; give each robot a joint_prefix of its own"  # SO-101: 6 joints
+    with pytest.raises(KinematicsError) as info:
+        RoiPipeline(load_rig_config(path))
+    assert str(info.value).startswith(expected) and shared in str(info.value), str(info.value)
+    assert f"{prefix}gripper" in str(info.value)
+    assert main(["check-config", str(path)]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err == f"roi-node check-config: error: {info.value}\n", err
 
 
 # --- calibration ---------------------------------------------------------------------------

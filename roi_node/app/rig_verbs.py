@@ -16,13 +16,14 @@ import yaml
 
 
 def _cmd_check_config(args: argparse.Namespace) -> int:
-    from ..core.arm_joints import arm_joints
+    from ..core.arm_joints import arm_joints, check_joint_names_distinct
     from ..core.config import load_rig_config
     from ..core.kinematics import RobotKinematics
     from ..core.rig_view import resolved_rig
 
     rig = load_rig_config(args.rig)
     kinematics = {robot.id: RobotKinematics(robot.id, robot.urdf_path) for robot in rig.robots}
+    check_joint_names_distinct(rig, kinematics)
     arms: dict[str, Any] = {}
     for arm in rig.arms:
         robot = rig.robot(arm.robot)

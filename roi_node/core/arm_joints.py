@@ -7,9 +7,11 @@ before the node runs), so the two cannot disagree.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
-from .config import ArmConfig
+from .config import ArmConfig, RigConfig
+from .errors import KinematicsError
 from .kinematics import RobotKinematics, unique_in_order
 
 
@@ -32,3 +34,26 @@ def arm_joints(kin: RobotKinematics, arm: ArmConfig, where: str) -> ArmJoints:
     wrist_chain = kin.chain_joints(arm.ee_frame)
     gripper = tuple(j for j in kin.joints_below(wrist_chain[-1]) if j not in chain) if wrist_chain else ()
     return ArmJoints(chain, gripper)
+
+
+def check_joint_names_distinct(rig: RigConfig, kinematics: Mapping[str, RobotKinematics]) -> None:
+    """Every robot's movable joints take JointState names (joint_prefix + URDF name) no other robot's take.
+
+    Two robots with one URDF and one prefix read the same JointState
+    entries, so one arm would silently follow the other's joints; refused,
+    naming the robot whose prefix collides and the names it shares.
+    """
+    owner: dict[str, str] = {}  # JointState name -> the robot id it belongs to
+    for robot in rig.robots:
+        names = [robot.joint_prefix + j for j in kinematics[robot.id].joint_names()]
+        clashes = [n for n in names if n in owner]
+        if clashes:
+            other = owner[clashes[0]]
+            shared = [n for n in clashes if owner[n] == other]
+            listed = ", ".join(shared[:3]) + (", ..." if len(shared) > 3 else "")
+            raise KinematicsError(
+                f"{rig.location(f'robots[{robot.id}].joint_prefix')}: {robot.joint_prefix!r} gives its joints the JointState "
+                f"names of robots[{other}]'s ({listed}; {len(shared)} in all): one arm would follow the other's joints; "
+                "give each robot a joint_prefix of its own"
+            )
+        owner.update((n, robot.id) for n in names)

@@ -20,7 +20,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from .area_resample import warm_up as warm_up_resampling
-from .arm_joints import arm_joints
+from .arm_joints import arm_joints, check_joint_names_distinct
 from .camera import CameraModel
 from .config import ArmConfig, RigConfig
 from .errors import ImageError
@@ -118,6 +118,7 @@ class RoiPipeline:
         self.cam_T_world = rig.camera.world_T_cam.inverse()
         kinematics = {r.id: RobotKinematics(r.id, r.urdf_path, texts.get(r.id)) for r in rig.robots}
         self._kinematics = kinematics
+        check_joint_names_distinct(rig, kinematics)
         self._arms = tuple(self._arm_model(arm, kinematics[arm.robot]) for arm in rig.arms)
         self.required_joints: tuple[str, ...] = unique_in_order(arm.prefix + j for arm in self._arms for j in arm.chain)
         self.continuous_joints: tuple[str, ...] = tuple(
