@@ -52,6 +52,11 @@ def test_defaults_are_raw_outputs_at_quality_90_with_the_overlay(context: Contex
         ({"jpeg_quality": 0}, "parameter jpeg_quality: expected an integer in 1..100, got 0"),
         ({"jpeg_quality": 90.0}, "parameter jpeg_quality: expected an integer, got 90.0 (double)"),
         ({"overlay": "yes"}, "parameter overlay: expected a bool, got 'yes' (string)"),
+        # rclpy's QoS binding takes a depth below 2**31 only: beyond, the node ended in a TypeError from its constructor
+        ({"qos.subscription_depth": 2**63 - 1}, "parameter qos.subscription_depth: expected an integer in 1..100000, "
+         "got 9223372036854775807"),
+        ({"qos.publisher_depth": 0}, "parameter qos.publisher_depth: expected an integer in 1..100000, got 0"),
+        ({"qos.joint_state_depth": 2**31}, "parameter qos.joint_state_depth: expected an integer in 1..100000, got 2147483648"),
     ],
 )
 def test_bad_output_parameters_are_refused_naming_the_parameter(context: Context, overrides: dict[str, object],

@@ -75,6 +75,9 @@ def _qos(reliability: str, depth: int) -> QoSProfile:
     )
 
 
+# A KEEP_LAST queue's depth: rclpy's QoS binding takes none above 2**31 - 1 (a TypeError from the node's constructor), and
+# a queue of 100000 camera images would hold far more memory than a machine has.
+QOS_DEPTH_RANGE = (1, 100_000)
 RIG_VALUE_MS = -1.0  # sync.max_skew_ms / sync.max_wait_ms: "the rig config's value" (any other negative is refused)
 # name -> default; the default's type is the parameter's type (an integer is accepted where a double is declared)
 DEFAULTS: dict[str, object] = {
@@ -258,10 +261,10 @@ def _validate(v: dict[str, object]) -> NodeParams:
         robot_description_source=_choice(v, "robot_description_source", ROBOT_DESCRIPTION_SOURCES),
         robot_description=str(v["robot_description"]),
         subscription_reliability=_choice(v, "qos.subscription_reliability", RELIABILITIES),
-        subscription_depth=_positive_int(v, "qos.subscription_depth"),
-        joint_state_depth=_positive_int(v, "qos.joint_state_depth"),
+        subscription_depth=_int_in(v, "qos.subscription_depth", QOS_DEPTH_RANGE),
+        joint_state_depth=_int_in(v, "qos.joint_state_depth", QOS_DEPTH_RANGE),
         publisher_reliability=_choice(v, "qos.publisher_reliability", RELIABILITIES),
-        publisher_depth=_positive_int(v, "qos.publisher_depth"),
+        publisher_depth=_int_in(v, "qos.publisher_depth", QOS_DEPTH_RANGE),
         sync_policy=policy,
         max_pending_frames=_positive_int(v, "sync.max_pending_frames"),
         output_encoding=_choice(v, "output_encoding", OUTPUT_ENCODINGS),
