@@ -13,8 +13,10 @@ from dataclasses import dataclass
 
 import yaml
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.exceptions import InvalidTopicNameException
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.validate_topic_name import validate_topic_name
 
 from ..core.compressed_outputs import DEFAULT_JPEG_QUALITY, JPEG_QUALITY_RANGE, OutputTransport
 from ..core.config import SYNC_POLICIES, RigConfig
@@ -78,6 +80,10 @@ def _qos(reliability: str, depth: int) -> QoSProfile:
 # A KEEP_LAST queue's depth: rclpy's QoS binding takes none above 2**31 - 1 (a TypeError from the node's constructor), and
 # a queue of 100000 camera images would hold far more memory than a machine has.
 QOS_DEPTH_RANGE = (1, 100_000)
+# Frames wait for their joint state at most sync.max_wait_ms (<= 10 s), so a longer queue never fills at camera rates up
+# to 100 Hz; the node pre-faults memory for every one (process_memory.py), so an absurd count ran it out of memory.
+PENDING_FRAMES_RANGE = (1, 1_000)
+OPENCV_THREADS_RANGE = (1, 1_024)  # cv2.setNumThreads takes a C int
 RIG_VALUE_MS = -1.0  # sync.max_skew_ms / sync.max_wait_ms: "the rig config's value" (any other negative is refused)
 # name -> default; the default's type is the parameter's type (an integer is accepted where a double is declared)
 DEFAULTS: dict[str, object] = {
@@ -234,6 +240,21 @@ def _positive_seconds(values: dict[str, object], param: str) -> float:
     return value
 
 
+def _topic(values: dict[str, object], param: str) -> str:
+    topic = str(values[param])
+    _check_topic_name(param, topic)
+    return topic
+
+
+def _check_topic_name(param: str, topic: str) -> None:
+    """rclpy's topic name rules, checked with the parameter's name (rclpy's exception names neither)."""
+    try:
+        validate_topic_name(topic)
+    except InvalidTopicNameException as exc:
+        reason = str(exc).splitlines()[0].removeprefix("Invalid topic name: ").rstrip(":")
+        raise ParameterError(param, f"{short_repr(topic)} is not a topic name: {reason}") from exc
+
+
 def _period_or_off(values: dict[str, object], param: str) -> float:
     value = float(values[param])  # type: ignore[arg-type]
     if not 0 <= value <= 3600:
@@ -247,17 +268,19 @@ def _validate(v: dict[str, object]) -> NodeParams:
     topics = tuple(str(t) for t in v["joint_state_topics"])  # type: ignore[attr-defined]
     if not topics or any(not t for t in topics):
         raise ParameterError("joint_state_topics", f"expected one or more topic names, got {short_repr(list(topics))}")
+    for topic in topics:
+        _check_topic_name("joint_state_topics", topic)
     policy = str(v["sync.policy"]) or None
     if policy is not None and policy not in SYNC_POLICIES:
         raise ParameterError("sync.policy", f"{short_repr(policy)} is not one of {', '.join(SYNC_POLICIES)}")
     return NodeParams(
         config=str(v["config"]),
         image_transport=_choice(v, "image_transport", TRANSPORTS),
-        image_topic=str(v["image_topic"]),
-        camera_info_topic=str(v["camera_info_topic"]),
+        image_topic=_topic(v, "image_topic"),
+        camera_info_topic=_topic(v, "camera_info_topic"),
         use_camera_info=bool(v["use_camera_info"]),
         joint_state_topics=topics,
-        command_topic=str(v["command_topic"]),
+        command_topic=_topic(v, "command_topic") if v["command_topic"] else "",
         robot_description_source=_choice(v, "robot_description_source", ROBOT_DESCRIPTION_SOURCES),
         robot_description=str(v["robot_description"]),
         subscription_reliability=_choice(v, "qos.subscription_reliability", RELIABILITIES),
@@ -266,7 +289,7 @@ def _validate(v: dict[str, object]) -> NodeParams:
         publisher_reliability=_choice(v, "qos.publisher_reliability", RELIABILITIES),
         publisher_depth=_int_in(v, "qos.publisher_depth", QOS_DEPTH_RANGE),
         sync_policy=policy,
-        max_pending_frames=_positive_int(v, "sync.max_pending_frames"),
+        max_pending_frames=_int_in(v, "sync.max_pending_frames", PENDING_FRAMES_RANGE),
         output_encoding=_choice(v, "output_encoding", OUTPUT_ENCODINGS),
         output_transport=OutputTransport(_choice(v, "output_transport", tuple(OutputTransport))),
         jpeg_quality=_int_in(v, "jpeg_quality", JPEG_QUALITY_RANGE),
@@ -275,6 +298,6 @@ def _validate(v: dict[str, object]) -> NodeParams:
         diagnostics_period_s=_positive_seconds(v, "diagnostics_period_s"),
         silence_timeout_s=_positive_seconds(v, "silence_timeout_s"),
         max_failure_s=_positive_seconds(v, "max_failure_s"),
-        opencv_threads=_positive_int(v, "opencv_threads"),
+        opencv_threads=_int_in(v, "opencv_threads", OPENCV_THREADS_RANGE),
         status_period_s=_period_or_off(v, "status_period_s"),
     )
