@@ -218,13 +218,6 @@ def _choice(values: dict[str, object], param: str, choices: tuple[str, ...]) -> 
     return value
 
 
-def _positive_int(values: dict[str, object], param: str) -> int:
-    value = values[param]
-    if not isinstance(value, int) or value < 1:
-        raise ParameterError(param, f"expected a positive integer, got {short_repr(value)}")
-    return value
-
-
 def _int_in(values: dict[str, object], param: str, bounds: tuple[int, int]) -> int:
     value = values[param]
     low, high = bounds
