@@ -56,6 +56,7 @@ ROI_QOS = ("--reliability", "reliable", "--depth", "10")  # roi_node publishes r
 JOINT_READER = ("--type", "joint_state", "--quiet", "--reliability", "best_effort", "--depth", "100")  # in (a), as the node reads
 WARM_UP_FRAMES = 30
 START_TIMEOUT_S = 120.0  # a node's first start on a busy machine loads the URDFs and the compiled kernels
+LATENESS_TOLERANCE_MS = 1.0
 LAST_FRAME_WAIT_S = 2.0  # after the camera's last frame: what has not arrived by then is counted lost
 
 
@@ -166,6 +167,21 @@ def run_through(size: int, frames: int, domain: int, prefixes: list[str], rig: P
     return stream_of(camera, receiver), node_cpu
 
 
+def invalid_because(bare: Stream, through: Stream) -> str | None:
+    """Why (a) and (b) cannot be compared, or None: the camera's lateness is in both latencies, so it must not
+    differ between the runs by more than LATENESS_TOLERANCE_MS nor ever reach a frame period (a backlog)."""
+    period_ms = 1000.0 / RATE_HZ
+    late_a, late_b = float(np.median(bare.sent_late_ms)), float(np.median(through.sent_late_ms))
+    if abs(late_a - late_b) > LATENESS_TOLERANCE_MS:
+        return f"the camera's median lateness differs between the runs ({late_a:.2f} / {late_b:.2f} ms)"
+    worst_ms = max(float(bare.sent_late_ms.max()), float(through.sent_late_ms.max()))
+    if worst_ms > period_ms:
+        return f"the camera fell behind: a frame went out {worst_ms:.1f} ms after its stamp"
+    if bare.p50_ms() > period_ms:
+        return f"the bare transport's median {bare.p50_ms():.1f} ms exceeds a frame period"
+    return None
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--duration-s", type=float, default=60.0, help="seconds of camera stream per measurement (default: 60)")
@@ -177,7 +193,8 @@ def main() -> int:
         parser.error(f"--duration-s {args.duration_s:g}: expected more than {WARM_UP_FRAMES / RATE_HZ:g} s (the warm-up)")
     print(f"load average at start: {os.getloadavg()[0]:.2f} ({os.cpu_count()} CPUs)")
     header = (f"{'stream':>14} | {'(a) transport p50/p99 ms':>24} | {'(b) via node p50/p99 ms':>23} | {'b-a p50/p99 ms':>14} | "
-              f"{'b/a p50/p99':>11} | {'lost a/b':>8} | {'sent late p50 a/b ms':>20} | {'node CPU ms/frame':>17} | node CPU % core")
+              f"{'b/a p50/p99':>11} | {'lost a/b':>8} | {'sent late p50 a/b ms':>20} | {'node CPU ms/frame':>17} | "
+              f"{'node CPU % core':>15} | valid")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for size in args.sizes:
@@ -196,7 +213,8 @@ def main() -> int:
                 f"{through.p50_ms() / bare.p50_ms():5.2f} / {through.p99_ms() / bare.p99_ms():3.2f} | "
                 f"{bare.frames_sent - bare.frames_received:3d} / {through.frames_sent - through.frames_received:2d} | "
                 f"{np.median(bare.sent_late_ms):9.2f} / {np.median(through.sent_late_ms):8.2f} | "
-                f"{cpu.cpu_ms_per_interval():17.2f} | {100 * cpu.share_of_core():15.1f}"
+                f"{cpu.cpu_ms_per_interval():17.2f} | {100 * cpu.share_of_core():15.1f} | "
+                + (f"INVALID: {why}" if (why := invalid_because(bare, through)) else "yes")
             )
     print(header)
     print("\n".join(rows))
