@@ -11,8 +11,9 @@ demo rig, and reduces them to hashes:
   with its own version (parquet: `created_by`; mp4: the muxer's tag) also a
   hash of the decoded content (the parquet table, the video's decoded frames),
   so a dependency upgrade shows up as "files differ, content equal" and not as
-  a change of ours. The provenance file names the source bag's absolute path,
-  which is replaced by its name before hashing.
+  a change of ours. The provenance file names the source bag's absolute path
+  and the gates file's path in this checkout: both are replaced (by the bag's
+  name, by `<repo>`) before hashing.
 
 `python -m test.golden --write` records the hashes of today's code in
 test/golden/demo_bimanual_seed7.json; test/test_golden_outputs.py compares.
@@ -84,7 +85,7 @@ def hash_outputs(roi: Path, dataset: Path) -> GoldenOutputs:
         name = path.relative_to(dataset).as_posix()
         data = path.read_bytes()
         if path.name == "roi_node_provenance.json":
-            data = data.replace(str(roi).encode(), roi.name.encode())
+            data = data.replace(str(roi).encode(), roi.name.encode()).replace(str(REPO).encode(), b"<repo>")
         files[name] = hashlib.sha256(data).hexdigest()
         if path.suffix == ".parquet":
             table = pq.read_table(path)
