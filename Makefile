@@ -14,7 +14,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export MALLOC_MMAP_THRESHOLD_ := 33554432
 export MALLOC_TRIM_THRESHOLD_ := 4000000000
 
-.PHONY: test test-fast test-lerobot demo bench lint venv clean
+.PHONY: test test-fast test-lerobot demo bench lint docs venv clean
 
 venv: $(STAMP)
 
@@ -72,6 +72,10 @@ bench: $(STAMP)
 	$(PY) bench/overlay.py
 	$(PY) bench/ray.py
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-73} $(PY) bench/live.py
+
+# docs/rig-config.md's key table from config/rig.schema.json (test/test_rig_doc.py fails when it is stale)
+docs: $(STAMP)
+	$(PY) -m roi_node.app.rig_doc docs/rig-config.md
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check roi_node test bench examples
