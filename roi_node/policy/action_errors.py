@@ -1,0 +1,60 @@
+"""Why an action vector, an action name or a policy was refused: each names the joint, value or module at fault."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from roi_node.core.errors import ConfigError, InputDataError
+
+
+class UnknownActionNameError(ConfigError):
+    """An action name (from the dataset features or the policy) that no robot of the rig has as a JointState name."""
+
+    def __init__(self, name: str, rig: str, known: Sequence[str]) -> None:
+        shown = ", ".join(known[:8]) + (", ..." if len(known) > 8 else "")
+        super().__init__(f"action name {name!r} is no joint of the rig {rig} (its JointState names: {shown})")
+        self.name = name
+        self.rig = rig
+        self.known = tuple(known)
+
+
+class ActionShapeError(InputDataError):
+    """A policy output that is not a vector or chunk of the action's length; the policy and the features disagree."""
+
+    def __init__(self, source: str, shape: tuple[int, ...], length: int) -> None:
+        super().__init__(
+            f"{source}: returned an action of shape {shape}; expected ({length},) or a chunk (steps, {length}) "
+            f"over the {length} action names"
+        )
+        self.source = source
+        self.shape = shape
+        self.length = length
+
+
+class ActionNamesError(InputDataError):
+    """A policy output given as a mapping whose joint names are not exactly the action names."""
+
+    def __init__(self, source: str, missing: Sequence[str], unknown: Sequence[str]) -> None:
+        parts = ([f"missing {', '.join(missing)}"] if missing else []) + ([f"unknown {', '.join(unknown)}"] if unknown else [])
+        super().__init__(f"{source}: returned a mapping of joint names that is not the action's names: {'; '.join(parts)}")
+        self.source = source
+        self.missing = tuple(missing)
+        self.unknown = tuple(unknown)
+
+
+class NonFiniteActionError(InputDataError):
+    """A policy output holding NaN or infinity: refused and counted, never published."""
+
+    def __init__(self, source: str, joints: Sequence[str]) -> None:
+        super().__init__(f"{source}: returned a non-finite action (NaN or inf) for {', '.join(joints)}; refused, not published")
+        self.source = source
+        self.joints = tuple(joints)
+
+
+class PolicyLoadError(ConfigError):
+    """A --policy that cannot be loaded: a module that does not import, a missing function, a pretrained dir without its files."""
+
+    def __init__(self, policy: str, problem: str) -> None:
+        super().__init__(f"--policy {policy}: {problem}")
+        self.policy = policy
+        self.problem = problem

@@ -1,0 +1,76 @@
+"""What the action side did, for /diagnostics and the run's summary: published, refused, clamped, and how late.
+
+The latency is from a frame's header stamp to the publishing of the first
+action computed from that frame's observation: what the policy, the node and
+the observation path add together before the robot is told anything new.
+"""
+
+from __future__ import annotations
+
+from collections import Counter, deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from roi_node.policy.actions import ClampKind
+
+LATENCY_WINDOW = 1000  # the latest chunks' latencies kept for the percentiles
+
+
+@dataclass(frozen=True)
+class LatencySummary:
+    count: int
+    p50_ms: float
+    p99_ms: float
+    max_ms: float
+
+
+@dataclass
+class ActionStats:
+    """Counts since start, and since the last diagnostics window for the level of the status."""
+
+    published: int = 0
+    chunks: int = 0
+    policy_calls: int = 0
+    refused: Counter[str] = field(default_factory=Counter)  # by error class name
+    refused_window: Counter[str] = field(default_factory=Counter)
+    last_refusal: str = ""
+    clamps: dict[ClampKind, Counter[str]] = field(default_factory=lambda: {k: Counter() for k in ClampKind})
+    clamps_window: dict[ClampKind, Counter[str]] = field(default_factory=lambda: {k: Counter() for k in ClampKind})
+    _latencies_ms: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
+
+    def count_refusal(self, kind: str, message: str) -> None:
+        self.refused[kind] += 1
+        self.refused_window[kind] += 1
+        self.last_refusal = message
+
+    def count_clamps(self, clamped: dict[ClampKind, tuple[str, ...]]) -> None:
+        for kind, joints in clamped.items():
+            self.clamps[kind].update(joints)
+            self.clamps_window[kind].update(joints)
+
+    def count_latency(self, frame_stamp_ns: int, published_ns: int) -> None:
+        self._latencies_ms.append((published_ns - frame_stamp_ns) / 1e6)
+
+    def latency(self) -> LatencySummary | None:
+        if not self._latencies_ms:
+            return None
+        values = np.fromiter(self._latencies_ms, dtype=np.float64)
+        return LatencySummary(len(values), float(np.percentile(values, 50)), float(np.percentile(values, 99)), float(values.max()))
+
+    def end_window(self) -> None:
+        self.refused_window.clear()
+        for counts in self.clamps_window.values():
+            counts.clear()
+
+    def summary(self) -> str:
+        latency = self.latency()
+        clamps = {kind.value: sum(c.values()) for kind, c in self.clamps.items()}
+        return (
+            f"{self.published} actions published from {self.chunks} chunks ({self.policy_calls} policy calls); "
+            f"refused {sum(self.refused.values())}"
+            + (f" ({', '.join(f'{k} {v}' for k, v in sorted(self.refused.items()))})" if self.refused else "")
+            + f"; clamped {clamps[ClampKind.LIMIT]} to a URDF limit, {clamps[ClampKind.STEP]} to the maximum step; "
+            + ("frame -> first action n/a" if latency is None
+               else f"frame -> first action p50 {latency.p50_ms:.1f} ms, p99 {latency.p99_ms:.1f} ms")
+        )

@@ -1,0 +1,50 @@
+"""ActionStats -> the `roi_node: policy actions` status on /diagnostics (formatted as ros/diagnostics.py formats the node's).
+
+Levels: ERROR when a policy output was refused in the last window (NaN,
+wrong shape: nothing of it reached the robot), WARN when the clamp changed a
+command in the last window, OK otherwise. The counts since start are in the
+values, by joint for the clamps.
+"""
+
+from __future__ import annotations
+
+import json
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+from roi_node.policy.action_stats import ActionStats
+from roi_node.ros.conversions import header
+from roi_node.ros.diagnostics import HARDWARE_ID
+
+STATUS_NAME = "roi_node: policy actions"
+
+
+def _kv(key: str, value: object) -> KeyValue:
+    return KeyValue(key=key, value=value if isinstance(value, str) else json.dumps(value, sort_keys=True, default=str))
+
+
+def policy_diagnostics_msg(stamp_ns: int, stats: ActionStats, command_topic: str) -> DiagnosticArray:
+    refused_window = sum(stats.refused_window.values())
+    clamped_window = {kind.value: dict(c) for kind, c in stats.clamps_window.items() if c}
+    latency = stats.latency()
+    if refused_window:
+        level, message = DiagnosticStatus.ERROR, f"{refused_window} policy outputs refused in the last window: {stats.last_refusal}"
+    elif clamped_window:
+        level = DiagnosticStatus.WARN
+        message = "clamped in the last window: " + "; ".join(f"{k} {sorted(v)}" for k, v in clamped_window.items())
+    else:
+        level, message = DiagnosticStatus.OK, f"{stats.published} actions published on {command_topic}"
+    values = {
+        "command_topic": command_topic,
+        "actions_published": stats.published,
+        "chunks": stats.chunks,
+        "policy_calls": stats.policy_calls,
+        "refused_by_kind": dict(stats.refused),
+        "last_refusal": stats.last_refusal,
+        "clamped_by_joint": {kind.value: dict(c) for kind, c in stats.clamps.items()},
+        "frame_to_first_action_ms": None if latency is None else
+        {"count": latency.count, "p50": round(latency.p50_ms, 3), "p99": round(latency.p99_ms, 3), "max": round(latency.max_ms, 3)},
+    }
+    status = DiagnosticStatus(level=level, name=STATUS_NAME, message=message, hardware_id=HARDWARE_ID,
+                              values=[_kv(k, v) for k, v in values.items()])
+    return DiagnosticArray(header=header(stamp_ns, ""), status=[status])
