@@ -13,7 +13,10 @@ The layout is what rosbag2's MCAP storage plugin writes: profile "ros2",
 schemas "ros2msg", channels "cdr" with `offered_qos_profiles` (YAML) and
 `topic_type_hash` metadata, chunk CRCs of the uncompressed chunk data, lz4
 or zstd chunk compression, message indexes after each chunk, and a
-"rosbag2" metadata record holding the bag information.
+"rosbag2" metadata record holding the bag information. Attachment and
+further metadata records (the rig inputs a bag carries,
+bag/rig_attachments.py) are written outside chunks and indexed in the
+summary, where the mcap readers list them and rosbag2 ignores them.
 """
 
 from __future__ import annotations
@@ -32,6 +35,8 @@ import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (
+    Attachment,
+    AttachmentIndex,
     Channel,
     ChunkIndex,
     DataEnd,
@@ -113,6 +118,7 @@ class McapFileWriter:
         self._channels: dict[str, Channel] = {}
         self._chunk_indexes: list[ChunkIndex] = []
         self._metadata_indexes: list[MetadataIndex] = []
+        self._attachment_indexes: list[AttachmentIndex] = []
         self._pending = _Pending()
         self._sequence: Counter[int] = Counter()
         self.counts: Counter[str] = Counter()  # messages per topic in the file (written chunks only)
@@ -160,6 +166,25 @@ class McapFileWriter:
             self._stream.truncate(self.size_bytes)
         except OSError:
             pass  # the file keeps a torn tail; a reader (and `recover`) stops at the last whole record
+
+    def attach(self, name: str, media_type: str, data: bytes) -> None:
+        """Write one attachment record (outside any chunk, with its CRC) and index it in the summary."""
+        out = RecordBuilder()
+        offset = self.size_bytes
+        Attachment(create_time=0, log_time=0, name=name, media_type=media_type, data=data).write(out)
+        length = out.count
+        self._emit(out.end())
+        self._attachment_indexes.append(AttachmentIndex(offset=offset, length=length, log_time=0, create_time=0,
+                                                        data_size=len(data), name=name, media_type=media_type))
+
+    def add_metadata(self, name: str, metadata: dict[str, str]) -> None:
+        """Write one metadata record (outside any chunk) and index it in the summary."""
+        out = RecordBuilder()
+        offset = self.size_bytes
+        Metadata(name=name, metadata=metadata).write(out)
+        length = out.count
+        self._emit(out.end())
+        self._metadata_indexes.append(MetadataIndex(offset=offset, length=length, name=name))
 
     def add_topic(self, spec: TopicSpec) -> None:
         if spec.name in self._channels:
@@ -249,7 +274,7 @@ class McapFileWriter:
         out = RecordBuilder()
         metadata_offset = self.size_bytes
         Metadata(name="rosbag2", metadata={"serialized_metadata": bag_information_yaml}).write(out)
-        metadata_index = MetadataIndex(offset=metadata_offset, length=out.count, name="rosbag2")
+        metadata_indexes = [*self._metadata_indexes, MetadataIndex(offset=metadata_offset, length=out.count, name="rosbag2")]
         DataEnd(0).write(out)
         summary_start = self.size_bytes + out.count
         summary = RecordBuilder()
@@ -265,7 +290,12 @@ class McapFileWriter:
         group(Opcode.CHANNEL, lambda: [c.write(summary) for c in self._channels.values()])
         group(Opcode.STATISTICS, lambda: self._statistics().write(summary))
         group(Opcode.CHUNK_INDEX, lambda: [i.write(summary) for i in self._chunk_indexes])
-        group(Opcode.METADATA_INDEX, lambda: metadata_index.write(summary))
+        group(Opcode.ATTACHMENT_INDEX, lambda: [i.write(summary) for i in self._attachment_indexes])
+        def write_metadata_indexes() -> None:
+            for index in metadata_indexes:
+                index.write(summary)
+
+        group(Opcode.METADATA_INDEX, write_metadata_indexes)
         summary_offset_start = summary_start + summary.count
         for offset in groups:
             offset.write(summary)
@@ -284,8 +314,8 @@ class McapFileWriter:
             message_count=self.message_count,
             schema_count=len(self._schemas),
             channel_count=len(self._channels),
-            attachment_count=0,
-            metadata_count=1,
+            attachment_count=len(self._attachment_indexes),
+            metadata_count=len(self._metadata_indexes) + 1,  # and the rosbag2 record
             chunk_count=len(self._chunk_indexes),
             message_start_time=self.start_ns or 0,
             message_end_time=self.end_ns or 0,

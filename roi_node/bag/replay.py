@@ -53,6 +53,7 @@ from .mcap_file import Compression
 from .messages import MessageFactory
 from .progress import Progress
 from .reader import DESERIALIZE_ERRORS, Cdr, check_bag_path, deserialize, open_bag, read_messages, stamp_ns, topic_stats, verify_chunks
+from .rig_attachments import RigInputs, rig_inputs
 from .stamp_audit import IMPLAUSIBLE_STAMPS_KEY, StampAudit
 from .streams import BadMessages, Streams, read_streams
 from .summary import ReplaySummary, summary_from_stats
@@ -109,6 +110,7 @@ def replay_bag(
     output_transport: OutputTransport | str = OutputTransport.RAW,
     jpeg_quality: int = DEFAULT_JPEG_QUALITY,
     overlay: bool = False,
+    carried_rig: RigInputs | None = None,
 ) -> ReplaySummary:
     """Replay one rosbag2 bag (folder, .mcap or .db3) through the rig's pipeline into an MCAP bag.
 
@@ -116,6 +118,8 @@ def replay_bag(
     `intrinsics_from_bag` is set or when `camera_info_topic` is given. The
     image outputs are raw, `/compressed` (JPEG at `jpeg_quality`) or both, as
     the node's `output_transport`; `overlay` adds the node's `roi/overlay`.
+    The output carries the rig's files (bag/rig_attachments.py): `carried_rig`
+    when the rig was extracted from a bag, else those `config_path` loads.
     Raises BagError / ConfigError / ImageError naming what is wrong (no output
     is left behind), or ReplayInterrupted after finalizing a partial output.
     """
@@ -124,6 +128,7 @@ def replay_bag(
     check_output_path(source, target, overwrite)
     outputs = _output_options(output_transport, jpeg_quality, overlay)
     rig = load_rig_config(config_path)
+    carried = carried_rig or rig_inputs(rig)
     from_bag = rig.camera.intrinsics is None or intrinsics_from_bag or camera_info_topic is not None
     started = time.perf_counter()
     with open_bag(source) as reader:
@@ -143,7 +148,7 @@ def replay_bag(
             streams = read_streams(reader, selection, source, rig.camera.rectified, ledger)
             replay = _Replay(rig, source, selection, streams, ledger, from_bag, progress)
             return replay.run(reader, target, overwrite=overwrite, include_inputs=include_inputs, started=started,
-                              compression=Compression(compression), outputs=outputs)
+                              compression=Compression(compression), outputs=outputs, carried=carried)
         except RoiNodeError as exc:
             # a damaged chunk the frame pass never reached may be the cause: then say that
             if not isinstance(exc, BagWriteError | UsageError | PartialOutputDiscardedError) and not ledger.damaged:
@@ -218,13 +223,13 @@ class _Replay:
                 )
 
     def run(self, reader: AnyReader, target: Path, *, overwrite: bool, include_inputs: bool, started: float,
-            compression: Compression, outputs: OutputOptions) -> ReplaySummary:
+            compression: Compression, outputs: OutputOptions, carried: RigInputs) -> ReplaySummary:
         wanted = {self.selection.image_topic, *(self.selection.stream_topics if include_inputs else ())}
         connections = [c for c in reader.connections if c.topic in wanted]
         with DeferredInterrupt() as interrupt:
             try:
                 # atomic: the output appears only finalized; interrupted, it is kept as <out>.interrupted
-                writer = BagWriter(target, overwrite=overwrite, compression=compression)
+                writer = BagWriter(target, overwrite=overwrite, compression=compression, rig=carried)
                 with writer:
                     out = _OutputTopics(writer, self.rig, self.engine.pipeline.arm_ids() if self.engine.pipeline else (), outputs)
                     if include_inputs:

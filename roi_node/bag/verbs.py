@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..arg_types import int_at_least
+from ..core.errors import UsageError
 from ..ray_options import RayJob, add_ray_options
 
 if TYPE_CHECKING:
@@ -54,11 +55,22 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _replay_one(source: Path, args: argparse.Namespace) -> int:
-    """One input: OUT is the output bag; errors propagate to cli.main (one line, exit 2)."""
+    """One input: OUT is the output bag; errors propagate to cli.main (one line, exit 2).
+
+    Without --config the rig comes from the bag itself (bag/rig_attachments.py), and the output carries it as stored.
+    """
+    from .reader import check_bag_path
     from .replay import ReplayInterrupted, replay_bag
+    from .rig_attachments import stored_rig
 
     try:
-        summary = replay_bag(source, Path(args.output), Path(args.config), progress=True, **replay_options(args))
+        if args.config is not None:
+            summary = replay_bag(source, Path(args.output), Path(args.config), progress=True, **replay_options(args))
+        else:
+            check_bag_path(source)
+            with stored_rig(source) as (config, carried):
+                print(f"replay: using the rig stored in {source} ({carried.described()})", file=sys.stderr)
+                summary = replay_bag(source, Path(args.output), config, progress=True, carried_rig=carried, **replay_options(args))
     except ReplayInterrupted as exc:
         print("\n".join(exc.summary.lines()))
         print(_interrupted_note(exc.summary), file=sys.stderr)
@@ -76,6 +88,8 @@ def _replay_many(inputs: list[Path], args: argparse.Namespace) -> int:
             state = "failed" if outcome.summary is None else outcome.summary.status
             print(f"roi-node replay: {outcome.input_path}: {state}", file=sys.stderr)
 
+    if args.config is None:
+        raise UsageError("replay: several input bags need --config RIG_YAML (a bag's stored rig is used when replaying one bag)")
     out = Path(args.output)
     # progress lines of parallel workers would overwrite each other: one line per finished bag instead
     options = {**replay_options(args), "progress": args.workers == 1}
@@ -153,7 +167,8 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     replay.add_argument("inputs", nargs="+", metavar="IN", help="input bag(s)")
     replay.add_argument("-o", "--output", required=True, metavar="OUT", help="output bag (one input) or folder (several inputs)")
-    replay.add_argument("--config", required=True, metavar="RIG_YAML", help="rig config (see config/rig_demo_bimanual.yaml)")
+    replay.add_argument("--config", metavar="RIG_YAML",
+                        help="rig config (see config/rig_demo_bimanual.yaml); default: the rig stored in the bag (one input only)")
     replay.add_argument("--overwrite", action="store_true", help="replace existing outputs (only once the new one is complete)")
     compression_option(replay)
     replay.add_argument("--include-inputs", action="store_true", help="also copy the input topics used into the output bag")

@@ -28,7 +28,7 @@ from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import yaml
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
@@ -39,8 +39,11 @@ from rosbags.typesys.store import Typestore
 from ..core.atomic_output import check_target, commit, keep_interrupted, remove_path, temporary_sibling
 from ..core.errors import BagWriteError
 from .bag_status import BagStatus
-from .mcap_file import Compression, McapFileWriter, TopicSpec
+from .mcap_file import DEFAULT_CHUNK_BYTES, Compression, McapFileWriter, TopicSpec
 from .storage_io import StorageOpener, open_storage, reserve_space
+
+if TYPE_CHECKING:
+    from .rig_attachments import RigInputs
 
 ROSBAG2_VERSION: Literal[9] = 9
 STATUS_KEY = "roi_node.status"
@@ -116,8 +119,14 @@ class BagWriter:
         numbered: bool = False,
         in_place: bool = False,
         open_file: StorageOpener | None = None,
+        rig: RigInputs | None = None,
+        chunk_bytes: int = DEFAULT_CHUNK_BYTES,
     ) -> None:
-        """`open_file` opens each storage file (default `open_storage`); tests pass one whose writes fail."""
+        """`open_file` opens each storage file (default `open_storage`); tests pass one whose writes fail.
+
+        `rig`: the rig's files, attached to every storage file (bag/rig_attachments.py) so each file
+        can be replayed on its own; `chunk_bytes`: the uncompressed size at which a chunk is written.
+        """
         self.path = Path(path)
         check_target(self.path, overwrite)
         self.typestore = typestore()
@@ -127,6 +136,8 @@ class BagWriter:
         self._numbered = numbered or split is not None
         self._in_place = in_place
         self._open_storage = open_file or open_storage
+        self.rig = rig
+        self._chunk_bytes = chunk_bytes
         self._dir = self.path if in_place else temporary_sibling(self.path)
         self._topics: dict[str, _Topic] = {}
         self.counts: dict[str, int] = {}
@@ -182,7 +193,9 @@ class BagWriter:
         path = self._dir / self._file_name()
         self._stream = self._open_storage(path)
         try:
-            self._file = McapFileWriter(self._stream, compression=self.compression)
+            self._file = McapFileWriter(self._stream, compression=self.compression, chunk_bytes=self._chunk_bytes)
+            if self.rig is not None:
+                self.rig.write_to(self._file)
         except OSError:  # not even the header fits: leave no empty file behind
             self._stream.close()
             path.unlink(missing_ok=True)

@@ -15,6 +15,7 @@ from pathlib import Path
 from ..bag.mcap_file import Compression
 from ..bag.messages import MessageFactory
 from ..bag.progress import Progress
+from ..bag.rig_attachments import rig_inputs
 from ..bag.writer import BagWriter
 from ..core import topics
 from ..core.config import RigConfig
@@ -66,6 +67,7 @@ def write_sim_bag(
     sim = SimRig(
         rig_config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms, start_ns=start_ns, look=look
     )
+    bag.rig = rig_inputs(sim.rig)  # the bag carries the rig it was simulated from (bag/rig_attachments.py)
     return _drain(sim, bag, duration_s, fmt, Progress(f"sim {bag.path.name}", sim.frame_count(duration_s), progress))
 
 
