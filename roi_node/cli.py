@@ -23,7 +23,7 @@ DEBUG_FLAG = "--debug"
 VERB_MODULES = (
     "roi_node.ros.verbs", "roi_node.bag.verbs", "roi_node.report.verbs", "roi_node.app.verbs", "roi_node.export.verbs",
     "roi_node.app.rig_verbs", "roi_node.ros.tool_verbs",
-    "roi_node.app.rig_setup_verbs",
+    "roi_node.app.rig_setup_verbs", "roi_node.policy.verbs",
 )
 
 

@@ -1,0 +1,25 @@
+"""The policy side's error classes: RoiNodeErrors, so the CLI prints each as one line and exits 2."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from roi_node.core.errors import ConfigError, RoiNodeError
+
+
+class PolicyFeaturesError(ConfigError):
+    """A dataset's info.json or a checkpoint's config.json that is missing, malformed or lacks what a policy needs."""
+
+    def __init__(self, path: Path, problem: str) -> None:
+        super().__init__(f"{path}: {problem}")
+        self.path = path
+        self.problem = problem
+
+
+class NodeNotObservedError(RoiNodeError):
+    """The running node could not be described: no complete observation (or too few) arrived in time."""
+
+    def __init__(self, waited_s: float, reason: str) -> None:
+        super().__init__(f"no description of the running node after {waited_s:g} s: {reason}")
+        self.waited_s = waited_s
+        self.reason = reason

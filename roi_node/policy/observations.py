@@ -1,0 +1,191 @@
+"""Live observations keyed, shaped, typed and ordered exactly as `LeRobotDataset.__getitem__` yields a frame.
+
+`PolicyObservationStream` wraps `ObservationClient` (one complete frame: the
+ROI views, the global view and its metadata record, matched on the header
+stamp) and turns each frame into `PolicyObservation.batch`, the mapping
+lerobot 0.4's `LeRobotDataset.__getitem__` returns for a frame of the dataset
+the policy trained on:
+
+- every image key of the features as float32 C x H x W in [0, 1]: the node's
+  uint8 RGB pixels divided by 255, which is what LeRobot's video decoder does
+  to the uint8 frames it decodes (so a lossless dataset and the live stream
+  hold the same float32 values);
+- `observation.state` as float32 in the features' name order (by name, never
+  by position);
+- every other observation column the dataset holds that a record carries (the
+  export's per-arm ROI numbers, the source stamp and frame index), with
+  LeRobot's shapes: a feature of shape [1] is a 0-d value, as LeRobot stores it;
+- `task`, the instruction the caller gives (LeRobot adds it from the task index).
+
+Not carried, since a live frame has no value for them: `action` (what the
+policy is to produce) and LeRobot's bookkeeping columns (LEROBOT_DEFAULT_KEYS:
+timestamp, frame_index, episode_index, index, task_index), which only locate a
+frame inside a stored dataset. The record's source stamp and frame index are
+the live frame's identity instead. Besides the batch, a control loop learns
+how fresh the frame is: its age at delivery (now - header stamp on the node's
+clock) and the age of the joint sample its state was synchronised to.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from types import TracebackType
+
+import numpy as np
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+
+from roi_node.core.compressed_outputs import OutputTransport
+from roi_node.core.records import FrameRecord
+from roi_node.export.features import GLOBAL_KEY, STATE_KEY, FrameColumns, ImageSize
+from roi_node.policy.errors import NodeNotObservedError
+from roi_node.policy.features import LEROBOT_DEFAULT_KEYS, PolicyFeatures
+from roi_node.policy.preflight import NodePublication
+from roi_node.ros.consumer import Observation, ObservationClient
+from roi_node.ros.remote_node import client_node
+
+TASK_KEY = "task"
+PIXEL_SCALE = np.float32(255.0)
+LIVE_ABSENT_KEYS = ("action", *LEROBOT_DEFAULT_KEYS)  # dataset keys the live batch cannot carry (module docstring)
+DESCRIBE_FRAMES = 10  # consecutive frames the camera rate is measured over
+
+
+@dataclass(frozen=True)
+class PolicyObservation:
+    """One live frame as a policy takes it, with its freshness and its metadata record."""
+
+    batch: dict[str, np.ndarray | str]
+    stamp_ns: int
+    frame_age_s: float  # delivery time - header stamp, on the node's clock
+    joint_age_s: float | None  # delivery time - the synchronised joint sample's stamp; None without one
+    record: FrameRecord
+
+
+def image_chw(pixels: np.ndarray) -> np.ndarray:
+    """H x W x 3 uint8 RGB -> 3 x H x W float32 in [0, 1], as LeRobot's decoder turns a uint8 frame into a tensor."""
+    return np.ascontiguousarray(pixels.transpose(2, 0, 1)).astype(np.float32) / PIXEL_SCALE
+
+
+def make_batch(features: PolicyFeatures, observation: Observation, record: FrameRecord, task: str) -> dict[str, np.ndarray | str]:
+    """The LeRobotDataset-shaped mapping of one complete frame (keys in LeRobot's order: images, columns, task)."""
+    batch: dict[str, np.ndarray | str] = {}
+    for image in features.images:
+        pixels = observation.global_image if image.key == GLOBAL_KEY else observation.rois.get(image.arm_id or "")
+        if pixels is None:
+            raise KeyError(image.key)  # the preflight refuses features whose images the node does not publish
+        batch[image.key] = image_chw(pixels)
+    arms = tuple(arm.arm_id for arm in record.arms)
+    columns = FrameColumns(arms, tuple(name for name, _ in record.joint_positions))
+    columns.add(record, f"metadata record {record.stamp_ns}")
+    values = columns.select([0], features.state_names)
+    batch[STATE_KEY] = values[STATE_KEY][0]
+    for numeric in features.numeric:
+        value = values[numeric.key][0]
+        batch[numeric.key] = value.reshape(()) if numeric.shape == (1,) else value.reshape(numeric.shape)
+    batch[TASK_KEY] = task
+    return batch
+
+
+class PolicyObservationStream:
+    """Observations from a running roi_node, keyed like `features`' dataset; a context manager and an iterator.
+
+    With `node` None the stream runs its own hidden client node (own rclpy
+    context, `ros_args` for a namespace or remaps) and spins it on a thread.
+    `latest` True is the control-loop mode (each `next` is the newest frame
+    after the last one handed out, a backlog skipped); False hands out every
+    frame in order. Iterating stops when no frame arrives within `timeout_s`,
+    raising NodeNotObservedError that names the silent topic.
+    """
+
+    def __init__(self, features: PolicyFeatures, *, task: str = "", node: Node | None = None, latest: bool = True,
+                 transport: str = OutputTransport.RAW, timeout_s: float = 10.0, ros_args: Sequence[str] = ()) -> None:
+        self.features = features
+        self.task = task
+        self.latest = latest
+        self.timeout_s = timeout_s
+        self._transport = transport
+        self._ros_args = tuple(ros_args)
+        self._given_node = node
+        self._node: Node | None = node
+        self._client: ObservationClient | None = None
+        self._owned = contextlib.ExitStack()  # the hidden client node, when this stream runs its own
+        self._executor: SingleThreadedExecutor | None = None
+        self._stop = threading.Event()
+        self._spinner: threading.Thread | None = None
+        self._last_stamp_ns: int | None = None
+
+    def __enter__(self) -> PolicyObservationStream:
+        if self._given_node is None:
+            self._node, self._executor = self._owned.enter_context(client_node(self._ros_args))
+            self._spinner = threading.Thread(target=self._spin, name="policy-observations", daemon=True)
+        assert self._node is not None
+        self._client = ObservationClient(self._node, None, max_buffer=4 if self.latest else 60, transport=self._transport)
+        if self._spinner is not None:
+            self._spinner.start()
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+        self._stop.set()
+        if self._spinner is not None:
+            self._spinner.join()
+        self._owned.close()
+
+    def _spin(self) -> None:
+        assert self._executor is not None
+        while not self._stop.is_set():
+            self._executor.spin_once(timeout_sec=0.05)
+
+    @property
+    def client(self) -> ObservationClient:
+        if self._client is None:
+            raise RuntimeError("PolicyObservationStream: use it inside a `with` block")
+        return self._client
+
+    def _next_frame(self, timeout_s: float, every_frame: bool) -> Observation:
+        client = self.client
+        started = time.monotonic()
+        frame = client.get(timeout_s) if every_frame else client.latest(self._last_stamp_ns, timeout_s)
+        if frame is None:
+            raise NodeNotObservedError(time.monotonic() - started, client.waiting_for() or "no new complete frame")
+        self._last_stamp_ns = frame.stamp_ns
+        return frame
+
+    def next(self, timeout_s: float | None = None) -> PolicyObservation:
+        """The next observation (see `latest`); NodeNotObservedError after `timeout_s` (default: the stream's)."""
+        frame = self._next_frame(self.timeout_s if timeout_s is None else timeout_s, not self.latest)
+        record = FrameRecord.from_dict(frame.metadata)
+        batch = make_batch(self.features, frame, record, self.task)
+        assert self._node is not None
+        now_ns = self._node.get_clock().now().nanoseconds
+        joint_ns = record.sync.joint_stamp_ns
+        return PolicyObservation(batch, frame.stamp_ns, (now_ns - frame.stamp_ns) / 1e9,
+                                 None if joint_ns is None else (now_ns - joint_ns) / 1e9, record)
+
+    def __iter__(self) -> Iterator[PolicyObservation]:
+        while True:
+            yield self.next()
+
+    def describe_node(self, frames: int = DESCRIBE_FRAMES, timeout_s: float | None = None) -> NodePublication:
+        """What the node publishes, from `frames` consecutive complete frames (the preflight's input).
+
+        Every frame in order, whatever `latest` says: the camera rate is the
+        median gap between consecutive stamps."""
+        deadline = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)
+        records: list[FrameRecord] = []
+        first: Observation | None = None
+        while len(records) < frames:
+            frame = self._next_frame(max(deadline - time.monotonic(), 0.0), every_frame=True)
+            first = first or frame
+            records.append(FrameRecord.from_dict(frame.metadata))
+        assert first is not None
+        rois = tuple(_size(first.rois[arm]) for arm in self.client.arm_ids)
+        view = None if first.global_image is None else _size(first.global_image)
+        return NodePublication.from_observations(records, rois, view)
+
+
+def _size(pixels: np.ndarray) -> ImageSize:
+    return ImageSize(int(pixels.shape[0]), int(pixels.shape[1]))
