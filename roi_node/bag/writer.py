@@ -39,7 +39,7 @@ from rosbags.typesys.store import Typestore
 from ..core.atomic_output import check_target, commit, keep_interrupted, remove_path, temporary_sibling
 from ..core.errors import BagWriteError
 from .bag_status import BagStatus
-from .mcap_file import DEFAULT_CHUNK_BYTES, Compression, McapFileWriter, TopicSpec
+from .mcap_file import Compression, McapFileWriter, TopicSpec
 from .storage_io import StorageOpener, open_storage, reserve_space
 
 if TYPE_CHECKING:
@@ -120,12 +120,13 @@ class BagWriter:
         in_place: bool = False,
         open_file: StorageOpener | None = None,
         rig: RigInputs | None = None,
-        chunk_bytes: int = DEFAULT_CHUNK_BYTES,
+        chunk_bytes: int | None = None,
     ) -> None:
         """`open_file` opens each storage file (default `open_storage`); tests pass one whose writes fail.
 
         `rig`: the rig's files, attached to every storage file (bag/rig_attachments.py) so each file
-        can be replayed on its own; `chunk_bytes`: the uncompressed size at which a chunk is written.
+        can be replayed on its own; `chunk_bytes`: the uncompressed size at which a chunk is written
+        (None: McapFileWriter's default).
         """
         self.path = Path(path)
         check_target(self.path, overwrite)
@@ -193,7 +194,8 @@ class BagWriter:
         path = self._dir / self._file_name()
         self._stream = self._open_storage(path)
         try:
-            self._file = McapFileWriter(self._stream, compression=self.compression, chunk_bytes=self._chunk_bytes)
+            sizing = {} if self._chunk_bytes is None else {"chunk_bytes": self._chunk_bytes}
+            self._file = McapFileWriter(self._stream, compression=self.compression, **sizing)
             if self.rig is not None:
                 self.rig.write_to(self._file)
         except OSError:  # not even the header fits: leave no empty file behind
