@@ -37,7 +37,10 @@ class ActionStats:
     last_refusal: str = ""
     clamps: dict[ClampKind, Counter[str]] = field(default_factory=lambda: {k: Counter() for k in ClampKind})
     clamps_window: dict[ClampKind, Counter[str]] = field(default_factory=lambda: {k: Counter() for k in ClampKind})
+    starved_ticks: int = 0  # ticks with no step left and no newer observation to ask the policy with: nothing published
+    late_ticks: int = 0  # ticks skipped because the policy computed past them
     _latencies_ms: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
+    _observation_ages_ms: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
 
     def count_refusal(self, kind: str, message: str) -> None:
         self.refused[kind] += 1
@@ -52,11 +55,17 @@ class ActionStats:
     def count_latency(self, frame_stamp_ns: int, published_ns: int) -> None:
         self._latencies_ms.append((published_ns - frame_stamp_ns) / 1e6)
 
+    def count_observation_age(self, frame_age_s: float) -> None:
+        """How old a frame was when its observation reached the policy (delivery - header stamp)."""
+        self._observation_ages_ms.append(frame_age_s * 1e3)
+
     def latency(self) -> LatencySummary | None:
-        if not self._latencies_ms:
-            return None
-        values = np.fromiter(self._latencies_ms, dtype=np.float64)
-        return LatencySummary(len(values), float(np.percentile(values, 50)), float(np.percentile(values, 99)), float(values.max()))
+        """Frame stamp -> first action of the chunk published."""
+        return _summary(self._latencies_ms)
+
+    def observation_age(self) -> LatencySummary | None:
+        """Frame stamp -> observation delivered to the policy."""
+        return _summary(self._observation_ages_ms)
 
     def end_window(self) -> None:
         self.refused_window.clear()
@@ -68,9 +77,16 @@ class ActionStats:
         clamps = {kind.value: sum(c.values()) for kind, c in self.clamps.items()}
         return (
             f"{self.published} actions published from {self.chunks} chunks ({self.policy_calls} policy calls); "
-            f"refused {sum(self.refused.values())}"
+            f"{self.starved_ticks} ticks starved, {self.late_ticks} skipped late; refused {sum(self.refused.values())}"
             + (f" ({', '.join(f'{k} {v}' for k, v in sorted(self.refused.items()))})" if self.refused else "")
             + f"; clamped {clamps[ClampKind.LIMIT]} to a URDF limit, {clamps[ClampKind.STEP]} to the maximum step; "
             + ("frame -> first action n/a" if latency is None
                else f"frame -> first action p50 {latency.p50_ms:.1f} ms, p99 {latency.p99_ms:.1f} ms")
         )
+
+
+def _summary(values_ms: deque[float]) -> LatencySummary | None:
+    if not values_ms:
+        return None
+    values = np.fromiter(values_ms, dtype=np.float64)
+    return LatencySummary(len(values), float(np.percentile(values, 50)), float(np.percentile(values, 99)), float(values.max()))

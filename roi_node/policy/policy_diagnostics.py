@@ -12,7 +12,7 @@ import json
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-from roi_node.policy.action_stats import ActionStats
+from roi_node.policy.action_stats import ActionStats, LatencySummary
 from roi_node.ros.conversions import header
 from roi_node.ros.diagnostics import HARDWARE_ID
 
@@ -23,10 +23,16 @@ def _kv(key: str, value: object) -> KeyValue:
     return KeyValue(key=key, value=value if isinstance(value, str) else json.dumps(value, sort_keys=True, default=str))
 
 
+def _percentiles(summary: LatencySummary | None) -> dict[str, float] | None:
+    if summary is None:
+        return None
+    return {"count": summary.count, "p50": round(summary.p50_ms, 3), "p99": round(summary.p99_ms, 3), "max": round(summary.max_ms, 3)}
+
+
 def policy_diagnostics_msg(stamp_ns: int, stats: ActionStats, command_topic: str) -> DiagnosticArray:
     refused_window = sum(stats.refused_window.values())
     clamped_window = {kind.value: dict(c) for kind, c in stats.clamps_window.items() if c}
-    latency = stats.latency()
+    latency, observation_age = stats.latency(), stats.observation_age()
     if refused_window:
         level, message = DiagnosticStatus.ERROR, f"{refused_window} policy outputs refused in the last window: {stats.last_refusal}"
     elif clamped_window:
@@ -42,8 +48,10 @@ def policy_diagnostics_msg(stamp_ns: int, stats: ActionStats, command_topic: str
         "refused_by_kind": dict(stats.refused),
         "last_refusal": stats.last_refusal,
         "clamped_by_joint": {kind.value: dict(c) for kind, c in stats.clamps.items()},
-        "frame_to_first_action_ms": None if latency is None else
-        {"count": latency.count, "p50": round(latency.p50_ms, 3), "p99": round(latency.p99_ms, 3), "max": round(latency.max_ms, 3)},
+        "starved_ticks": stats.starved_ticks,
+        "late_ticks": stats.late_ticks,
+        "frame_to_first_action_ms": _percentiles(latency),
+        "frame_to_observation_ms": _percentiles(observation_age),
     }
     status = DiagnosticStatus(level=level, name=STATUS_NAME, message=message, hardware_id=HARDWARE_ID,
                               values=[_kv(k, v) for k, v in values.items()])

@@ -97,3 +97,7 @@ def register(verbs: Any) -> None:
     observe.add_argument("--count", type=int_at_least(1), default=10, help="observations to print, then exit (default: 10)")
     observe.add_argument("--every-frame", action="store_true", help="every frame in order (default: the newest after the last)")
     observe.set_defaults(func=_cmd_observe)
+
+    from roi_node.policy.run_verb import add_run_verb
+
+    add_run_verb(sub, add_features_arguments)

@@ -1,0 +1,130 @@
+"""`--policy`: a Python callable `module:function`, or a LeRobot pretrained-policy folder (config.json + model.safetensors).
+
+Either becomes a `LoadedPolicy` whose `act(batch)` takes one observation
+batch (keys as LeRobotDataset.__getitem__ gives them) and returns what
+`actions.as_action_chunk` reads: a vector, a chunk, or a mapping joint ->
+position. A callable is how an openpi, GR00T or in-house policy is wrapped:
+a few lines that call it on the batch. The current directory is importable,
+as it is for `python -m`, so a policy module next to the user's data works
+without installing it.
+
+A LeRobot folder is loaded with lerobot in the opt-in LeRobot environment
+(`make test-lerobot`'s .venv-lerobot); torch and lerobot are imported only
+here, when such a policy is asked for, so the base install never needs them.
+Its saved pre/post-processors (normalization) are applied when the folder
+has them; the chunk returned is at most the config's n_action_steps, the
+horizon the policy was trained to execute.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+from roi_node.policy.action_errors import PolicyLoadError
+
+LEROBOT_FILES = ("config.json", "model.safetensors")
+PREPROCESSOR_JSON = "policy_preprocessor.json"
+
+
+class PolicyKind(StrEnum):
+    CALLABLE = "callable"
+    LEROBOT = "lerobot"
+
+
+@dataclass(frozen=True)
+class LoadedPolicy:
+    """A policy ready to act: `act(batch)` returns its output; `reset()` starts a new episode (clears queues)."""
+
+    label: str  # what messages call it: the `module:function` or the folder as given
+    kind: PolicyKind
+    act: Callable[[Mapping[str, Any]], Any]
+    reset: Callable[[], None]
+
+
+def policy_kind(spec: str) -> PolicyKind:
+    """A folder (or anything with a path separator that exists) is a LeRobot policy; `module:function` a callable."""
+    path = Path(spec)
+    if path.is_dir():
+        return PolicyKind.LEROBOT
+    if ":" in spec and not path.exists():
+        return PolicyKind.CALLABLE
+    raise PolicyLoadError(spec, "expected a LeRobot pretrained-policy folder (config.json + model.safetensors) "
+                                "or a Python callable as module:function")
+
+
+def check_lerobot_folder(spec: str) -> Path:
+    """The folder, with its config.json and model.safetensors present (checked before the preflight, without opening them)."""
+    folder = Path(spec)
+    missing = [name for name in LEROBOT_FILES if not (folder / name).is_file()]
+    if missing:
+        raise PolicyLoadError(spec, f"not a LeRobot pretrained-policy folder: no {' or '.join(missing)} in it")
+    return folder
+
+
+def load_callable(spec: str) -> LoadedPolicy:
+    """`module:function` imported (the current directory on the path); any import failure is one line naming the module."""
+    module_name, _, function_name = spec.partition(":")
+    if not module_name or not function_name:
+        raise PolicyLoadError(spec, "expected module:function (a dotted module path, a colon, a function name)")
+    if "" not in sys.path and str(Path.cwd()) not in sys.path:
+        sys.path.insert(0, str(Path.cwd()))
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        raise PolicyLoadError(spec, f"cannot import module {module_name!r}: no module named {exc.name!r}") from exc
+    except Exception as exc:  # the module's own code failed on import: a SyntaxError, a missing dependency, its own error
+        raise PolicyLoadError(spec, f"importing module {module_name!r} failed: {type(exc).__name__}: {exc}") from exc
+    function = module
+    for part in function_name.split("."):
+        if not hasattr(function, part):
+            raise PolicyLoadError(spec, f"module {module_name!r} ({getattr(module, '__file__', '?')}) has no attribute {function_name!r}")
+        function = getattr(function, part)
+    if not callable(function):
+        raise PolicyLoadError(spec, f"{function_name!r} in module {module_name!r} is a {type(function).__name__}, not a callable")
+    reset = getattr(function, "reset", None)
+    return LoadedPolicy(spec, PolicyKind.CALLABLE, function, reset if callable(reset) else (lambda: None))
+
+
+def load_lerobot(spec: str) -> LoadedPolicy:
+    """A LeRobot pretrained policy on the CPU, with its saved processors when the folder has them."""
+    folder = check_lerobot_folder(spec)
+    try:
+        import torch
+        from lerobot.configs.policies import PreTrainedConfig
+        from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+    except ImportError as exc:
+        raise PolicyLoadError(spec, f"a LeRobot policy needs lerobot and torch ({exc.name!r} is not installed here): "
+                                    "run it with the LeRobot environment's python (make test-lerobot builds .venv-lerobot)") from exc
+    try:
+        config = PreTrainedConfig.from_pretrained(folder)
+        config.device = "cpu"
+        policy = get_policy_class(config.type).from_pretrained(folder, config=config)
+    except Exception as exc:  # lerobot and safetensors raise many kinds for a bad file; each becomes one line
+        raise PolicyLoadError(spec, f"lerobot could not load it: {type(exc).__name__}: {str(exc).splitlines()[0][:300]}") from exc
+    policy.eval()
+    if (folder / PREPROCESSOR_JSON).is_file():
+        preprocess, postprocess = make_pre_post_processors(config, pretrained_path=str(folder))
+    else:
+        preprocess = postprocess = None
+    steps = int(getattr(config, "n_action_steps", 0) or 0)
+
+    def act(batch: Mapping[str, Any]) -> Any:
+        tensors: dict[str, Any] = {k: torch.as_tensor(v).unsqueeze(0) for k, v in batch.items() if not isinstance(v, str)}
+        with torch.inference_mode():
+            inputs = preprocess(tensors) if preprocess is not None else tensors
+            chunk = policy.predict_action_chunk(inputs)  # (1, chunk_size, A)
+            if postprocess is not None:
+                chunk = postprocess(chunk)
+        return chunk[0, :steps] if steps > 0 else chunk[0]
+
+    return LoadedPolicy(spec, PolicyKind.LEROBOT, act, policy.reset)
+
+
+def load_policy(spec: str) -> LoadedPolicy:
+    return load_lerobot(spec) if policy_kind(spec) is PolicyKind.LEROBOT else load_callable(spec)

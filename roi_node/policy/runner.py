@@ -1,0 +1,225 @@
+"""`roi-node policy run`: observation -> policy -> action chunk -> clamped JointState commands, at the dataset's fps.
+
+Order of a start, each step failing with one line before the next: the
+policy spec and the action names against the rig (no DDS yet), the running
+node described from its outputs and the preflight (before any weights file
+is opened), then the policy's weights. The loop then ticks at the features'
+fps on absolute deadlines: when fewer than `refill_below` steps of the
+current chunk remain and a newer observation than the last one used has
+arrived, the policy is asked and its chunk replaces the rest; one step is
+clamped and published per tick. With no step left and no new observation,
+nothing is published (the robot holds its last command) and the tick is
+counted as starved. A tick missed while the policy computed is skipped, not
+made up in a burst.
+
+Observations are read on a thread of their own (the newest frame wins); a
+node that stops publishing ends the run with the stream's error. A NaN/inf
+output is refused and counted, the run goes on; an output of the wrong shape
+or names ends it (the policy and the features disagree, which no later call
+mends), as does a policy that raises. SIGINT and SIGTERM stop the loop
+between ticks; the last line sums the run up either way.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from types import FrameType
+
+import numpy as np
+from rclpy.node import Node
+
+from roi_node.core.config import load_rig_config
+from roi_node.core.errors import RoiNodeError
+from roi_node.core.sync import NS_PER_S
+from roi_node.policy.action_errors import NonFiniteActionError
+from roi_node.policy.action_publisher import ActionPublisher
+from roi_node.policy.action_stats import ActionStats
+from roi_node.policy.actions import ActionChunkQueue, ActionClamp, action_joints, as_action_chunk
+from roi_node.policy.features import PolicyFeatures
+from roi_node.policy.loaders import LoadedPolicy, PolicyKind, check_lerobot_folder, load_callable, load_lerobot, policy_kind
+from roi_node.policy.observations import PolicyObservation, PolicyObservationStream
+from roi_node.policy.preflight import require_fit
+from roi_node.ros.spin import ros_context
+
+DIAGNOSTICS_PERIOD_NS = NS_PER_S
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class PolicyCallError(RoiNodeError):
+    """The policy raised while acting: the run stops, naming the policy, the frame and the error."""
+
+    def __init__(self, policy: str, stamp_ns: int, error: BaseException) -> None:
+        detail = str(error).splitlines()[0][:300] if str(error) else ""
+        super().__init__(f"--policy {policy}: raised {type(error).__name__}{': ' + detail if detail else ''} "
+                         f"on the observation of frame {stamp_ns}")
+        self.policy = policy
+        self.stamp_ns = stamp_ns
+        self.error = error
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    policy: str  # module:function or a LeRobot pretrained-policy folder
+    rig: str
+    command_topic: str
+    task: str
+    refill_below: int
+    max_step_rad: float
+    max_step_m: float
+    observation_timeout_s: float
+    describe_frames: int  # frames the node is described from for the preflight
+    ros_args: tuple[str, ...]
+
+
+class LatestObservation:
+    """The newest observation from a reader thread, and the error that ended the reader, if any."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.observation: PolicyObservation | None = None
+        self.error: BaseException | None = None
+        self.arrived = threading.Event()
+
+    def put(self, observation: PolicyObservation) -> None:
+        with self._lock:
+            self.observation = observation
+        self.arrived.set()
+
+    def fail(self, error: BaseException) -> None:
+        self.error = error
+        self.arrived.set()
+
+    def take_newer(self, than_stamp_ns: int | None) -> PolicyObservation | None:
+        with self._lock:
+            obs = self.observation
+        return obs if obs is not None and (than_stamp_ns is None or obs.stamp_ns > than_stamp_ns) else None
+
+
+@contextmanager
+def stop_on_signals(stop: threading.Event) -> Iterator[list[str]]:
+    """SIGINT/SIGTERM set `stop`; the list yielded receives the signal's name. Previous handlers restored on exit."""
+    received: list[str] = []
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        received.append(signal.Signals(signum).name)
+        stop.set()
+
+    previous = {signum: signal.signal(signum, handler) for signum in STOP_SIGNALS}
+    try:
+        yield received
+    finally:
+        for signum, old in previous.items():
+            signal.signal(signum, old)
+
+
+def run_policy(features: PolicyFeatures, options: RunOptions) -> int:
+    """Run until SIGINT/SIGTERM (exit 0, the summary printed) or a failure (raised: the CLI's one line, exit 2)."""
+    policy: LoadedPolicy | None = None  # a LeRobot policy's weights open after the preflight
+    if policy_kind(options.policy) is PolicyKind.LEROBOT:
+        check_lerobot_folder(options.policy)
+    else:
+        policy = load_callable(options.policy)
+    if not features.action_names:
+        raise RoiNodeError(f"{features.source}: names no action (features.action.names): nothing to command")
+    rig = load_rig_config(options.rig)
+    clamp = ActionClamp(action_joints(rig, features.action_names, max_step_rad=options.max_step_rad, max_step_m=options.max_step_m))
+
+
+    stop = threading.Event()
+    stats = ActionStats()
+    with stop_on_signals(stop) as received, ros_context(options.ros_args, rclpy_signal_handlers=False), \
+            PolicyObservationStream(features, task=options.task, timeout_s=options.observation_timeout_s,
+                                    ros_args=options.ros_args) as stream:
+        node = Node("roi_node_policy")
+        publisher = ActionPublisher(node, options.command_topic, features.action_names, clamp, stats)
+        require_fit(features, stream.describe_node(options.describe_frames))
+        if policy is None:
+            policy = load_lerobot(options.policy)
+        print(f"roi-node policy run: {policy.label} ({policy.kind}) -> {options.command_topic} at {features.fps} Hz, "
+              f"{len(features.action_names)} joints", file=sys.stderr, flush=True)
+        latest = LatestObservation()
+        reader = threading.Thread(target=_read_observations, args=(stream, latest, stop), name="policy-observations", daemon=True)
+        reader.start()
+        started = time.monotonic()
+        try:
+            _loop(policy, features, publisher, latest, stop, options.refill_below)
+        finally:
+            stop.set()
+            reader.join(timeout=options.observation_timeout_s + 1.0)
+            publisher.publish_diagnostics()
+            why = f"stopped by {received[0]}" if received else "stopped"
+            print(f"roi-node policy run: {why} after {time.monotonic() - started:.1f} s; {stats.summary()}", flush=True)
+            node.destroy_node()
+    return 0
+
+
+def _read_observations(stream: PolicyObservationStream, latest: LatestObservation, stop: threading.Event) -> None:
+    """Until `stop`: each new observation into `latest`; the stream's error (a silent node) ends the run."""
+    try:
+        while not stop.is_set():
+            latest.put(stream.next())
+    except Exception as exc:  # NodeNotObservedError or a record that does not parse: the main loop raises it
+        latest.fail(exc)
+
+
+def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPublisher, latest: LatestObservation,
+          stop: threading.Event, refill_below: int) -> None:
+    stats = publisher.stats
+    names = list(features.action_names)
+    queue = ActionChunkQueue(refill_below)
+    period_ns = round(NS_PER_S / features.fps)
+    latest.arrived.wait()
+    first = latest.take_newer(None)
+    if first is not None:
+        _seed_from_state(publisher, first, features)
+    used_stamp_ns: int | None = None
+    due_ns = time.monotonic_ns()
+    next_diagnostics_ns = due_ns + DIAGNOSTICS_PERIOD_NS
+    while not stop.is_set():
+        if latest.error is not None:
+            raise latest.error
+        if queue.needs_policy() and (obs := latest.take_newer(used_stamp_ns)) is not None:
+            used_stamp_ns = obs.stamp_ns
+            stats.count_observation_age(obs.frame_age_s)
+            try:
+                output = policy.act(obs.batch)
+            except Exception as exc:  # the policy's own failure: named with the frame, never a traceback
+                raise PolicyCallError(policy.label, obs.stamp_ns, exc) from exc
+            stats.policy_calls += 1
+            try:
+                chunk = as_action_chunk(output, names, policy.label)
+            except NonFiniteActionError as exc:
+                stats.count_refusal(type(exc).__name__, str(exc))
+                print(f"roi-node policy run: {exc}", file=sys.stderr, flush=True)
+            else:
+                queue.load(chunk, obs.stamp_ns)
+                stats.chunks += 1
+        step = queue.next_step()
+        if step is None:
+            stats.starved_ticks += 1
+        else:
+            publisher.publish_step(step)
+        now_ns = time.monotonic_ns()
+        if now_ns >= next_diagnostics_ns:
+            publisher.publish_diagnostics()
+            next_diagnostics_ns = now_ns + DIAGNOSTICS_PERIOD_NS
+        due_ns += period_ns
+        if now_ns > due_ns:  # the policy took longer than a period: skip the missed ticks
+            missed = (now_ns - due_ns) // period_ns + 1
+            stats.late_ticks += int(missed)
+            due_ns += int(missed) * period_ns
+        stop.wait(max(due_ns - time.monotonic_ns(), 0) / NS_PER_S)
+
+
+def _seed_from_state(publisher: ActionPublisher, observation: PolicyObservation, features: PolicyFeatures) -> None:
+    """The step rule's origin: the measured positions of the action joints, when the state names them all."""
+    state = observation.batch.get(features.state_key)
+    if isinstance(state, np.ndarray) and all(n in features.state_names for n in features.action_names):
+        index = {n: i for i, n in enumerate(features.state_names)}
+        publisher.start_from(np.array([float(state[index[n]]) for n in features.action_names]))
