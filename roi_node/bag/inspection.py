@@ -3,6 +3,8 @@
 For a bag with /roi/metadata the lineage tuples answer "which calibration,
 FK model and generator made these crops": distinct tuples are listed with how
 many frames carry each, so a bag mixing two calibrations shows it at a glance.
+The MCAP attachments and metadata records (the rig a bag carries,
+bag/rig_attachments.py) are listed by name, media type and size.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from ..core import topics
 from ..core.metadata import Lineage
 from ..core.records import FrameRecord, RecordFormatError
 from .reader import DESERIALIZE_ERRORS, bag_information, deserialize, open_bag, read_messages, topic_stats
+from .rig_attachments import StoredRecords, stored_records
 from .writer import STATUS_KEY
 
 METADATA_TOPIC = topics.absolute(topics.METADATA)
@@ -61,6 +64,7 @@ class BagInspection:
     topics: list[tuple[str, str, int]]  # name, type, count
     custom_data: dict[str, str]
     roi: RoiContents | None
+    stored: StoredRecords | None = None  # None: a sqlite3 bag (no MCAP records beside the messages)
 
     @property
     def duration_s(self) -> float:
@@ -85,6 +89,10 @@ class BagInspection:
             "custom_data": self.custom_data,
             "status": self.status,
             "roi": None if self.roi is None else self.roi.as_dict(),
+            "attachments": [] if self.stored is None else [
+                {"name": n, "media_type": m, "size_bytes": b} for n, m, b in self.stored.attachments
+            ],
+            "metadata_records": {} if self.stored is None else self.stored.metadata,
         }
 
     def lines(self) -> list[str]:
@@ -100,6 +108,8 @@ class BagInspection:
         width = max((len(n) for n, _, _ in self.topics), default=0)
         out.append(f"topics ({len(self.topics)}):")
         out.extend(f"  {n:<{width}}  {c:>8}  {t}" for n, t, c in self.topics)
+        if self.stored is not None:
+            out.extend(_stored_lines(self.stored))
         if self.roi is not None:
             roi = self.roi
             unreadable = f", {roi.unreadable_records} unreadable records" if roi.unreadable_records else ""
@@ -111,6 +121,17 @@ class BagInspection:
             for lineage, count in roi.lineages:
                 out.append(f"    {count} frames: " + ", ".join(f"{k}={v}" for k, v in lineage.items()))
         return out
+
+
+def _stored_lines(stored: StoredRecords) -> list[str]:
+    out = [f"attachments ({len(stored.attachments)}):"]
+    width = max((len(n) for n, _, _ in stored.attachments), default=0)
+    out.extend(f"  {n:<{width}}  {size:>8} B  {media}" for n, media, size in stored.attachments)
+    out.append(f"metadata records ({len(stored.metadata)}):")
+    for name, entries in stored.metadata.items():
+        out.append(f"  {name}:")
+        out.extend(f"    {k}: {v}" for k, v in entries.items())
+    return out
 
 
 def _counts(counts: dict[str, int]) -> str:
@@ -140,6 +161,7 @@ def inspect_bag(path: Path) -> BagInspection:
         topics=[(s.name, s.msgtype, s.count) for s in stats.values()],
         custom_data={str(k): str(v) for k, v in custom.items()} if isinstance(custom, dict) else {},
         roi=roi,
+        stored=stored_records(path),
     )
 
 

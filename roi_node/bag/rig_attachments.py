@@ -158,6 +158,30 @@ def storage_files(bag: Path) -> list[Path]:
     return [bag] if bag.suffix == ".mcap" else []
 
 
+@dataclass(frozen=True)
+class StoredRecords:
+    """What a storage file holds beside its messages: attachments (name, media type, bytes) and metadata records."""
+
+    attachments: tuple[tuple[str, str, int], ...]
+    metadata: dict[str, dict[str, str]]  # record name -> entries; rosbag2's own bag information is left out
+
+
+def stored_records(bag: Path) -> StoredRecords | None:
+    """The attachments and metadata records of a bag's first storage file (every file of a split bag carries the same)."""
+    files = storage_files(bag)
+    if not files:
+        return None
+    try:
+        with files[0].open("rb") as stream:
+            reader = make_reader(stream)
+            summary = reader.get_summary()
+            indexes = [] if summary is None else list(summary.attachment_indexes)
+            metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata() if m.name != "rosbag2"}
+    except (OSError, McapError, ValueError) as exc:
+        raise BagError(f"{files[0]}: cannot read its attachments and metadata records ({exc})") from exc
+    return StoredRecords(tuple((i.name, i.media_type, i.data_size) for i in indexes), metadata)
+
+
 def read_rig_inputs(bag: Path) -> RigInputs | None:
     """The rig a bag carries (from its first storage file), or None for a bag that carries none."""
     files = storage_files(bag)
@@ -165,7 +189,7 @@ def read_rig_inputs(bag: Path) -> RigInputs | None:
         return None
     try:
         with files[0].open("rb") as stream:
-            reader = make_reader(stream)
+            reader = make_reader(stream, validate_crcs=True)  # a damaged attachment is refused, never extracted
             records = [m for m in reader.iter_metadata() if m.name == RIG_METADATA_NAME]
             if not records:
                 return None

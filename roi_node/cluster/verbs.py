@@ -48,6 +48,8 @@ def replay_on_ray(args: argparse.Namespace, options: dict[str, Any]) -> int:
 
     if args.workers != 1:
         raise UsageError("--workers is for local processes; with --ray the cluster's CPUs decide how many bags run at once")
+    if args.config is None:
+        raise UsageError("replay --ray needs --config RIG_YAML (a bag's stored rig is used when replaying one bag locally)")
     spec = cluster_spec(args)
     out = Path(args.output)
     result = replay_fleet([Path(p) for p in args.inputs], out, Path(args.config), cluster=spec, retries=args.ray_retries,

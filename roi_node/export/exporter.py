@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from ..bag.replay import replay_bag
+from ..bag.rig_attachments import read_rig_inputs
 from ..core.atomic_output import commit, ensure_parent, remove_orphaned_partials, remove_path, temporary_sibling
 from ..core.errors import BagError
 from ..core.resources import resolve_config_file
@@ -44,6 +45,7 @@ from .grid import GridPlan, resample
 from .limits import DEFAULT_MAX_AGE_MS
 from .options import check_fps, check_max_age_ms, check_task
 from .provenance import ActionOrigin, Provenance
+from .rig_files import copy_rig_files
 from .source import RoiSource, has_roi_outputs, read_source
 from .video import Codec
 
@@ -137,6 +139,7 @@ def export_lerobot(
                     source = read_source(roi, gates.params)
                     writer = writer or _writer(work, output, source, state, options, provenance.codec)
                     report = _episode(writer, bag, source, options, provenance, gates)
+                    copy_rig_files(work, output, report.episode_index, read_rig_inputs(roi))
                 reports.append(report)
                 if on_episode is not None:
                     on_episode(report)

@@ -17,7 +17,9 @@ recording at once: the writer thread finalizes what was written, the spin
 ends, and `record` reports it on one line and exits non-zero. SIGINT/SIGTERM
 drain the queue and finalize; every join is bounded, so stopping never hangs.
 With `--image-transport jpeg|png` camera topics (sensor_msgs/Image) are
-stored re-encoded as `<topic>/compressed` CompressedImage.
+stored re-encoded as `<topic>/compressed` CompressedImage. `--preset rosbag2`
+writes chunks as rosbag2's MCAP writer does (bag/storage_preset.py); with
+`--config` every storage file carries the rig's files (bag/rig_attachments.py).
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from rosbags.interfaces import Qos
 
 from ..bag.bag_status import BagStatus
 from ..bag.mcap_file import Compression
+from ..bag.rig_attachments import RigInputs
 from ..bag.transcode import COMPRESSED_TYPE, IMAGE_TYPE, ImageTranscoder, ImageTransport, compressed_topic
 from ..bag.writer import BagWriteError, BagWriter, SplitPolicy
 from ..core.errors import BagError, ImageError, UsageError
@@ -60,6 +63,8 @@ class RecordOptions:
     compression: Compression = Compression.NONE
     image_transport: ImageTransport = ImageTransport.RAW
     jpeg_quality: int = 90
+    chunk_bytes: int | None = None  # None: the storage writer's default (`--preset fast`)
+    rig: RigInputs | None = None  # `--config`: the rig's files, carried in every storage file
 
 
 @dataclass(frozen=True)
@@ -85,7 +90,7 @@ class Recorder(Node):
         self.wanted = {t if t.startswith("/") else "/" + t for t in topics}
         self.record_all = record_all
         self.writer = BagWriter(out, overwrite=overwrite, on_error="finalize", compression=options.compression,
-                                split=options.split, in_place=True).__enter__()
+                                split=options.split, in_place=True, rig=options.rig, chunk_bytes=options.chunk_bytes).__enter__()
         self.transcoder = (None if options.image_transport is ImageTransport.RAW
                            else ImageTranscoder(self.writer.typestore, options.image_transport, options.jpeg_quality))
         self.written: Counter[str] = Counter()

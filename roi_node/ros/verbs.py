@@ -31,15 +31,21 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def _cmd_record(args: argparse.Namespace) -> int:
     from ..bag.mcap_file import Compression
+    from ..bag.rig_attachments import rig_inputs
+    from ..bag.storage_preset import StoragePreset, preset_settings
     from ..bag.transcode import ImageTransport
     from ..bag.writer import SplitPolicy
+    from ..core.config import load_rig_config
     from .recorder import RecordOptions, record
 
     split = None
     if args.max_duration is not None or args.max_size is not None:
         split = SplitPolicy(None if args.max_duration is None else int(args.max_duration * 1e9), args.max_size)
-    options = RecordOptions(duration_s=args.duration_s, split=split, compression=Compression(args.compression),
-                            image_transport=ImageTransport(args.image_transport), jpeg_quality=args.jpeg_quality)
+    storage = preset_settings(StoragePreset(args.preset), None if args.compression is None else Compression(args.compression))
+    rig = None if args.config is None else rig_inputs(load_rig_config(args.config))
+    options = RecordOptions(duration_s=args.duration_s, split=split, compression=storage.compression,
+                            image_transport=ImageTransport(args.image_transport), jpeg_quality=args.jpeg_quality,
+                            chunk_bytes=storage.chunk_bytes, rig=rig)
     return record(Path(args.out), args.topics or [], record_all=args.all, overwrite=args.overwrite, options=options,
                   ros_args=args.ros_args)
 
@@ -114,8 +120,13 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
                      help="split: start a new numbered file <name>_N.mcap every S seconds (rosbag2 --max-bag-duration)")
     rec.add_argument("--max-size", type=size_bytes, metavar="BYTES|MB",
                      help="split: start a new numbered file once the open one reaches this size, e.g. 500MB")
-    rec.add_argument("--compression", choices=("none", "lz4", "zstd"), default="none",
-                     help="per-chunk compression of the MCAP storage (default: none; see the README for the measured costs)")
+    rec.add_argument("--preset", choices=("fast", "rosbag2"), default="fast",
+                     help="MCAP storage: fast (uncompressed 1 MiB chunks, the default) or rosbag2 (as rosbag2's MCAP writer: "
+                     "zstd 768 KiB chunks); both write chunk and summary CRCs. bench/record_preset.py measures the CPU of each")
+    rec.add_argument("--compression", choices=("none", "lz4", "zstd"),
+                     help="per-chunk compression of the MCAP storage, replacing the preset's (fast: none, rosbag2: zstd)")
+    rec.add_argument("--config", metavar="RIG_YAML",
+                     help="store this rig's config, URDFs and calibration in the bag, so `replay BAG` needs no --config")
     rec.add_argument("--image-transport", choices=("raw", "jpeg", "png"), default="raw",
                      help="store sensor_msgs/Image topics as they come (raw) or re-encoded as <topic>/compressed (default: raw)")
     rec.add_argument("--jpeg-quality", type=_quality, default=90, metavar="N", help="JPEG quality 1..100 (default: 90)")
