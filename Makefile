@@ -44,14 +44,15 @@ LEROBOT_VERSION ?= 0.4.4
 $(LEROBOT_STAMP): setup.py setup.cfg package.xml
 	$(PYTHON) -m venv $(LEROBOT_VENV)
 	$(LEROBOT_VENV)/bin/python -m pip install --quiet --upgrade pip
-	$(LEROBOT_VENV)/bin/python -m pip install --quiet "lerobot==$(LEROBOT_VERSION)" -e ".[bag,robots,export]" pytest pytest-timeout
+	# ros: the live parity test (test/lerobot/test_policy_parity.py) and a LeRobot policy fed by a running node need rclpy
+	$(LEROBOT_VENV)/bin/python -m pip install --quiet "lerobot==$(LEROBOT_VERSION)" -e ".[ros,bag,robots,export]" pytest pytest-timeout
 	# the placo that resolves next to lerobot's pins links urdfdom 4 and tinyxml2 10, which its metadata does not enforce
 	$(LEROBOT_VENV)/bin/python -m pip install --quiet "cmeel-urdfdom<5" "cmeel-tinyxml2<11"
 	touch $(LEROBOT_STAMP)
 
 test-lerobot: $(LEROBOT_STAMP)
 	hf_home=$$(mktemp -d) && trap 'rm -rf "$$hf_home"' EXIT && \
-		HF_HUB_OFFLINE=1 HF_DATASETS_OFFLINE=1 HF_HOME=$$hf_home ROI_NODE_LEROBOT_TESTS=1 \
+		HF_HUB_OFFLINE=1 HF_DATASETS_OFFLINE=1 HF_HOME=$$hf_home ROI_NODE_LEROBOT_TESTS=1 ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-74} \
 		$(LEROBOT_VENV)/bin/python -m pytest -q -p no:cacheprovider test/lerobot
 
 demo: $(STAMP)

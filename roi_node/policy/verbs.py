@@ -11,6 +11,7 @@ for the same --features/--dataset options.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +48,7 @@ def _cmd_preflight(args: argparse.Namespace) -> int:
         node = stream.describe_node(args.frames)
     mismatches = preflight(features, node)
     for mismatch in mismatches:
-        print(f"roi-node policy preflight: error: {features.source}: {mismatch.line()}", flush=True)
+        print(f"roi-node policy preflight: error: {features.source}: {mismatch.line()}", file=sys.stderr, flush=True)
     if mismatches:
         from roi_node.cli import EXIT_ERROR
 
