@@ -37,7 +37,7 @@ class ActionStats:
     last_refusal: str = ""
     clamps: dict[ClampKind, Counter[str]] = field(default_factory=lambda: {k: Counter() for k in ClampKind})
     clamps_window: dict[ClampKind, Counter[str]] = field(default_factory=lambda: {k: Counter() for k in ClampKind})
-    starved_ticks: int = 0  # ticks with no step left and no newer observation to ask the policy with: nothing published
+    held_ticks: int = 0  # ticks with no step left and no newer observation to ask the policy with: the last target again
     late_ticks: int = 0  # ticks skipped because the policy computed past them
     _latencies_ms: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     _observation_ages_ms: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
@@ -77,7 +77,7 @@ class ActionStats:
         clamps = {kind.value: sum(c.values()) for kind, c in self.clamps.items()}
         return (
             f"{self.published} actions published from {self.chunks} chunks ({self.policy_calls} policy calls); "
-            f"{self.starved_ticks} ticks starved, {self.late_ticks} skipped late; refused {sum(self.refused.values())}"
+            f"{self.held_ticks} ticks held the last target, {self.late_ticks} skipped late; refused {sum(self.refused.values())}"
             + (f" ({', '.join(f'{k} {v}' for k, v in sorted(self.refused.items()))})" if self.refused else "")
             + f"; clamped {clamps[ClampKind.LIMIT]} to a URDF limit, {clamps[ClampKind.STEP]} to the maximum step; "
             + ("frame -> first action n/a" if latency is None

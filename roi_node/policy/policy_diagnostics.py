@@ -48,7 +48,7 @@ def policy_diagnostics_msg(stamp_ns: int, stats: ActionStats, command_topic: str
         "refused_by_kind": dict(stats.refused),
         "last_refusal": stats.last_refusal,
         "clamped_by_joint": {kind.value: dict(c) for kind, c in stats.clamps.items()},
-        "starved_ticks": stats.starved_ticks,
+        "held_ticks": stats.held_ticks,
         "late_ticks": stats.late_ticks,
         "frame_to_first_action_ms": _percentiles(latency),
         "frame_to_observation_ms": _percentiles(observation_age),

@@ -8,8 +8,9 @@ fps on absolute deadlines: when fewer than `refill_below` steps of the
 current chunk remain and a newer observation than the last one used has
 arrived, the policy is asked and its chunk replaces the rest; one step is
 clamped and published per tick. With no step left and no new observation,
-nothing is published (the robot holds its last command) and the tick is
-counted as starved. A tick missed while the policy computed is skipped, not
+the chunk's last target is published again and the tick counted as held:
+the commands keep the dataset's rate, and a target the step clamp cut short
+is still reached. A tick missed while the policy computed is skipped, not
 made up in a burst.
 
 Observations are read on a thread of their own (the newest frame wins); a
@@ -40,7 +41,7 @@ from roi_node.core.sync import NS_PER_S
 from roi_node.policy.action_errors import NonFiniteActionError
 from roi_node.policy.action_publisher import ActionPublisher
 from roi_node.policy.action_stats import ActionStats
-from roi_node.policy.actions import ActionChunkQueue, ActionClamp, action_joints, as_action_chunk
+from roi_node.policy.actions import ActionChunkQueue, ActionClamp, ActionStep, action_joints, as_action_chunk
 from roi_node.policy.features import PolicyFeatures
 from roi_node.policy.loaders import LoadedPolicy, PolicyKind, check_lerobot_folder, load_callable, load_lerobot, policy_kind
 from roi_node.policy.observations import PolicyObservation, PolicyObservationStream
@@ -179,6 +180,7 @@ def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPubli
     if first is not None:
         _seed_from_state(publisher, first, features)
     used_stamp_ns: int | None = None
+    held: ActionStep | None = None
     due_ns = time.monotonic_ns()
     next_diagnostics_ns = due_ns + DIAGNOSTICS_PERIOD_NS
     while not stop.is_set():
@@ -201,9 +203,12 @@ def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPubli
                 queue.load(chunk, obs.stamp_ns)
                 stats.chunks += 1
         step = queue.next_step()
-        if step is None:
-            stats.starved_ticks += 1
-        else:
+        if step is not None:
+            held = ActionStep(step.positions, step.source_stamp_ns, first_of_chunk=False)
+        elif held is not None:  # the chunk is used up and no newer frame came: its last target stays the command
+            step = held
+            stats.held_ticks += 1
+        if step is not None:
             publisher.publish_step(step)
         now_ns = time.monotonic_ns()
         if now_ns >= next_diagnostics_ns:
