@@ -126,3 +126,63 @@ class FramesOnTheFly(Generic[FrameT]):
             self._next_index = k
             self._changed.notify_all()
             return None if self._stopping or k >= self._frames else k
+
+
+class CapturedFrames:
+    """Following commands: a camera thread that handles frame k only once the clock passed its capture time.
+
+    The followed state at a capture time is fixed only once that time has
+    passed (a later command moves the joints from then on), so nothing is
+    rendered ahead. `capture(k, skipped)` renders and sends frame k; when a
+    render ran past later captures, the frames in between are skipped
+    (`skipped` of them, counted by `capture` as not rendered by their slot),
+    as a camera that cannot keep up skips frames; without `skip_behind` every
+    frame is handled, however late. A failure is raised by the next `check`
+    or by `finish`, on the publisher's thread.
+    """
+
+    def __init__(
+        self,
+        capture: Callable[[int, int], None],
+        frames: int,
+        capture_due_ns: Callable[[int], int],
+        clock: Clock,
+        *,
+        skip_behind: bool = True,
+    ) -> None:
+        self._capture = capture
+        self._frames = frames
+        self._capture_due_ns = capture_due_ns
+        self._clock = clock
+        self._skip_behind = skip_behind
+        self._stopping = threading.Event()
+        self._failure: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="sim_camera", daemon=True)
+        self._thread.start()
+
+    def check(self) -> None:
+        if self._failure is not None:
+            raise self._failure
+
+    def finish(self) -> None:
+        """Wait for the last frame (the timeline passed every capture time), then raise a failure if there was one."""
+        self._thread.join()
+        self.check()
+
+    def close(self) -> None:
+        self._stopping.set()
+        self._thread.join()
+
+    def _run(self) -> None:
+        k = 0
+        try:
+            while k < self._frames and not self._stopping.is_set():
+                self._clock.sleep_until(self._capture_due_ns(k))
+                latest = k
+                now_ns = self._clock.monotonic_ns()
+                while self._skip_behind and latest + 1 < self._frames and self._capture_due_ns(latest + 1) <= now_ns:
+                    latest += 1
+                self._capture(latest, latest - k)
+                k = latest + 1
+        except BaseException as exc:  # handed to the publisher's thread by check()/finish()
+            self._failure = exc

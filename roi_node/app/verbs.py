@@ -8,7 +8,14 @@ from pathlib import Path
 
 from ..arg_types import float_within, int_at_least
 from ..core.errors import UsageError
-from ..sim.limits import MAX_SIM_CAMERA_DELAY_MS, MAX_SIM_DURATION_S, MAX_SIM_RATE_HZ, MAX_SIM_RENDER_BUDGET_MIB
+from ..sim.limits import (
+    DEFAULT_MAX_JOINT_SPEED_RAD_S,
+    MAX_JOINT_SPEED_RAD_S,
+    MAX_SIM_CAMERA_DELAY_MS,
+    MAX_SIM_DURATION_S,
+    MAX_SIM_RATE_HZ,
+    MAX_SIM_RENDER_BUDGET_MIB,
+)
 from ..sim.render_budget import DEFAULT_RENDER_BUDGET_MIB
 
 SIM_DURATION_S = float_within(0.0, MAX_SIM_DURATION_S, minimum_allowed=False)
@@ -32,6 +39,8 @@ def _cmd_sim(args: argparse.Namespace) -> int:
             raise UsageError("sim: choose --bag OUT or live, not both")
         if args.render_budget_mb is not None or args.late_frames != "drop":
             raise UsageError("sim: --render-budget-mb and --late-frames apply to live runs; --bag writes every frame, one at a time")
+        if args.follow_commands is not None:
+            raise UsageError("sim: --follow-commands applies to live runs; --bag writes the scripted trajectory")
         from ..sim.bag_sink import write_sim_bag
 
         summary = write_sim_bag(
@@ -46,7 +55,8 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     budget = DEFAULT_RENDER_BUDGET_MIB if args.render_budget_mb is None else args.render_budget_mb
     return run_live(config, duration_s=args.duration, rate_hz=args.rate_hz, joint_rate_hz=args.joint_rate_hz, seed=args.seed,
                     min_subscribers=args.min_subscribers, ros_args=args.ros_args, camera_delay_ms=args.camera_delay_ms,
-                    render_budget_mib=budget, late_frames=LateFrames(args.late_frames))
+                    render_budget_mib=budget, late_frames=LateFrames(args.late_frames), follow_commands=args.follow_commands,
+                    max_joint_speed_rad_s=args.max_joint_speed_rad_s)
 
 
 def _cmd_stress(args: argparse.Namespace) -> int:
@@ -108,6 +118,15 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
                      help="live: a frame that cannot go out before the next one is due is dropped and counted, as a camera "
                      "does (drop, the default), or sent however late, the lateness reported (send: for a consumer that needs "
                      "every frame)")
+    sim.add_argument("--follow-commands", metavar="TOPIC",
+                     help="live: follow position commands (sensor_msgs/JointState, names = the rig's joint names) on TOPIC: "
+                     "each commanded joint moves toward its latest command at up to --max-joint-speed-rad-s and stops "
+                     "there; a joint never commanded holds the scripted pose of the start; joint states and frames show "
+                     "the followed state, each frame rendered once its capture time has passed")
+    sim.add_argument("--max-joint-speed-rad-s", type=float_within(0.0, MAX_JOINT_SPEED_RAD_S, minimum_allowed=False),
+                     default=DEFAULT_MAX_JOINT_SPEED_RAD_S, metavar="RAD_S",
+                     help=f"--follow-commands: per-joint speed limit, rad/s (m/s for prismatic fingers) "
+                     f"(default: {DEFAULT_MAX_JOINT_SPEED_RAD_S:g})")
     sim.set_defaults(func=_cmd_sim)
 
     demo = verbs.add_parser(

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
@@ -36,6 +36,7 @@ from ..core.transforms import Float64Array
 from .arms import load_arms, required_joints
 from .capsules import CameraView, ProjectedCapsule
 from .choreography import script_rig
+from .command_follow import CommandFollower, CommandIssue
 from .layout import plan_layout
 from .look import Look
 from .painter import RigPainter
@@ -159,6 +160,17 @@ class SimRig:
         self.trajectory = script_rig(self.arms, self.view, self.layout.table_z_m, seed)
         reference_depth = float(np.median(self.view.cam_T_world.apply(np.array(bases))[:, 2]))
         self.painter = RigPainter(self.scene, max(reference_depth, self.view.z_near_m))
+        self.follower: CommandFollower | None = None  # set by `follow_commands`: the state then follows commands
+
+    def follow_commands(self, max_speed_rad_s: float, on_first: Callable[[CommandIssue, str], None]) -> CommandFollower:
+        """From now on every joint state and frame shows the followed state (sim/command_follow.py) instead of the script.
+
+        The rig holds its scripted pose at the start until commands move it, as a robot under position control does.
+        """
+        limits = {name: (r.lower, r.upper) for arm in self.arms for name, r in zip(arm.joint_names, arm.ranges, strict=True)}
+        initial = self._scripted_state(self.start_ns)
+        self.follower = CommandFollower(self.state_joints, initial, max_speed_rad_s, limits, on_first)
+        return self.follower
 
     # --- timing -------------------------------------------------------------------------------
     def frame_count(self, duration_s: float) -> int:
@@ -176,13 +188,20 @@ class SimRig:
 
     # --- state -------------------------------------------------------------------------------
     def positions(self, t_ns: int) -> Float64Array:
-        """Positions of `required_joints` at sim time t_ns (the exact trajectory)."""
+        """Positions of `required_joints` at sim time t_ns (the exact trajectory, or the followed state)."""
+        if self.follower is not None:
+            return self.follower.positions(t_ns)[: len(self.required_joints)]
         return self.trajectory.positions((t_ns - self.start_ns) / NS_PER_S)
 
     def joint_state(self, stamp_ns: int) -> JointStateEvent:
-        t_s = (stamp_ns - self.start_ns) / NS_PER_S
-        fingers = tuple(v for arm in self.arms for v in arm.gripper_positions(t_s))
-        return JointStateEvent(stamp_ns, self.state_joints, (*(float(v) for v in self.positions(stamp_ns)), *fingers))
+        state = self._scripted_state(stamp_ns) if self.follower is None else self.follower.positions(stamp_ns)
+        return JointStateEvent(stamp_ns, self.state_joints, tuple(float(v) for v in state))
+
+    def _scripted_state(self, t_ns: int) -> Float64Array:
+        """Positions of `state_joints` at sim time t_ns by the script: the arms' trajectory, then the fingers."""
+        t_s = (t_ns - self.start_ns) / NS_PER_S
+        fingers = [v for arm in self.arms for v in arm.gripper_positions(t_s)]
+        return np.concatenate([self.trajectory.positions(t_s), np.asarray(fingers, dtype=np.float64)])
 
     def ground_truth(self, capture_ns: int) -> FrameTruth:
         """What the camera sees at capture time (header stamp - delay), without rendering."""
