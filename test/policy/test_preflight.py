@@ -1,0 +1,115 @@
+"""`roi-node policy preflight` against a running node: a sim camera and a live roi_node on their own DDS domain.
+
+The policy side is a checkpoint folder without its weights file (config.json
+and train_config.json naming its dataset, a real export of a session of the
+same rig): every refusal below happens with no weights to load, so none was
+needed. Each case changes one thing the policy expects, and the verb must
+refuse with exactly one line naming the key and both values, exit 2; the
+unchanged checkpoint and the dataset itself pass, so the checks do not refuse
+everything. The node's values in the expected lines come from the sim's
+settings (its rate) and the dataset the node's own rig wrote, not from the
+preflight.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ..conftest import REPO
+from ..live.harness import next_domain, node_args, process, ros_env
+from .policyrig import RATE_HZ, export_dataset, read_info, record_session, write_checkpoint
+
+pytestmark = pytest.mark.dds
+WEIGHTS = "model.safetensors"
+TIMEOUT_S = "60"  # for the node's first frames under a loaded machine; a fitting node answers within a few frames
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """(rig, dataset root) of one recorded session of the small bimanual rig."""
+    folder = tmp_path_factory.mktemp("session")
+    session = record_session(folder)
+    return session.rig, export_dataset(session, folder / "dataset", "--codec", "lossless")
+
+
+@pytest.fixture(scope="module")
+def live_node(dataset: tuple[Path, Path], tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]:
+    """A sim camera at RATE_HZ and a roi_node of the same rig; yields the environment that reaches them."""
+    rig, _ = dataset
+    logs = tmp_path_factory.mktemp("logs")
+    env = ros_env(next_domain())
+    sim = ["-m", "roi_node.cli", "sim", "live", "--config", str(rig), "--rate-hz", str(RATE_HZ), "--duration", "600",
+           "--render-budget-mb", "16"]
+    with process(sim, env, logs / "sim.log"), process(node_args(rig), env, logs / "node.log"):
+        yield env
+
+
+def preflight(env: dict[str, str], features: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "roi_node.cli", "policy", "preflight", "--features", str(features),
+                           "--timeout-s", TIMEOUT_S], cwd=REPO, env=env, capture_output=True, text=True, timeout=180)
+
+
+def rename_arm(info: dict[str, Any], config: dict[str, Any]) -> tuple[str, ...]:
+    config["input_features"]["observation.images.roi_leftarm"] = config["input_features"].pop("observation.images.roi_left")
+    return ("observation.images.roi_leftarm", "3x256x256", "no such image (arms left, right)")
+
+
+def swap_state_order(info: dict[str, Any], config: dict[str, Any]) -> tuple[str, ...]:
+    names = info["features"]["observation.state"]["names"]
+    names[0], names[1] = names[1], names[0]
+    return ("observation.state", f"the order {names[0]}, {names[1]}", f"publishes {names[1]}, {names[0]}")
+
+
+def shrink_image(info: dict[str, Any], config: dict[str, Any]) -> tuple[str, ...]:
+    config["input_features"]["observation.images.roi_right"]["shape"] = [3, 255, 256]
+    return ("observation.images.roi_right", "expects 3x255x256", "publishes 3x256x256")
+
+
+def double_fps(info: dict[str, Any], config: dict[str, Any]) -> tuple[str, ...]:
+    info["fps"] = 2 * RATE_HZ
+    return ("fps", f"expects {2 * RATE_HZ} fps", f"a {RATE_HZ:.1f} Hz camera")
+
+
+def foreign_action(info: dict[str, Any], config: dict[str, Any]) -> tuple[str, ...]:
+    info["features"]["action"]["names"][3] = "left_panda_joint9"
+    return ("action", "joint 'left_panda_joint9'", "no such joint")
+
+
+@pytest.mark.parametrize("change", [rename_arm, swap_state_order, shrink_image, double_fps, foreign_action])
+def test_a_mismatch_is_one_line_naming_the_key_and_both_values_before_any_weights(
+    dataset: tuple[Path, Path], live_node: dict[str, str], tmp_path: Path,
+    change: Callable[[dict[str, Any], dict[str, Any]], tuple[str, ...]],
+) -> None:
+    checkpoint = write_checkpoint(tmp_path, read_info(dataset[1]))
+    config_doc = json.loads((checkpoint / "config.json").read_text())
+    info_doc = json.loads((tmp_path / "dataset/meta/info.json").read_text())
+    key, *values = change(info_doc, config_doc)
+    (checkpoint / "config.json").write_text(json.dumps(config_doc))
+    (tmp_path / "dataset/meta/info.json").write_text(json.dumps(info_doc))
+
+    result = preflight(live_node, checkpoint)
+
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"roi-node policy preflight: error: {checkpoint}: {key}: the policy expects "), lines[0]
+    for value in values:
+        assert value in lines[0]
+    assert "Traceback" not in result.stderr and not (checkpoint / WEIGHTS).exists()
+
+
+def test_the_checkpoint_and_the_dataset_of_the_same_rig_pass(dataset: tuple[Path, Path], live_node: dict[str, str],
+                                                              tmp_path: Path) -> None:
+    checkpoint = write_checkpoint(tmp_path, read_info(dataset[1]))
+    for features in (checkpoint, dataset[1]):
+        result = preflight(live_node, features)
+        assert result.returncode == 0, result.stderr
+        assert result.stdout.startswith(f"roi-node policy preflight: {features} fits the node: 3 images, 18 state joints, "
+                                        f"{RATE_HZ} fps against a {RATE_HZ:.1f} Hz camera, 18 actions"), result.stdout
