@@ -1,4 +1,4 @@
-"""Child processes whose stdout lines are read as they come, for bench/live_independent.py."""
+"""Child processes whose stdout lines are read as they come, and the CPU time they spend, for the live benches."""
 
 from __future__ import annotations
 
@@ -110,3 +110,24 @@ class CpuWindow:
         if self._first is None or self._last is None or self._last[1] <= self._first[1]:
             return float("nan")
         return (self._last[0] - self._first[0]) / (self._last[1] - self._first[1])
+
+
+class BlockCpu:
+    """The node's CpuWindow of the current block: `start` opens a fresh one, `mark` (on each ROI) marks it."""
+
+    def __init__(self, process: LineProcess) -> None:
+        self._process = process
+        self._window: CpuWindow | None = None
+
+    def start(self) -> CpuWindow:
+        self._window = CpuWindow(self._process)
+        return self._window
+
+    def mark(self) -> None:
+        if self._window is not None:
+            self._window.mark()
+
+
+def wait_for_stamp(receiver: LineProcess, stamp_ns: int, timeout_s: float) -> bool:
+    """Wait until the receiver printed a `got <stamp_ns> ...` line (True) or the time ran out (False: lost)."""
+    return receiver.wait_for(lambda lines: any(line.startswith(f"got {stamp_ns} ") for line in lines[-5:]), timeout_s)

@@ -1,0 +1,244 @@
+"""The node-added latency as both live benches define it: ABBA blocks of bare transport and node path, paired.
+
+bench/live.py (fed by the project's test publisher) and
+bench/live_independent.py (fed by a camera and a robot driver of its own)
+both measure through this module, so that the two differ only in what feeds
+the node, never in what they subtract or how they summarise. No roi_node
+code is used here. The definition:
+
+- a frame's latency is the subscriber's wall-clock receive time, read at the
+  start of its Python callback (bench/independent/receiver.py, a process of
+  its own), minus the frame's header stamp, which the sender sets to the
+  frame's slot on the wall clock's grid (its capture time) and publishes
+  when the slot comes; a sender that publishes late adds its lateness (sent
+  - stamp) to both paths, so that lateness is recorded per frame;
+- (a) bare: the sender's frames go to a subscriber of image_raw, its joint
+  states to a reader of their own; (b) node: both go to `roi-node run`, and
+  the latency is that of the left arm's ROI carrying the frame's stamp;
+- a run is a number of pairs of blocks, one (a) and one (b), in ABBA order
+  (pair k runs (a) first when k is even, (b) first when odd) so that load
+  drifting through the run weighs on both paths alike; each block is a fresh
+  sender run whose joint phase against the frames runs through one whole
+  joint period, and the first WARM_UP_FRAMES frames of each block are left
+  out (a sender starting up; the node and receivers after an idle block);
+- node-added p50 is the median over pairs of [p50 of the pair's (b) block -
+  p50 of its (a) block]; beside it are the pairs' interquartile range and a
+  bootstrap 95% interval of that median (pairs resampled, BOOTSTRAP_DRAWS
+  draws), and the baseline it subtracts: the median over pairs of the (a)
+  blocks' p50; b / a is (baseline + added) / baseline; the p99 figures are
+  of all counted frames of a path pooled;
+- a frame sent and never received is counted lost and has no latency;
+- the node's CPU per frame is its user + system time (all threads, /proc)
+  from the first ROI of a (b) block to the last, over the frames between:
+  the median over the (b) blocks.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+
+WARM_UP_FRAMES = 15  # per block
+BOOTSTRAP_DRAWS = 4000
+BOOTSTRAP_SEED = 0  # the interval is the same for the same blocks, run after run
+LATENESS_TOLERANCE_MS = 1.0  # between (a)'s and (b)'s median sender lateness: more would pass for the node's latency
+MIN_PAIRS = 2
+
+
+class StreamPath(StrEnum):
+    """Where the sender's frames go in a block."""
+
+    BARE = "a"  # camera -> subscriber of image_raw
+    NODE = "b"  # camera -> roi-node run -> subscriber of the left arm's ROI
+
+
+@dataclass(frozen=True)
+class SentFrame:
+    """One frame as its sender reports it: the header stamp and the wall-clock time it was published."""
+
+    stamp_ns: int
+    sent_ns: int
+
+
+@dataclass(frozen=True)
+class Block:
+    """One sender run into one path: latency (ms) of each counted frame received, and what was sent."""
+
+    path: StreamPath
+    latency_ms: np.ndarray
+    frames_sent: int
+    frames_received: int
+    sent_late_ms: np.ndarray  # sent - stamp, every frame of the block
+    node_cpu_ms_per_frame: float  # (b) only; nan for (a)
+
+    def p50_ms(self) -> float:
+        return float(np.median(self.latency_ms))
+
+
+class NoLatencyError(RuntimeError):
+    """A block in which no counted frame was received: there is no latency to summarise."""
+
+    def __init__(self, path: StreamPath, frames_sent: int) -> None:
+        super().__init__(f"path ({path}): none of the {frames_sent} frames past the warm-up was received")
+        self.path = path
+        self.frames_sent = frames_sent
+
+
+def received_ns(receiver_lines: Sequence[str]) -> dict[int, int]:
+    """Stamp -> first receive time, from a receiver's `got <stamp_ns> <receive_ns>` lines."""
+    got: dict[int, int] = {}
+    for line in receiver_lines:
+        if line.startswith("got "):
+            stamp_ns, receive_ns = (int(v) for v in line.split()[1:3])
+            got.setdefault(stamp_ns, receive_ns)
+    return got
+
+
+def block_of(path: StreamPath, sent: Sequence[SentFrame], receiver_lines: Sequence[str],
+             node_cpu_ms_per_frame: float = math.nan) -> Block:
+    """The block of `sent` frames as the receiver got them (its lines may hold earlier blocks: stamps tell)."""
+    got = received_ns(receiver_lines)
+    counted = [f.stamp_ns for f in sent[WARM_UP_FRAMES:]]
+    latency_ms = np.asarray([(got[s] - s) / 1e6 for s in counted if s in got])
+    if latency_ms.size == 0:
+        raise NoLatencyError(path, len(sent))
+    return Block(path, latency_ms, len(sent), sum(1 for f in sent if f.stamp_ns in got),
+                 np.asarray([(f.sent_ns - f.stamp_ns) / 1e6 for f in sent]), node_cpu_ms_per_frame)
+
+
+def pair_order(pair_index: int) -> tuple[StreamPath, StreamPath]:
+    """ABBA: (a) first in even pairs, (b) first in odd ones."""
+    return (StreamPath.BARE, StreamPath.NODE) if pair_index % 2 == 0 else (StreamPath.NODE, StreamPath.BARE)
+
+
+def run_pairs(pairs: int, run_block: Callable[[StreamPath, int], Block]) -> list[tuple[Block, Block]]:
+    """Run `pairs` pairs in ABBA order (`run_block(path, pair_index)`); each pair returned as ((a), (b))."""
+    out = []
+    for k in range(pairs):
+        blocks = {path: run_block(path, k) for path in pair_order(k)}
+        out.append((blocks[StreamPath.BARE], blocks[StreamPath.NODE]))
+    return out
+
+
+@dataclass(frozen=True)
+class Interval:
+    low: float
+    high: float
+
+    def __str__(self) -> str:
+        return f"{self.low:.2f}..{self.high:.2f}"
+
+
+@dataclass(frozen=True)
+class SizeSummary:
+    """One frame size's pairs summarised by the module docstring's definition."""
+
+    label: str  # "720p"
+    width_px: int
+    height_px: int
+    rate_hz: float
+    frames_per_block: int
+    baseline_p50_ms: float
+    node_p50_ms: float
+    added_p50_ms: float
+    added_ci95_ms: Interval
+    added_iqr_ms: Interval
+    added_per_pair_ms: list[float]
+    baseline_per_pair_ms: list[float]
+    added_p99_ms: float
+    baseline_p99_ms: float
+    lost_bare: int
+    lost_node: int
+    sent_late_p50_bare_ms: float
+    sent_late_p50_node_ms: float
+    sent_late_max_ms: float
+    node_cpu_ms_per_frame: float
+    node_cpu_iqr_ms: Interval
+    invalid_because: str | None
+
+    @property
+    def ratio_p50(self) -> float:
+        return (self.baseline_p50_ms + self.added_p50_ms) / self.baseline_p50_ms
+
+
+def _iqr(values: np.ndarray) -> Interval:
+    return Interval(float(np.percentile(values, 25)), float(np.percentile(values, 75)))
+
+
+def bootstrap_median_ci95(values: np.ndarray) -> Interval:
+    """95% percentile interval of the median of `values`, resampled with replacement."""
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    medians = np.median(values[rng.integers(0, values.size, (BOOTSTRAP_DRAWS, values.size))], axis=1)
+    return Interval(float(np.percentile(medians, 2.5)), float(np.percentile(medians, 97.5)))
+
+
+def summarize(label: str, width_px: int, height_px: int, rate_hz: float, frames_per_block: int,
+              pairs: Sequence[tuple[Block, Block]]) -> SizeSummary:
+    bare = [a for a, _ in pairs]
+    node = [b for _, b in pairs]
+    baseline = np.asarray([a.p50_ms() for a in bare])
+    added = np.asarray([b.p50_ms() - a.p50_ms() for a, b in pairs])
+    pooled_bare = np.concatenate([a.latency_ms for a in bare])
+    pooled_node = np.concatenate([b.latency_ms for b in node])
+    late_bare = np.concatenate([a.sent_late_ms for a in bare])
+    late_node = np.concatenate([b.sent_late_ms for b in node])
+    cpu = np.asarray([b.node_cpu_ms_per_frame for b in node])
+    summary = SizeSummary(
+        label=label, width_px=width_px, height_px=height_px, rate_hz=rate_hz, frames_per_block=frames_per_block,
+        baseline_p50_ms=float(np.median(baseline)), node_p50_ms=float(np.median([b.p50_ms() for b in node])),
+        added_p50_ms=float(np.median(added)), added_ci95_ms=bootstrap_median_ci95(added), added_iqr_ms=_iqr(added),
+        added_per_pair_ms=[float(v) for v in added], baseline_per_pair_ms=[float(v) for v in baseline],
+        added_p99_ms=float(np.percentile(pooled_node, 99) - np.percentile(pooled_bare, 99)),
+        baseline_p99_ms=float(np.percentile(pooled_bare, 99)),
+        lost_bare=sum(a.frames_sent - a.frames_received for a in bare),
+        lost_node=sum(b.frames_sent - b.frames_received for b in node),
+        sent_late_p50_bare_ms=float(np.median(late_bare)), sent_late_p50_node_ms=float(np.median(late_node)),
+        sent_late_max_ms=float(max(late_bare.max(), late_node.max())),
+        node_cpu_ms_per_frame=float(np.median(cpu)), node_cpu_iqr_ms=_iqr(cpu), invalid_because=None,
+    )
+    return _with_validity(summary, len(pairs))
+
+
+def _with_validity(s: SizeSummary, pairs: int) -> SizeSummary:
+    """Mark a size whose two paths cannot be compared (the sender's lateness is in both latencies)."""
+    period_ms = 1000.0 / s.rate_hz
+    why = None
+    if pairs < MIN_PAIRS:
+        why = f"{pairs} pair(s): expected at least {MIN_PAIRS} for a spread"
+    elif abs(s.sent_late_p50_bare_ms - s.sent_late_p50_node_ms) > LATENESS_TOLERANCE_MS:
+        why = (f"the sender's median lateness differs between (a) and (b) "
+               f"({s.sent_late_p50_bare_ms:.2f} / {s.sent_late_p50_node_ms:.2f} ms)")
+    elif s.sent_late_max_ms > period_ms:
+        why = f"the sender fell behind: a frame went out {s.sent_late_max_ms:.1f} ms after its stamp"
+    elif s.baseline_p50_ms > period_ms:
+        why = f"the bare transport's median {s.baseline_p50_ms:.1f} ms exceeds a frame period"
+    return s if why is None else SizeSummary(**{**s.__dict__, "invalid_because": why})
+
+
+def report_lines(s: SizeSummary) -> list[str]:
+    """The size's figures, one per line, the last the one to compare between the benches."""
+    pairs = len(s.added_per_pair_ms)
+    per_pair = " ".join(f"{v:.2f}" for v in s.added_per_pair_ms)
+    baselines = " ".join(f"{v:.2f}" for v in s.baseline_per_pair_ms)
+    return [
+        f"{s.width_px}x{s.height_px}@{s.rate_hz:g}: {pairs} ABBA pairs of {s.frames_per_block}-frame blocks "
+        f"(the first {WARM_UP_FRAMES} of each left out)",
+        f"  (a) bare p50 per pair ms: {baselines}",
+        f"  b-a p50 per pair ms:      {per_pair}",
+        f"  baseline (a) p50 {s.baseline_p50_ms:.2f} ms | via node (b) p50 {s.node_p50_ms:.2f} ms | "
+        f"node-added p50 {s.added_p50_ms:.2f} ms (bootstrap 95% {s.added_ci95_ms}, IQR {s.added_iqr_ms}) | "
+        f"b/a p50 {s.ratio_p50:.2f}",
+        f"  p99 pooled: (a) {s.baseline_p99_ms:.2f} ms, b-a {s.added_p99_ms:.2f} ms | lost a/b {s.lost_bare} / {s.lost_node} | "
+        f"sent late p50 a/b {s.sent_late_p50_bare_ms:.2f} / {s.sent_late_p50_node_ms:.2f} ms (max {s.sent_late_max_ms:.1f})",
+        f"  node CPU {s.node_cpu_ms_per_frame:.2f} ms/frame (median over (b) blocks, IQR {s.node_cpu_iqr_ms}) | "
+        + (f"INVALID: {s.invalid_because}" if s.invalid_because else "valid"),
+    ]
+
+
+def final_line(s: SizeSummary) -> str:
+    """The line the two benches are compared by."""
+    return f"{s.label} node-added p50 {s.added_p50_ms:.2f} ms (live.py definition)"
