@@ -34,7 +34,8 @@ from std_msgs.msg import Header
 NS_PER_S = 1_000_000_000
 POOL_TEXTURES = 16
 ROW_SHIFT_PER_PASS = 7  # rows a texture moves each time the pool comes round again
-BUILD_LEAD_NS = 10_000_000  # a frame is built this long before its slot: a driver's readout, done before it publishes
+# a frame is built (a driver's readout) this long before its slot: its copies, on a busy core, must not make it late
+BUILD_LEAD_NS = 20_000_000
 SETTLE_S = 1.0  # after the subscriber matched: discovery finishes on both sides before the first frame
 
 
@@ -48,7 +49,7 @@ def image_message(pixels: np.ndarray, frame_id: str) -> Image:
     """An rgb8 Image with a fresh data buffer (filled with one copy; the stamp is set at send time)."""
     height_px, width_px = pixels.shape[:2]
     data = array("B")
-    data.frombytes(pixels.tobytes())
+    data.frombytes(np.ascontiguousarray(pixels))
     return Image(header=Header(frame_id=frame_id), height=height_px, width=width_px, encoding="rgb8",
                  is_bigendian=0, step=width_px * 3, data=data)
 
