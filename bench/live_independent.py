@@ -35,6 +35,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
 from independent.added_latency import (
     WARM_UP_FRAMES,
     Block,
@@ -93,8 +94,9 @@ def joints_argv(prefixes: list[str], frames: int) -> list[str]:
     return part("joints.py", "--prefixes", *prefixes, "--rate-hz", str(JOINT_RATE_HZ), "--phase-sweep-s", str(frames / RATE_HZ))
 
 
-def send_block(size: int, frames: int, prefixes: list[str], env: dict[str, str]) -> list[SentFrame]:
-    """The robot driver, then the camera, in one domain for one block; the frames the camera sent, in order."""
+def send_block(size: int, frames: int, prefixes: list[str], env: dict[str, str]) -> tuple[list[SentFrame], list[float]]:
+    """The robot driver, then the camera, in one domain for one block; the frames the camera sent, in order, and
+    how long each publish call took (ms)."""
     children = [joints := LineProcess("joint driver", joints_argv(prefixes, frames), env, REPO)]
     try:
         joints.wait_line("ready", START_TIMEOUT_S)
@@ -103,15 +105,18 @@ def send_block(size: int, frames: int, prefixes: list[str], env: dict[str, str])
     finally:
         for child in reversed(children):
             child.stop(signal.SIGTERM)
-    return [SentFrame(*(int(v) for v in line.split()[1:3])) for line in camera.lines if line.startswith("sent ")]
+    sent = [[int(v) for v in line.split()[1:4]] for line in camera.lines if line.startswith("sent ")]
+    return [SentFrame(stamp_ns, sent_ns) for stamp_ns, sent_ns, _ in sent], [(done_ns - sent_ns) / 1e6 for _, sent_ns, done_ns in sent]
 
 
-def run_size(size: int, pairs: int, frames: int, domain: int, tmp: Path) -> SizeSummary:
-    """Both paths' subscribers (and the node) up for the whole size; camera and robot driver once per block, ABBA."""
+def run_size(size: int, pairs: int, frames: int, domain: int, tmp: Path) -> tuple[SizeSummary, float]:
+    """Both paths' subscribers (and the node) up for the whole size; camera and robot driver once per block, ABBA.
+    Returns the summary and the camera's median publish call (ms)."""
     width_px, height_px = SIZES_PX[size]
     rig, prefixes = scaled_rig(RIG, width_px, height_px, tmp)
     bare_env, node_env = env_for(domain), env_for(domain + 1)
     children: list[LineProcess] = []
+    publish_call_ms: list[float] = []
     try:
         children.append(bare := LineProcess("bare receiver", part("receiver.py", "image_raw", *BARE_QOS), bare_env, REPO))
         children.append(LineProcess("joint reader", part("receiver.py", "joint_states", *JOINT_READER), bare_env, REPO))
@@ -124,11 +129,13 @@ def run_size(size: int, pairs: int, frames: int, domain: int, tmp: Path) -> Size
 
         def run_block(path: StreamPath, pair: int) -> Block:
             if path is StreamPath.BARE:
-                sent = send_block(size, frames, prefixes, bare_env)
+                sent, publish_ms = send_block(size, frames, prefixes, bare_env)
+                publish_call_ms.extend(publish_ms)
                 wait_for_stamp(bare, sent[-1].stamp_ns, LAST_FRAME_WAIT_S)  # or lost
                 return block_of(path, sent, bare.lines)
             window = node_cpu.start()
-            sent = send_block(size, frames, prefixes, node_env)
+            sent, publish_ms = send_block(size, frames, prefixes, node_env)
+            publish_call_ms.extend(publish_ms)
             wait_for_stamp(through, sent[-1].stamp_ns, LAST_FRAME_WAIT_S)  # or lost
             if node.process.poll() is not None:
                 raise ChildNotReadyError(node.name, "running to the end", f"exited with {node.process.returncode}")
@@ -138,7 +145,7 @@ def run_size(size: int, pairs: int, frames: int, domain: int, tmp: Path) -> Size
     finally:
         for child in reversed(children):
             child.stop(signal.SIGTERM)
-    return summarize(f"{size}p", width_px, height_px, RATE_HZ, frames, blocks)
+    return summarize(f"{size}p", width_px, height_px, RATE_HZ, frames, blocks), float(np.median(publish_call_ms))
 
 
 def main() -> int:
@@ -158,11 +165,14 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for size in args.sizes:
             try:
-                summary = run_size(size, args.pairs, frames, args.domain, Path(tmp))
+                summary, publish_call_ms = run_size(size, args.pairs, frames, args.domain, Path(tmp))
             except (ChildNotReadyError, NoLatencyError) as exc:
                 print(f"live_independent: {exc}", file=sys.stderr)
                 return 1
             print("\n".join(report_lines(summary)), flush=True)
+            print(f"  camera publish call p50 {publish_call_ms:.2f} ms (a one-thread sender of frames and joint states, as "
+                  "the test publisher, holds a joint state due meanwhile that long: no later than the frame reaches the node)",
+                  flush=True)
             results.append(summary)
     print(f"load average at end: {os.getloadavg()[0]:.2f} ({os.cpu_count()} CPUs)")
     print("\n".join(final_line(s) for s in results))

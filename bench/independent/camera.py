@@ -10,9 +10,10 @@ of rows per pass through the pool, so no two frames of a run are equal.
 Slots lie on the wall clock's grid of the frame period. Each frame is built
 in the BUILD_LEAD_NS before its slot (a driver's readout and conversion),
 stamped with its slot time (the capture) and published when the slot comes.
-It prints `sent <stamp_ns> <sent_ns>` as it publishes each frame (sent -
-stamp is how late it was), `start` before the first and `done` after the
-last, for the orchestrator to read.
+It prints `sent <stamp_ns> <sent_ns> <published_ns>` after it published each
+frame (sent - stamp is how late it was; published - sent how long the
+publish call held this thread), `start` before the first and `done` after
+the last, for the orchestrator to read.
 
     python bench/independent/camera.py --width-px 1280 --height-px 720 --frames 1800
 """
@@ -91,8 +92,9 @@ def main() -> int:
         sleep_until(slot_ns)
         stamp_ns = slot_ns + wall_minus_monotonic_ns
         message.header.stamp = Time(sec=stamp_ns // NS_PER_S, nanosec=stamp_ns % NS_PER_S)
-        print(f"sent {stamp_ns} {time.time_ns()}", flush=True)
+        sent_ns = time.time_ns()
         publisher.publish(message)
+        print(f"sent {stamp_ns} {sent_ns} {time.time_ns()}", flush=True)
     print("done", flush=True)
     node.destroy_node()
     rclpy.try_shutdown()
