@@ -22,7 +22,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 import yaml
 from mcap.exceptions import McapError
@@ -31,6 +31,9 @@ from mcap.reader import make_reader
 from .. import __version__
 from ..core.config import RigConfig
 from ..core.errors import BagError, ConfigError, UsageError
+from .crc import crc32
+from .mcap_records import RECORD_PREFIX
+from .mcap_records import attachment as attachment_record
 from .reader import bag_information
 
 if TYPE_CHECKING:
@@ -182,6 +185,18 @@ def stored_records(bag: Path) -> StoredRecords | None:
     return StoredRecords(tuple((i.name, i.media_type, i.data_size) for i in indexes), metadata)
 
 
+def _read_attachment(stream: BinaryIO, offset: int, length: int, where: Path) -> BagAttachment:
+    """One attachment record, its CRC checked: a damaged rig file is refused, never extracted."""
+    stream.seek(offset)
+    record = stream.read(length)
+    body = record[RECORD_PREFIX.size:]
+    parsed = attachment_record(body)
+    if parsed.crc and crc32(body[: parsed.crc_covered_bytes]) != parsed.crc:
+        raise BagError(f"{where}: cannot read the rig stored in the bag (attachment {parsed.name!r} at byte {offset}: CRC mismatch)")
+    data = body[parsed.crc_covered_bytes - parsed.data_size: parsed.crc_covered_bytes]
+    return BagAttachment(parsed.name, parsed.media_type, bytes(data))
+
+
 def read_rig_inputs(bag: Path) -> RigInputs | None:
     """The rig a bag carries (from its first storage file), or None for a bag that carries none."""
     files = storage_files(bag)
@@ -189,12 +204,14 @@ def read_rig_inputs(bag: Path) -> RigInputs | None:
         return None
     try:
         with files[0].open("rb") as stream:
-            reader = make_reader(stream, validate_crcs=True)  # a damaged attachment is refused, never extracted
+            reader = make_reader(stream)
             records = [m for m in reader.iter_metadata() if m.name == RIG_METADATA_NAME]
             if not records:
                 return None
-            attachments = tuple(BagAttachment(a.name, a.media_type, bytes(a.data)) for a in reader.iter_attachments())
-    except (OSError, McapError, ValueError) as exc:
+            summary = reader.get_summary()
+            indexes = [] if summary is None else list(summary.attachment_indexes)
+            attachments = tuple(_read_attachment(stream, i.offset, i.length, files[0]) for i in indexes)
+    except (OSError, McapError, ValueError) as exc:  # ValueError: also a MalformedRecordError
         raise BagError(f"{files[0]}: cannot read the rig stored in the bag ({exc})") from exc
     entries = dict(records[0].metadata)
     names = {a.name for a in attachments}
@@ -231,7 +248,7 @@ def extract_rig(inputs: RigInputs, folder: Path, where: str) -> Path:
     try:
         doc = yaml.safe_load(by_name[RIG_ATTACHMENT].data)
     except yaml.YAMLError as exc:
-        raise BagError(f"{where}: the stored {RIG_ATTACHMENT} is not YAML ({exc})") from exc
+        raise BagError(f"{where}: the stored {RIG_ATTACHMENT} is not YAML ({' '.join(str(exc).split())})") from exc
     if not isinstance(doc, dict):
         raise BagError(f"{where}: the stored {RIG_ATTACHMENT} is not a rig config (expected a mapping)")
     for key_path, name in inputs.references.items():
