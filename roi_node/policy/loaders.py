@@ -115,7 +115,8 @@ def load_lerobot(spec: str) -> LoadedPolicy:
     steps = int(getattr(config, "n_action_steps", 0) or 0)
 
     def act(batch: Mapping[str, Any]) -> Any:
-        tensors: dict[str, Any] = {k: torch.as_tensor(v).unsqueeze(0) for k, v in batch.items() if not isinstance(v, str)}
+        # a batch of one, as LeRobot's dataloader makes it: arrays gain a leading axis, the task string becomes a list
+        tensors: dict[str, Any] = {k: [v] if isinstance(v, str) else torch.as_tensor(v).unsqueeze(0) for k, v in batch.items()}
         with torch.inference_mode():
             inputs = preprocess(tensors) if preprocess is not None else tensors
             chunk = policy.predict_action_chunk(inputs)  # (1, chunk_size, A)

@@ -6,12 +6,13 @@ node described from its outputs and the preflight (before any weights file
 is opened), then the policy's weights. The loop then ticks at the features'
 fps on absolute deadlines: when fewer than `refill_below` steps of the
 current chunk remain and a newer observation than the last one used has
-arrived, the policy is asked and its chunk replaces the rest; one step is
-clamped and published per tick. With no step left and no new observation,
-the chunk's last target is published again and the tick counted as held:
-the commands keep the dataset's rate, and a target the step clamp cut short
-is still reached. A tick missed while the policy computed is skipped, not
-made up in a burst.
+arrived, the policy is asked, on a thread of its own (policy_worker.py), while the
+rest of the chunk keeps being published; its chunk replaces what is left
+once it is ready. One step is clamped and published per tick. With no step
+left and no new chunk, the last target is published again and the tick
+counted as held: the commands keep the dataset's rate, and a target the step
+clamp cut short is still reached. A tick this thread was held up past is
+skipped, not made up in a burst.
 
 Observations are read on a thread of their own (the newest frame wins); a
 node that stops publishing ends the run with the stream's error. A NaN/inf
@@ -38,30 +39,18 @@ from rclpy.node import Node
 from roi_node.core.config import load_rig_config
 from roi_node.core.errors import RoiNodeError
 from roi_node.core.sync import NS_PER_S
-from roi_node.policy.action_errors import NonFiniteActionError
 from roi_node.policy.action_publisher import ActionPublisher
 from roi_node.policy.action_stats import ActionStats
-from roi_node.policy.actions import ActionChunkQueue, ActionClamp, ActionStep, action_joints, as_action_chunk
+from roi_node.policy.actions import ActionChunkQueue, ActionClamp, ActionStep, action_joints
 from roi_node.policy.features import PolicyFeatures
 from roi_node.policy.loaders import LoadedPolicy, PolicyKind, check_lerobot_folder, load_callable, load_lerobot, policy_kind
 from roi_node.policy.observations import PolicyObservation, PolicyObservationStream
+from roi_node.policy.policy_worker import WAIT_SLICE_S, LatestObservation, PolicyWorker
 from roi_node.policy.preflight import require_fit
 from roi_node.ros.spin import ros_context
 
 DIAGNOSTICS_PERIOD_NS = NS_PER_S
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-
-class PolicyCallError(RoiNodeError):
-    """The policy raised while acting: the run stops, naming the policy, the frame and the error."""
-
-    def __init__(self, policy: str, stamp_ns: int, error: BaseException) -> None:
-        detail = str(error).splitlines()[0][:300] if str(error) else ""
-        super().__init__(f"--policy {policy}: raised {type(error).__name__}{': ' + detail if detail else ''} "
-                         f"on the observation of frame {stamp_ns}")
-        self.policy = policy
-        self.stamp_ns = stamp_ns
-        self.error = error
 
 
 @dataclass(frozen=True)
@@ -76,30 +65,6 @@ class RunOptions:
     observation_timeout_s: float
     describe_frames: int  # frames the node is described from for the preflight
     ros_args: tuple[str, ...]
-
-
-class LatestObservation:
-    """The newest observation from a reader thread, and the error that ended the reader, if any."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self.observation: PolicyObservation | None = None
-        self.error: BaseException | None = None
-        self.arrived = threading.Event()
-
-    def put(self, observation: PolicyObservation) -> None:
-        with self._lock:
-            self.observation = observation
-        self.arrived.set()
-
-    def fail(self, error: BaseException) -> None:
-        self.error = error
-        self.arrived.set()
-
-    def take_newer(self, than_stamp_ns: int | None) -> PolicyObservation | None:
-        with self._lock:
-            obs = self.observation
-        return obs if obs is not None and (than_stamp_ns is None or obs.stamp_ns > than_stamp_ns) else None
 
 
 @contextmanager
@@ -172,54 +137,48 @@ def _read_observations(stream: PolicyObservationStream, latest: LatestObservatio
 def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPublisher, latest: LatestObservation,
           stop: threading.Event, refill_below: int) -> None:
     stats = publisher.stats
-    names = list(features.action_names)
     queue = ActionChunkQueue(refill_below)
     period_ns = round(NS_PER_S / features.fps)
-    latest.arrived.wait()
-    first = latest.take_newer(None)
+    first = None
+    while first is None and not stop.is_set():
+        if latest.error is not None:
+            raise latest.error
+        first = latest.wait_newer(None, WAIT_SLICE_S)
     if first is not None:
         _seed_from_state(publisher, first, features)
-    used_stamp_ns: int | None = None
+    worker = PolicyWorker(policy, features.action_names, latest, stats)
     held: ActionStep | None = None
     due_ns = time.monotonic_ns()
     next_diagnostics_ns = due_ns + DIAGNOSTICS_PERIOD_NS
-    while not stop.is_set():
-        if latest.error is not None:
-            raise latest.error
-        if queue.needs_policy() and (obs := latest.take_newer(used_stamp_ns)) is not None:
-            used_stamp_ns = obs.stamp_ns
-            stats.count_observation_age(obs.frame_age_s)
-            try:
-                output = policy.act(obs.batch)
-            except Exception as exc:  # the policy's own failure: named with the frame, never a traceback
-                raise PolicyCallError(policy.label, obs.stamp_ns, exc) from exc
-            stats.policy_calls += 1
-            try:
-                chunk = as_action_chunk(output, names, policy.label)
-            except NonFiniteActionError as exc:
-                stats.count_refusal(type(exc).__name__, str(exc))
-                print(f"roi-node policy run: {exc}", file=sys.stderr, flush=True)
-            else:
-                queue.load(chunk, obs.stamp_ns)
+    try:
+        while not stop.is_set():
+            if latest.error is not None:
+                raise latest.error
+            if (chunk := worker.take()) is not None:
+                queue.load(chunk.steps, chunk.source_stamp_ns)
                 stats.chunks += 1
-        step = queue.next_step()
-        if step is not None:
-            held = ActionStep(step.positions, step.source_stamp_ns, first_of_chunk=False)
-        elif held is not None:  # the chunk is used up and no newer frame came: its last target stays the command
-            step = held
-            stats.held_ticks += 1
-        if step is not None:
-            publisher.publish_step(step)
-        now_ns = time.monotonic_ns()
-        if now_ns >= next_diagnostics_ns:
-            publisher.publish_diagnostics()
-            next_diagnostics_ns = now_ns + DIAGNOSTICS_PERIOD_NS
-        due_ns += period_ns
-        if now_ns > due_ns:  # the policy took longer than a period: skip the missed ticks
-            missed = (now_ns - due_ns) // period_ns + 1
-            stats.late_ticks += int(missed)
-            due_ns += int(missed) * period_ns
-        stop.wait(max(due_ns - time.monotonic_ns(), 0) / NS_PER_S)
+            if queue.needs_policy() and not worker.busy:
+                worker.request()
+            step = queue.next_step()
+            if step is not None:
+                held = ActionStep(step.positions, step.source_stamp_ns, first_of_chunk=False)
+            elif held is not None:  # the chunk is used up and no new one is ready: its last target stays the command
+                step = held
+                stats.held_ticks += 1
+            if step is not None:
+                publisher.publish_step(step)
+            now_ns = time.monotonic_ns()
+            if now_ns >= next_diagnostics_ns:
+                publisher.publish_diagnostics()
+                next_diagnostics_ns = now_ns + DIAGNOSTICS_PERIOD_NS
+            due_ns += period_ns
+            if now_ns > due_ns:  # this thread was held up past a tick (a loaded machine): skip it, no burst
+                missed = (now_ns - due_ns) // period_ns + 1
+                stats.late_ticks += int(missed)
+                due_ns += int(missed) * period_ns
+            stop.wait(max(due_ns - time.monotonic_ns(), 0) / NS_PER_S)
+    finally:
+        worker.close()
 
 
 def _seed_from_state(publisher: ActionPublisher, observation: PolicyObservation, features: PolicyFeatures) -> None:

@@ -34,7 +34,8 @@ from roi_node.policy.features import FeatureSource, PolicyFeatures
 from roi_node.policy.loaders import LoadedPolicy, PolicyKind
 from roi_node.policy.observations import PolicyObservation
 from roi_node.policy.policy_diagnostics import STATUS_NAME
-from roi_node.policy.runner import LatestObservation, PolicyCallError, _loop
+from roi_node.policy.policy_worker import LatestObservation, PolicyCallError
+from roi_node.policy.runner import _loop
 
 from ..live.harness import next_domain
 

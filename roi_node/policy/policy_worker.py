@@ -1,0 +1,146 @@
+"""The policy asked on a thread of its own, so commands keep the dataset's rate while it computes.
+
+A policy may take longer than a frame period (a transformer on a CPU takes
+many): asked on the control loop's thread, every tick it computed through
+would go without a command. `PolicyWorker` takes a request when the chunk
+runs low, waits for an observation newer than the last one it used, acts on
+it and hands back the validated chunk; meanwhile the loop keeps publishing
+the rest of the current chunk. A refused output (NaN/inf) is counted and the
+next request tries a newer frame; any other failure is kept and raised on
+the loop's thread by `take`.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from roi_node.core.errors import RoiNodeError
+from roi_node.policy.action_errors import NonFiniteActionError
+from roi_node.policy.action_stats import ActionStats
+from roi_node.policy.actions import as_action_chunk
+from roi_node.policy.loaders import LoadedPolicy
+from roi_node.policy.observations import PolicyObservation
+
+WAIT_SLICE_S = 0.05  # how often a waiting thread looks at the stop flag
+
+
+class PolicyCallError(RoiNodeError):
+    """The policy raised while acting: the run stops, naming the policy, the frame and the error."""
+
+    def __init__(self, policy: str, stamp_ns: int, error: BaseException) -> None:
+        detail = str(error).splitlines()[0][:300] if str(error) else ""
+        super().__init__(f"--policy {policy}: raised {type(error).__name__}{': ' + detail if detail else ''} "
+                         f"on the observation of frame {stamp_ns}")
+        self.policy = policy
+        self.stamp_ns = stamp_ns
+        self.error = error
+
+
+class LatestObservation:
+    """The newest observation from a reader thread, and the error that ended the reader, if any."""
+
+    def __init__(self) -> None:
+        self._changed = threading.Condition()
+        self.observation: PolicyObservation | None = None
+        self.error: BaseException | None = None
+
+    def put(self, observation: PolicyObservation) -> None:
+        with self._changed:
+            self.observation = observation
+            self._changed.notify_all()
+
+    def fail(self, error: BaseException) -> None:
+        with self._changed:
+            self.error = error
+            self._changed.notify_all()
+
+    def wait_newer(self, than_stamp_ns: int | None, timeout_s: float) -> PolicyObservation | None:
+        """An observation stamped after `than_stamp_ns` (any, for None), waiting up to `timeout_s`; None if none came."""
+        with self._changed:
+            self._changed.wait_for(lambda: self.error is not None or self._newer(than_stamp_ns) is not None, timeout_s)
+            return self._newer(than_stamp_ns)
+
+    def _newer(self, than_stamp_ns: int | None) -> PolicyObservation | None:
+        obs = self.observation
+        return obs if obs is not None and (than_stamp_ns is None or obs.stamp_ns > than_stamp_ns) else None
+
+
+@dataclass(frozen=True)
+class PolicyChunk:
+    steps: np.ndarray  # (N, A), validated
+    source_stamp_ns: int
+
+
+class PolicyWorker:
+    def __init__(self, policy: LoadedPolicy, action_names: Sequence[str], latest: LatestObservation, stats: ActionStats) -> None:
+        self.policy = policy
+        self.action_names = list(action_names)
+        self.latest = latest
+        self.stats = stats
+        self._lock = threading.Lock()
+        self._requested = threading.Event()
+        self._stop = threading.Event()
+        self._result: PolicyChunk | None = None
+        self._error: BaseException | None = None
+        self._used_stamp_ns: int | None = None
+        self._thread = threading.Thread(target=self._run, name="policy", daemon=True)
+        self._thread.start()
+
+    @property
+    def busy(self) -> bool:
+        """A request is open: the policy is waiting for a frame or computing."""
+        return self._requested.is_set()
+
+    def request(self) -> None:
+        self._requested.set()
+
+    def take(self) -> PolicyChunk | None:
+        """The chunk computed since the last take, if any; raises the failure that stopped the worker."""
+        with self._lock:
+            if self._error is not None:
+                raise self._error
+            result, self._result = self._result, None
+        return result
+
+    def close(self) -> None:
+        self._stop.set()
+        self._requested.set()
+        self._thread.join()
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                if not self._requested.wait(WAIT_SLICE_S):
+                    continue
+                observation = self.latest.wait_newer(self._used_stamp_ns, WAIT_SLICE_S)
+                if observation is None or self._stop.is_set():
+                    continue
+                self._used_stamp_ns = observation.stamp_ns
+                chunk = self._act(observation)
+                with self._lock:
+                    if chunk is not None:
+                        self._result = chunk
+                    self._requested.clear()
+        except BaseException as exc:  # raised on the loop's thread by take()
+            with self._lock:
+                self._error = exc
+
+    def _act(self, observation: PolicyObservation) -> PolicyChunk | None:
+        self.stats.count_observation_age(observation.frame_age_s)
+        try:
+            output = self.policy.act(observation.batch)
+        except Exception as exc:  # the policy's own failure: named with the frame, never a traceback
+            raise PolicyCallError(self.policy.label, observation.stamp_ns, exc) from exc
+        self.stats.policy_calls += 1
+        try:
+            steps = as_action_chunk(output, self.action_names, self.policy.label)
+        except NonFiniteActionError as exc:
+            self.stats.count_refusal(type(exc).__name__, str(exc))
+            print(f"roi-node policy run: {exc}", file=sys.stderr, flush=True)
+            return None
+        return PolicyChunk(steps, observation.stamp_ns)
