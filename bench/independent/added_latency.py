@@ -21,6 +21,11 @@ code is used here. The definition:
   sender run whose joint phase against the frames runs through one whole
   joint period, and the first WARM_UP_FRAMES frames of each block are left
   out (a sender starting up; the node and receivers after an idle block);
+- a pair is left out (and said why) when its two blocks cannot be compared:
+  the sender fell behind or was late by different amounts, or the bare
+  transport could not keep up (`pair_left_out_because`); the size is INVALID
+  when fewer than MIN_PAIRS pairs remain; every figure below is of the
+  pairs kept;
 - node-added p50 is the median over pairs of [p50 of the pair's (b) block -
   p50 of its (a) block]; beside it are the pairs' interquartile range and a
   bootstrap 95% interval of that median (pairs resampled, BOOTSTRAP_DRAWS
@@ -135,13 +140,15 @@ class Interval:
 
 @dataclass(frozen=True)
 class SizeSummary:
-    """One frame size's pairs summarised by the module docstring's definition."""
+    """One frame size's comparable pairs summarised by the module docstring's definition."""
 
     label: str  # "720p"
     width_px: int
     height_px: int
     rate_hz: float
     frames_per_block: int
+    pairs_run: int
+    left_out: list[str]  # "pair <k>: <why>", one per pair not comparable
     baseline_p50_ms: float
     node_p50_ms: float
     added_p50_ms: float
@@ -176,19 +183,45 @@ def bootstrap_median_ci95(values: np.ndarray) -> Interval:
     return Interval(float(np.percentile(medians, 2.5)), float(np.percentile(medians, 97.5)))
 
 
+def pair_left_out_because(bare: Block, node: Block, rate_hz: float) -> str | None:
+    """Why a pair's (a) and (b) cannot be compared, or None: the sender's lateness is in both latencies, so it
+    must not differ between them by more than LATENESS_TOLERANCE_MS (it would pass for the node's) nor ever
+    reach a frame period (a backlog, in which frames also get lost), and a bare median over a frame period
+    means the machine could not carry the stream at all."""
+    period_ms = 1000.0 / rate_hz
+    late_a, late_b = float(np.median(bare.sent_late_ms)), float(np.median(node.sent_late_ms))
+    if abs(late_a - late_b) > LATENESS_TOLERANCE_MS:
+        return f"the sender's median lateness differs between (a) and (b) ({late_a:.2f} / {late_b:.2f} ms)"
+    worst_ms = max(float(bare.sent_late_ms.max()), float(node.sent_late_ms.max()))
+    if worst_ms > period_ms:
+        return f"the sender fell behind: a frame went out {worst_ms:.1f} ms after its stamp"
+    if bare.p50_ms() > period_ms:
+        return f"the bare transport's median {bare.p50_ms():.1f} ms exceeds a frame period"
+    return None
+
+
 def summarize(label: str, width_px: int, height_px: int, rate_hz: float, frames_per_block: int,
               pairs: Sequence[tuple[Block, Block]]) -> SizeSummary:
-    bare = [a for a, _ in pairs]
-    node = [b for _, b in pairs]
+    """The comparable pairs summarised; with fewer than MIN_PAIRS of them, every pair is, marked INVALID."""
+    reasons = [pair_left_out_because(a, b, rate_hz) for a, b in pairs]
+    left_out = [f"pair {k}: {why}" for k, why in enumerate(reasons) if why is not None]
+    kept = [pair for pair, why in zip(pairs, reasons, strict=True) if why is None]
+    invalid = None
+    if len(kept) < MIN_PAIRS:
+        invalid = f"{len(kept)} of {len(pairs)} pairs comparable: expected at least {MIN_PAIRS} for a spread"
+        kept = list(pairs)
+    bare = [a for a, _ in kept]
+    node = [b for _, b in kept]
     baseline = np.asarray([a.p50_ms() for a in bare])
-    added = np.asarray([b.p50_ms() - a.p50_ms() for a, b in pairs])
+    added = np.asarray([b.p50_ms() - a.p50_ms() for a, b in kept])
     pooled_bare = np.concatenate([a.latency_ms for a in bare])
     pooled_node = np.concatenate([b.latency_ms for b in node])
     late_bare = np.concatenate([a.sent_late_ms for a in bare])
     late_node = np.concatenate([b.sent_late_ms for b in node])
     cpu = np.asarray([b.node_cpu_ms_per_frame for b in node])
-    summary = SizeSummary(
+    return SizeSummary(
         label=label, width_px=width_px, height_px=height_px, rate_hz=rate_hz, frames_per_block=frames_per_block,
+        pairs_run=len(pairs), left_out=left_out,
         baseline_p50_ms=float(np.median(baseline)), node_p50_ms=float(np.median([b.p50_ms() for b in node])),
         added_p50_ms=float(np.median(added)), added_ci95_ms=bootstrap_median_ci95(added), added_iqr_ms=_iqr(added),
         added_per_pair_ms=[float(v) for v in added], baseline_per_pair_ms=[float(v) for v in baseline],
@@ -198,35 +231,18 @@ def summarize(label: str, width_px: int, height_px: int, rate_hz: float, frames_
         lost_node=sum(b.frames_sent - b.frames_received for b in node),
         sent_late_p50_bare_ms=float(np.median(late_bare)), sent_late_p50_node_ms=float(np.median(late_node)),
         sent_late_max_ms=float(max(late_bare.max(), late_node.max())),
-        node_cpu_ms_per_frame=float(np.median(cpu)), node_cpu_iqr_ms=_iqr(cpu), invalid_because=None,
+        node_cpu_ms_per_frame=float(np.median(cpu)), node_cpu_iqr_ms=_iqr(cpu), invalid_because=invalid,
     )
-    return _with_validity(summary, len(pairs))
-
-
-def _with_validity(s: SizeSummary, pairs: int) -> SizeSummary:
-    """Mark a size whose two paths cannot be compared (the sender's lateness is in both latencies)."""
-    period_ms = 1000.0 / s.rate_hz
-    why = None
-    if pairs < MIN_PAIRS:
-        why = f"{pairs} pair(s): expected at least {MIN_PAIRS} for a spread"
-    elif abs(s.sent_late_p50_bare_ms - s.sent_late_p50_node_ms) > LATENESS_TOLERANCE_MS:
-        why = (f"the sender's median lateness differs between (a) and (b) "
-               f"({s.sent_late_p50_bare_ms:.2f} / {s.sent_late_p50_node_ms:.2f} ms)")
-    elif s.sent_late_max_ms > period_ms:
-        why = f"the sender fell behind: a frame went out {s.sent_late_max_ms:.1f} ms after its stamp"
-    elif s.baseline_p50_ms > period_ms:
-        why = f"the bare transport's median {s.baseline_p50_ms:.1f} ms exceeds a frame period"
-    return s if why is None else SizeSummary(**{**s.__dict__, "invalid_because": why})
 
 
 def report_lines(s: SizeSummary) -> list[str]:
     """The size's figures, one per line, the last the one to compare between the benches."""
-    pairs = len(s.added_per_pair_ms)
     per_pair = " ".join(f"{v:.2f}" for v in s.added_per_pair_ms)
     baselines = " ".join(f"{v:.2f}" for v in s.baseline_per_pair_ms)
     return [
-        f"{s.width_px}x{s.height_px}@{s.rate_hz:g}: {pairs} ABBA pairs of {s.frames_per_block}-frame blocks "
-        f"(the first {WARM_UP_FRAMES} of each left out)",
+        f"{s.width_px}x{s.height_px}@{s.rate_hz:g}: {s.pairs_run} ABBA pairs of {s.frames_per_block}-frame blocks "
+        f"(the first {WARM_UP_FRAMES} frames of each left out), {s.pairs_run - len(s.left_out)} comparable",
+        *(f"  left out: {why}" for why in s.left_out),
         f"  (a) bare p50 per pair ms: {baselines}",
         f"  b-a p50 per pair ms:      {per_pair}",
         f"  baseline (a) p50 {s.baseline_p50_ms:.2f} ms | via node (b) p50 {s.node_p50_ms:.2f} ms | "
