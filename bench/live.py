@@ -60,7 +60,7 @@ from independent.added_latency import (
     run_pairs,
     summarize,
 )
-from independent.procs import BlockCpu, ChildNotReadyError, LineProcess, wait_for_stamp
+from independent.procs import BlockCpu, ChildNotReadyError, LineProcess, wait_for_stamp, wait_node_up
 
 from roi_node.core.camera import calibration_yaml_text, camera_from_info
 from roi_node.core.config import load_rig_config
@@ -72,7 +72,7 @@ SIZES = {720: (1280, 720), 1080: (1920, 1080)}
 RATE_HZ = 30.0
 JOINT_RATE_HZ = 200.0
 TARGETS_MS = {720: (4.0, None), 1080: (6.0, 12.0)}  # node-added latency: (median, p99)
-START_TIMEOUT_S = 120.0  # a node's first start on a busy machine loads the URDFs and the compiled kernels
+START_TIMEOUT_S = 300.0  # a node's first start loads the URDFs and the compiled kernels: minutes on a crowded machine
 LAST_FRAME_WAIT_S = 2.0  # after the publisher's end: an ROI not arrived by then is counted lost
 BARE_QOS = ("--reliability", "best_effort", "--depth", "5")  # as roi_node subscribes to the camera by default
 ROI_QOS = ("--reliability", "reliable", "--depth", "10")  # roi_node publishes reliable
@@ -145,7 +145,7 @@ def run_size(size: int, pairs: int, block_frames: int, tmp: Path, domain: int, i
         node_cpu = BlockCpu(node)
         children.append(through := LineProcess("ROI receiver", [*receiver_argv, "roi/left/image_raw", *ROI_QOS], node_env, REPO,
                                                lambda line: node_cpu.mark() if line.startswith("got ") else None))
-        through.wait_line("ready", START_TIMEOUT_S)  # the node is up: its ROI publisher matched
+        wait_node_up(node, through, START_TIMEOUT_S)
 
         def run_block(path: StreamPath, pair: int) -> Block:
             if path is StreamPath.BARE:

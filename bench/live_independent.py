@@ -49,7 +49,7 @@ from independent.added_latency import (
     run_pairs,
     summarize,
 )
-from independent.procs import BlockCpu, ChildNotReadyError, LineProcess, wait_for_stamp
+from independent.procs import BlockCpu, ChildNotReadyError, LineProcess, wait_for_stamp, wait_node_up
 from independent.rig import scaled_rig
 
 REPO = Path(__file__).resolve().parents[1]
@@ -61,7 +61,7 @@ JOINT_RATE_HZ = 200.0
 BARE_QOS = ("--reliability", "best_effort", "--depth", "5")  # as roi_node subscribes to the camera by default
 ROI_QOS = ("--reliability", "reliable", "--depth", "10")  # roi_node publishes reliable
 JOINT_READER = ("--type", "joint_state", "--quiet", "--reliability", "best_effort", "--depth", "100")  # in (a), as the node reads
-START_TIMEOUT_S = 120.0  # a node's first start on a busy machine loads the URDFs and the compiled kernels
+START_TIMEOUT_S = 300.0  # a node's first start loads the URDFs and the compiled kernels: minutes on a crowded machine
 LAST_FRAME_WAIT_S = 2.0  # after the camera's last frame: what has not arrived by then is counted lost
 
 
@@ -125,7 +125,7 @@ def run_size(size: int, pairs: int, frames: int, domain: int, tmp: Path) -> tupl
         node_cpu = BlockCpu(node)
         children.append(through := LineProcess("ROI receiver", part("receiver.py", "roi/left/image_raw", *ROI_QOS), node_env, REPO,
                                                lambda line: node_cpu.mark() if line.startswith("got ") else None))
-        through.wait_line("ready", START_TIMEOUT_S)  # the node is up: its ROI publisher matched
+        wait_node_up(node, through, START_TIMEOUT_S)
 
         def run_block(path: StreamPath, pair: int) -> Block:
             if path is StreamPath.BARE:

@@ -68,7 +68,11 @@ class LineProcess:
     def wait_line(self, text: str, timeout_s: float) -> None:
         """Block until the child printed `text`; ChildNotReadyError if it did not in time."""
         if not self.wait_for(lambda lines: text in lines, timeout_s):
-            raise ChildNotReadyError(self.name, text, " | ".join(self._stderr_lines))
+            raise ChildNotReadyError(self.name, text, self.stderr_tail())
+
+    def stderr_tail(self) -> str:
+        """The child's last few stderr lines, joined (what it said before it stopped or stalled)."""
+        return " | ".join(self._stderr_lines)
 
     def cpu_s(self) -> float:
         """User + system CPU time of the process (all its threads) so far, from /proc/<pid>/stat."""
@@ -131,3 +135,11 @@ class BlockCpu:
 def wait_for_stamp(receiver: LineProcess, stamp_ns: int, timeout_s: float) -> bool:
     """Wait until the receiver printed a `got <stamp_ns> ...` line (True) or the time ran out (False: lost)."""
     return receiver.wait_for(lambda lines: any(line.startswith(f"got {stamp_ns} ") for line in lines[-5:]), timeout_s)
+
+
+def wait_node_up(node: LineProcess, roi_receiver: LineProcess, timeout_s: float) -> None:
+    """Block until the ROI receiver matched the node's ROI publisher: the node is up. If not in time, the
+    ChildNotReadyError names the node, with its stderr, rather than the receiver that waited for it."""
+    if not roi_receiver.wait_for(lambda lines: "ready" in lines, timeout_s):
+        state = "still starting" if node.process.poll() is None else f"exited with {node.process.returncode}"
+        raise ChildNotReadyError(node.name, "ROI publisher matched", f"({state}) {node.stderr_tail()}")
