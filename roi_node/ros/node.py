@@ -408,6 +408,8 @@ class StreamNode(Node):
         with self._lock:
             self._failing_since = None
             self.stats.frame_out(result.record, latency_ms, process_ms)
+            if latency_ms is not None:
+                self._status.note_latency(latency_ms)
 
     def _check_persistent_failure(self, line: str) -> None:
         """Worker or decoder thread: a frame failed; stop the node if every frame failed for max_failure_s."""
