@@ -1,7 +1,8 @@
 """Quality gates (`schema: roi_node/gates/v1`): thresholds on validation metrics, and their verdicts.
 
 A gates file names metrics (stats.ARM_METRICS per arm, stats.BAG_METRICS per
-bag, drift.DRIFT_METRICS per arm) with a `min` and/or `max` bound; `null`
+bag, drift.DRIFT_METRICS per arm, rollout.ROLLOUT_METRICS per arm of a bag
+that recorded a policy's commands) with a `min` and/or `max` bound; `null`
 switches a gate off. The file given replaces the defaults in
 config/gates.yaml: a gate is only what the file says. Every error names the
 file, the key and the value, like the rig config.
@@ -22,6 +23,7 @@ from ..core.metadata import HASH_PREFIX
 from ..core.resources import config_dir
 from ..core.yaml_file import read_yaml
 from .drift import DRIFT_METRICS
+from .rollout import ROLLOUT_METRICS
 from .stats import ARM_METRICS, BAG_METRICS, Metric
 
 GATES_SCHEMA = "roi_node/gates/v1"
@@ -38,6 +40,7 @@ SCOPES = {
     IMPLAUSIBLE_STAMPS_METRIC: "bag",
     **dict.fromkeys(DRIFT_METRICS, "drift"),
     **dict.fromkeys(CALIBRATION_METRICS, "calibration"),
+    **dict.fromkeys(ROLLOUT_METRICS, "rollout"),
 }
 BAG_SCOPE = "-"  # the `arm` of a bag-level gate result
 
@@ -46,12 +49,14 @@ BAG_SCOPE = "-"  # the `arm` of a bag-level gate result
 class GateParams:
     stamp_gap_factor: float = 1.5  # a stamp interval longer than this many median periods is a gap
     window_fraction: float = 1 / 3  # window drift: the last this-much of a bag against the first
+    command_gap_periods: float = 3.0  # rollouts: a pause longer than this many median command periods ends a policy-driven span
+    excursion_in_frame_below: float = 0.5  # rollouts: an arm whose in-frame ratio falls below this has left the frame
 
 
 @dataclass(frozen=True)
 class Gate:
     metric: str
-    scope: str  # arm | bag | drift | calibration
+    scope: str  # arm | bag | drift | calibration | rollout
     op: str  # min | max
     threshold: float
 
@@ -136,7 +141,7 @@ def _params(file: Path, node: object) -> GateParams:
         return GateParams()
     if not isinstance(node, Mapping):
         raise ConfigError(f"{file}: params: expected a mapping, got {node!r}")
-    allowed = ("stamp_gap_factor", "window_fraction")
+    allowed = ("stamp_gap_factor", "window_fraction", "command_gap_periods", "excursion_in_frame_below")
     for key in node:
         if key not in allowed:
             raise ConfigError(f"{file}: params.{key}: unknown key; expected one of {', '.join(allowed)}")
@@ -147,7 +152,13 @@ def _params(file: Path, node: object) -> GateParams:
     fraction = _number(file, "params.window_fraction", node.get("window_fraction", defaults.window_fraction))
     if not 0.0 < fraction <= 0.5:
         raise ConfigError(f"{file}: params.window_fraction: must be in (0, 0.5], got {fraction}")
-    return GateParams(gap, fraction)
+    command_gap = _number(file, "params.command_gap_periods", node.get("command_gap_periods", defaults.command_gap_periods))
+    if command_gap <= 1.0:
+        raise ConfigError(f"{file}: params.command_gap_periods: must be > 1 (a multiple of the median command period), got {command_gap}")
+    below = _number(file, "params.excursion_in_frame_below", node.get("excursion_in_frame_below", defaults.excursion_in_frame_below))
+    if not 0.0 < below <= 1.0:
+        raise ConfigError(f"{file}: params.excursion_in_frame_below: must be in (0, 1] (an in-frame ratio), got {below}")
+    return GateParams(gap, fraction, command_gap, below)
 
 
 def load_gates(path: Path | None = None) -> GateSet:
@@ -188,10 +199,12 @@ def evaluate(
     arm_metrics: Mapping[str, Mapping[str, Metric]],
     drift_metrics: Mapping[str, Mapping[str, Metric]],
     calibration_metrics: Mapping[str, Mapping[str, Metric]] | None = None,
+    rollout_metrics: Mapping[str, Mapping[str, Metric]] | None = None,
 ) -> list[GateResult]:
     """Every gate on every arm it applies to. A drift gate whose comparison was not made (no
     --baseline, or a bag too short for windows) is left out, and so is a calibration gate when
-    the check was not run (no --config, or a bag without its inputs); a metric without data is `no_data`.
+    the check was not run (no --config, or a bag without its inputs), and a rollout gate on a bag that
+    recorded no commands (a demonstration); a metric without data is `no_data`.
     `calibration_metrics` is keyed by arm id, and by BAG_SCOPE for the bag's delay."""
     results: list[GateResult] = []
     for gate in gates.gates:
@@ -201,6 +214,8 @@ def evaluate(
             )
         elif gate.scope == "bag":
             results.append(_verdict(gate, BAG_SCOPE, bag_metrics.get(gate.metric)))  # absent: not measured for this bag
+        elif gate.scope == "rollout":
+            results.extend(_verdict(gate, arm, metrics[gate.metric]) for arm, metrics in (rollout_metrics or {}).items())
         elif gate.scope == "arm":
             results.extend(_verdict(gate, arm, metrics[gate.metric]) for arm, metrics in arm_metrics.items())
         else:

@@ -200,6 +200,7 @@ def _bag_section(bag: Mapping[str, Any]) -> list[str]:
     lines += _timing_section(bag)
     lines += _drift_section(bag)
     lines += _calibration_section(bag)
+    lines += _rollout_section(bag)
     lines += _lineage_section(details["lineage"])
     lines += _governance_section(bag)
     return lines
@@ -279,6 +280,31 @@ def _calibration_section(bag: Mapping[str, Any]) -> list[str]:
     rows = [[arm, a["offset_px"], a["spread_px"], a["frames"], a["verdict"]] for arm, a in check["arms"].items()]
     lines += _table(["arm", "reprojection offset px (dx, dy)", "per-frame spread px", "frames", "verdict"], rows)
     lines += [f"- hint: {hint}" for hint in check["hints"]] + ([""] if check["hints"] else [])
+    return lines
+
+
+def _rollout_section(bag: Mapping[str, Any]) -> list[str]:
+    """The policy-driven spans of a recorded rollout, and per arm the jitter and excursions there."""
+    rollout = bag.get("rollout")
+    if not rollout:
+        return []
+    ratio = rollout["policy_driven_ratio"]
+    lines = [
+        "### Rollout",
+        "",
+        f"{rollout['commands']} commands on `{rollout['command_topic']}` (median period {_v(rollout['command_period_ms'])} ms); "
+        f"the policy drove {rollout['policy_driven_frames']} frames ({_v(ratio)} of the bag) in {len(rollout['spans'])} span(s):",
+        "",
+    ]
+    lines += _table(["span start ns", "end ns", "duration s", "commands", "frames"],
+                    [[s["start_ns"], s["end_ns"], s["duration_s"], s["commands"], s["frames"]] for s in rollout["spans"]])
+    keys = ("rollout_jitter_rms", "rollout_jitter_px_rms", "rollout_excursions", "rollout_recovery_s_max", "rollout_unrecovered_excursions")
+    rows = [[arm, *(a["metrics"][k] for k in keys)] for arm, a in rollout["arms"].items()]
+    lines += _table(["arm", "jitter RMS / ROI side", "jitter RMS px", "excursions", "longest recovery s", "unrecovered"], rows)
+    excursions = [[arm, e["left_ns"], e["back_ns"], e["recovery_s"], e["min_in_frame"], "yes" if e["policy_driven"] else "no"]
+                  for arm, a in rollout["arms"].items() for e in a["excursions"]]
+    if excursions:
+        lines += _table(["arm", "left frame ns", "back ns", "recovery s", "lowest in-frame", "policy-driven"], excursions)
     return lines
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -80,7 +80,7 @@ class ValidationRun:
             "gates": {
                 "path": str(self.gates.path),
                 "sha256": self.gates.sha256,
-                "params": {"stamp_gap_factor": self.gates.params.stamp_gap_factor, "window_fraction": self.gates.params.window_fraction},
+                "params": asdict(self.gates.params),
                 "thresholds": [{"gate": g.metric, "scope": g.scope, "op": g.op, "threshold": g.threshold} for g in self.gates.gates],
             },
             "baseline": None if self.baseline is None else str(self.baseline),

@@ -22,6 +22,8 @@ from .gates import IMPLAUSIBLE_STAMPS_METRIC, GateParams, GateSet, evaluate
 from .report import JSON_NAME, prepare_report_dir, write_bag_figures, write_report
 from .results import BagScan, BagValidation, ValidationRun
 from .roibag import RoiBag
+from .rollout import RolloutSummary, analyse_rollout
+from .rollout_commands import CommandTopic, command_log_times
 from .samples import SampleChooser
 from .stats import BagStats
 
@@ -56,10 +58,25 @@ def _drift_dict(arms: dict[str, ArmDrift]) -> dict[str, Any]:
     return {arm_id: drift.as_dict() for arm_id, drift in arms.items()}
 
 
+def rollout_of(scan: BagScan, gates: GateSet, command: CommandTopic) -> RolloutSummary | None:
+    """The rollout part of a bag that recorded a policy's commands (rollout.py); None for a demonstration."""
+    times = command_log_times(scan.path, command)
+    if times is None:
+        return None
+    params = gates.params
+    return analyse_rollout(scan.summary.series, times, command.full_name, gap_periods=params.command_gap_periods,
+                           in_frame_below=params.excursion_in_frame_below)
+
+
 def judge(
-    scan: BagScan, gates: GateSet, name: str, baseline: BagScan | None = None, calibration: CalibrationCheck | None = None
+    scan: BagScan,
+    gates: GateSet,
+    name: str,
+    baseline: BagScan | None = None,
+    calibration: CalibrationCheck | None = None,
+    rollout: RolloutSummary | None = None,
 ) -> BagValidation:
-    """Gates and drift for a scanned bag (and the calibration gates when its check was run)."""
+    """Gates and drift for a scanned bag (and the calibration gates when its check was run, the rollout gates for a rollout)."""
     summary = scan.summary
     windows = window_drift(summary.series, gates.params.window_fraction)
     drift_metrics: dict[str, dict[str, Any]] = {arm: d.metrics("window") for arm, d in windows.items()}
@@ -78,7 +95,8 @@ def judge(
         }
     calibration_metrics = calibration.gate_metrics() if calibration is not None else None
     bag_metrics = {**summary.bag_metrics, IMPLAUSIBLE_STAMPS_METRIC: implausible_stamps(scan)}
-    results = evaluate(gates, bag_metrics, summary.arm_metrics, drift_metrics, calibration_metrics)
+    rollout_metrics = rollout.arm_metrics if rollout is not None else None
+    results = evaluate(gates, bag_metrics, summary.arm_metrics, drift_metrics, calibration_metrics, rollout_metrics)
     result = {
         "path": str(scan.path.resolve()),
         "name": name,
@@ -94,6 +112,7 @@ def judge(
             "window": {"fraction": gates.params.window_fraction, "arms": _drift_dict(windows)},
         },
         "calibration": None if calibration is None else calibration.as_dict(),
+        "rollout": None if rollout is None else rollout.as_dict(),
     }
     return BagValidation(scan.path, name, results, result)
 
@@ -118,17 +137,20 @@ def validate_bags(
     report_dir: Path | None = None,
     rig: RigConfig | None = None,
     progress: bool = False,
+    command: CommandTopic | None = None,
 ) -> ValidationRun:
     """Validate every bag (in order); with `report_dir`, also draw figures and write REPORT.md + validation.json.
 
     With `rig`, bags that carry their inputs also get the image-based calibration check (check-calibration).
+    Bags that recorded `command` (default: /joint_commands, if present) are also judged as rollouts (rollout.py).
     The report folder is built in a temporary sibling and replaces `report_dir` only when complete.
     """
+    command = command or CommandTopic()
     if report_dir is None:
-        return _validate(paths, gates, baseline, None, rig, progress)
+        return _validate(paths, gates, baseline, None, rig, progress, command)
     check_report_target(report_dir)
     with atomic_output(report_dir, overwrite=True) as partial:
-        return _validate(paths, gates, baseline, partial, rig, progress)
+        return _validate(paths, gates, baseline, partial, rig, progress, command)
 
 
 def check_report_target(report_dir: Path) -> None:
@@ -140,7 +162,13 @@ def check_report_target(report_dir: Path) -> None:
 
 
 def _validate(
-    paths: list[Path], gates: GateSet, baseline: Path | None, report_dir: Path | None, rig: RigConfig | None, progress: bool
+    paths: list[Path],
+    gates: GateSet,
+    baseline: Path | None,
+    report_dir: Path | None,
+    rig: RigConfig | None,
+    progress: bool,
+    command: CommandTopic,
 ) -> ValidationRun:
     if report_dir is not None:
         prepare_report_dir(report_dir)
@@ -151,7 +179,7 @@ def _validate(
         calibration = None
         if rig is not None and carries_inputs(scan.topics):
             calibration = check_calibration(path, rig, Tolerances.from_gates(gates))
-        validation = judge(scan, gates, name, base, calibration)
+        validation = judge(scan, gates, name, base, calibration, rollout_of(scan, gates, command))
         if report_dir is not None:
             validation.figures = write_bag_figures(scan, validation, gates, report_dir)
         run.bags.append(validation)

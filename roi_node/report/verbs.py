@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from ..core.config import RigConfig
@@ -17,6 +17,7 @@ EXIT_GATE_FAILED = 1
 def _cmd_validate(args: argparse.Namespace) -> int:
     from .gates import load_gates
     from .report import REPORT_NAME
+    from .rollout_commands import DEFAULT_COMMAND_TOPIC, CommandTopic
     from .validate import validate_bags
 
     gates = load_gates(Path(args.gates) if args.gates else None)
@@ -24,7 +25,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     rig = _rig(args.config) if args.config else None
     run = validate_bags(
         [Path(p) for p in args.bags], gates, baseline=Path(args.baseline) if args.baseline else None, report_dir=report_dir, rig=rig,
-        progress=True,
+        progress=True, command=CommandTopic(args.command_topic or DEFAULT_COMMAND_TOPIC, required=args.command_topic is not None),
     )
     out = sys.stderr if args.json else sys.stdout  # with --json, stdout is the JSON document only
     for bag in run.bags:
@@ -32,6 +33,8 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         frames = bag.result["bag_metrics"]["frames"]
         verdict = f"FAIL ({len(failed)} of {len(bag.gates)} gates failed)" if failed else f"PASS ({len(bag.gates)} gates)"
         print(f"{bag.path}: {frames} frames, arms {', '.join(bag.result['arms'])}: {verdict}", file=out)
+        if (rollout := bag.result["rollout"]) is not None:
+            print(f"rollout {bag.name}: {rollout_line(rollout)}", file=out)
         for gate in failed:
             print(f"FAIL {bag.name}: {gate.line()}", file=out)
         if rig is not None and bag.result["calibration"] is None:
@@ -42,6 +45,18 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(run.as_dict(), indent=2, allow_nan=False))
     return 0 if run.passed else EXIT_GATE_FAILED
+
+
+def rollout_line(rollout: dict[str, Any]) -> str:
+    """One line: how much of the bag the policy drove, in which spans, and each arm's excursions."""
+    spans = rollout["spans"]
+    where = ", ".join(f"{s['start_ns']}..{s['end_ns']} ns ({s['frames']} frames)" for s in spans[:3]) + (" ..." if len(spans) > 3 else "")
+    arms = "; ".join(
+        f"{arm} {a['metrics']['rollout_excursions']} excursion(s), longest recovery {a['metrics']['rollout_recovery_s_max']:.3g} s"
+        for arm, a in rollout["arms"].items()
+    )
+    return (f"{rollout['commands']} commands on {rollout['command_topic']}; policy-driven {rollout['policy_driven_frames']} frames "
+            f"in {len(spans)} span(s){': ' + where if spans else ''}; {arms}")
 
 
 def _rig(path: str) -> RigConfig:
@@ -112,6 +127,11 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     validate.add_argument(
         "--config", metavar="RIG", help="the rig config: also check camera delay and reprojection from the images of bags that carry "
         "their inputs (replay --include-inputs), as the calibration_* gates"
+    )
+    validate.add_argument(
+        "--command-topic", metavar="TOPIC", help="the policy's position commands (sensor_msgs/JointState) in a recorded rollout: "
+        "a bag that has them is also judged as a rollout (policy-driven spans, ROI jitter there, recovery after out-of-frame "
+        "excursions: the rollout_* gates); default /joint_commands when the bag has it"
     )
     validate.set_defaults(func=_cmd_validate)
 
