@@ -27,13 +27,14 @@ $(STAMP): setup.py setup.cfg package.xml
 test: $(STAMP)
 	$(PY) -m compileall -q roi_node test examples  # a cold first import must not slow the first live test
 	$(PY) -c "from roi_node.core.area_resample import warm_up; warm_up()"  # nor the resampling kernels' first JIT compile
-	# two workers: the DDS and Ray tests one at a time on one (xdist group "serial", test/conftest.py), the other modules beside them
+	# two workers, each test module whole on one (its fixtures built once, test/conftest.py); DDS tests take domains
+	# from their worker's own block of ROS_DOMAIN_ID.. (test/live/harness.py), so two of them never hear each other
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-71} $(PY) -m pytest -q -n 2 --dist loadgroup test
 
 # The edit loop: everything but the DDS, Ray, colcon and demo tests (markers dds and ray; see pyproject.toml).
 test-fast: $(STAMP)
 	$(PY) -c "from roi_node.core.area_resample import warm_up; warm_up()"
-	$(PY) -m pytest -q -n 2 -m "not dds and not ray" test
+	$(PY) -m pytest -q -n 2 --dist loadgroup -m "not dds and not ray" test
 
 # Opt-in, not part of `make test`: the real LeRobot reader (lerobot pulls torch, several GB) in its own
 # venv loads what `roi-node export lerobot` writes. Offline: nothing is fetched from the Hub.

@@ -33,18 +33,18 @@ def no_orphaned_shm_segments() -> Iterator[None]:
 
 
 def pytest_itemcollected(item: pytest.Item) -> None:
-    """Under pytest-xdist (`--dist loadgroup`) the DDS and Ray tests share one worker, so they run one at a time.
+    """Under pytest-xdist (`--dist loadgroup`) each test module is one group, run whole on one worker.
 
-    DDS tests are timing-sensitive and a Ray cluster takes both cores, so none of them runs beside another; every
-    other module is a group of its own, so its module-scoped fixtures (sim bags, recorded sessions) are built once,
-    not once per worker. Marked as each item is collected, before xdist reads the groups.
+    So a module's module-scoped fixtures (sim bags, recorded sessions, a live node, a Ray cluster) are built once, not
+    once per worker. DDS modules run beside each other: every test takes its own domain from its worker's block
+    (live/harness.py next_domain), so no test hears another's traffic, and each waits on what it needs to see, not
+    on time. Marked as each item is collected, before xdist reads the groups.
     """
-    serial = item.get_closest_marker("dds") is not None or item.get_closest_marker("ray") is not None
-    item.add_marker(pytest.mark.xdist_group("serial" if serial else item.nodeid.split("::")[0]))
+    item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """A test module that takes a DDS domain (`next_domain`) must mark its DDS tests dds, or they run beside the live ones."""
+    """A test module that takes a DDS domain (`next_domain`) must mark its DDS tests dds, or `make test-fast` runs them."""
     from .live import harness
 
     takes_domain = {item.nodeid.split("::")[0] for item in items

@@ -15,7 +15,7 @@ import yaml
 from .conftest import REPO
 from .live.harness import next_domain, ros_env
 
-pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
+pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 
 
 def test_demo_runs_the_whole_job_and_live_equals_offline(tmp_path: Path) -> None:

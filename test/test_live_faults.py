@@ -25,9 +25,20 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from roi_node.core.robot_models import resolve_robot_reference
 
 from .conftest import CONFIG, REPO
-from .live.harness import PATIENT_SYNC, RELIABLE_INPUT, Collector, diagnostics_values, every_frame_accounted, next_domain, process, ros_env
+from .live.harness import (
+    PATIENT_SYNC,
+    RELIABLE_INPUT,
+    Collector,
+    diagnostics_values,
+    every_frame_accounted,
+    next_domain,
+    process,
+    publish,
+    ros_env,
+    start_publisher,
+)
 
-pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
+pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 ARMS = ["left", "right"]
@@ -38,16 +49,6 @@ def run_args(*params: str, faulty_every: int | None = None, config: Path = BIMAN
     cli = ["run", "--config", str(config), *ros]
     return ["-m", "test.live.faulty_node", str(faulty_every), "--", *cli] if faulty_every else ["-m", "roi_node.cli", *cli]
 
-
-def publish(tmp_path: Path, env: dict[str, str], spec: dict[str, Any]) -> dict[str, Any]:
-    (tmp_path / "spec.json").write_text(json.dumps({"rig": str(BIMANUAL), **spec}))
-    pub = subprocess.run(
-        [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
-        cwd=REPO, env=env, capture_output=True, text=True, timeout=120,
-    )
-    assert pub.returncode == 0, pub.stderr
-    truth: dict[str, Any] = json.loads((tmp_path / "truth.json").read_text())
-    return truth
 
 
 def run_session(tmp_path: Path, node_cmd: list[str], spec: dict[str, Any], *, records: int, diagnostics: int
@@ -137,13 +138,9 @@ def test_a_node_whose_every_frame_fails_stops_with_a_non_zero_exit(tmp_path: Pat
         spec["transport"] = "compressed"
         node_cmd = ["-m", "test.live.slow_decoder_node", "0", "1", "--", *run_args(*params, "image_transport:=compressed")[2:]]
         error = "KeyError"
-    (tmp_path / "spec.json").write_text(json.dumps(spec))
     log_path = tmp_path / "node.log"
     with process(node_cmd, env, log_path) as node:
-        pub = subprocess.Popen(
-            [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
-            cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        )
+        pub = start_publisher(tmp_path, env, spec)
         try:
             node.wait(timeout=60)
             stopped = time.monotonic()

@@ -8,21 +8,17 @@ in the stamps and reported apart from the node's own drops.
 
 from __future__ import annotations
 
-import json
 import re
-import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
 
-from .conftest import CONFIG, REPO
+from .conftest import CONFIG
 from .live.harness import (
     PATIENT_SYNC,
     RELIABLE_INPUT,
@@ -32,11 +28,12 @@ from .live.harness import (
     next_domain,
     node_args,
     process,
+    publish,
     ros_env,
 )
 from .live.png_bomb import png_bomb
 
-pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
+pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 ARMS = ["left", "right"]
@@ -72,17 +69,6 @@ class RssSampler:
         finally:
             self._stop.set()
             self._thread.join(timeout=5)
-
-
-def publish(tmp_path: Path, env: dict[str, str], spec: dict[str, Any]) -> dict[str, Any]:
-    (tmp_path / "spec.json").write_text(json.dumps({"rig": str(BIMANUAL), **spec}))
-    pub = subprocess.run(
-        [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
-        cwd=REPO, env=env, capture_output=True, text=True, timeout=120,
-    )
-    assert pub.returncode == 0, pub.stderr
-    truth: dict[str, Any] = json.loads((tmp_path / "truth.json").read_text())
-    return truth
 
 
 def test_a_png_bomb_is_refused_from_its_header_without_a_decode_and_good_frames_keep_flowing(tmp_path: Path) -> None:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import signal
 import subprocess
 import sys
@@ -13,9 +12,20 @@ from pathlib import Path
 import pytest
 
 from .conftest import CONFIG, REPO
-from .live.harness import RELIABLE_INPUT, Collector, next_domain, node_args, process, ros_env
+from .live.harness import (
+    RELIABLE_INPUT,
+    Collector,
+    graph_probe,
+    next_domain,
+    node_args,
+    process,
+    publish,
+    ros_env,
+    start_publisher,
+    wait_until,
+)
 
-pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
+pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 
@@ -65,8 +75,8 @@ def test_ros2_run_entry_point_with_ros_args_and_sigterm_shutdown(tmp_path: Path)
 def test_vla_example_prints_observations_from_the_running_node(tmp_path: Path) -> None:
     domain = next_domain()
     env = ros_env(domain)
-    (tmp_path / "spec.json").write_text(json.dumps({"rig": str(BIMANUAL), "frames": 40, "settle_s": 1.5}))
-    with process(node_args(BIMANUAL, *RELIABLE_INPUT), env, tmp_path / "node.log"):  # consecutive frames: none lost
+    with graph_probe(domain) as probe, process(node_args(BIMANUAL, *RELIABLE_INPUT), env, tmp_path / "node.log"):
+        # consecutive frames: none lost
         every = subprocess.Popen(
             [sys.executable, "examples/vla_observer.py", "--count", "5"], cwd=REPO, env=env, stdout=subprocess.PIPE, text=True
         )
@@ -74,16 +84,13 @@ def test_vla_example_prints_observations_from_the_running_node(tmp_path: Path) -
             [sys.executable, "examples/vla_observer.py", "--count", "3", "--latest"], cwd=REPO, env=env,
             stdout=subprocess.PIPE, text=True,
         )
-        time.sleep(2.0)  # both observers discover the node before the first frame
-        pub = subprocess.run(
-            [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
-            cwd=REPO, env=env, capture_output=True, text=True, timeout=120,
-        )
-        assert pub.returncode == 0, pub.stderr
+        # both observers subscribed to the node's metadata before the first frame (the publisher waits for the node,
+        # then 1.5 s more for the node's writers to match them)
+        assert wait_until(lambda: probe.count_subscribers("/roi/metadata") >= 2, 30.0), "the observers never subscribed"
+        truth = publish(tmp_path, env, {"frames": 40, "settle_s": 1.5})
         every_out, _ = every.communicate(timeout=30)
         latest_out, _ = latest.communicate(timeout=30)
     assert every.returncode == 0 and latest.returncode == 0
-    truth = json.loads((tmp_path / "truth.json").read_text())
     stamps = [f["stamp_ns"] for f in truth["frames"]]
     lines = every_out.strip().splitlines()
     assert len(lines) == 5
@@ -101,19 +108,16 @@ def test_observer_reaches_a_namespaced_node_discovers_its_outputs_and_names_a_mi
     """`--ros-args -r __ns:=/rig1` reaches the node; arms and the (absent) global view come from the metadata and graph."""
     domain = next_domain()
     env = ros_env(domain)
-    spec = {"rig": str(BIMANUAL), "frames": 300, "distinct_frames": 30}
-    (tmp_path / "spec.json").write_text(json.dumps(spec))
+    spec = {"frames": 300, "distinct_frames": 30}
     ns = ["--ros-args", "-r", "__ns:=/rig1"]
     remaps = ["-r", "__ns:=/rig1", "-r", "image_raw:=/image_raw", "-r", "joint_states:=/joint_states"]
     node = [*node_args(BIMANUAL, "global_view:=false"), *remaps]
     observer = [sys.executable, "examples/vla_observer.py"]
-    with process(node, env, tmp_path / "node.log"):
+    with graph_probe(domain) as probe, process(node, env, tmp_path / "node.log"):
         found = subprocess.Popen([*observer, "--count", "3", *ns], cwd=REPO, env=env, stdout=subprocess.PIPE, text=True)
-        time.sleep(2.0)  # the observer discovers the node before the first frame
-        pub = subprocess.Popen(
-            [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
-            cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        )
+        # the observer subscribed to the node's metadata before the first frame
+        assert wait_until(lambda: probe.count_subscribers("/rig1/roi/metadata") >= 1, 30.0), "the observer never subscribed"
+        pub = start_publisher(tmp_path, env, spec)
         try:
             found_out, _ = found.communicate(timeout=60)
             # --diagnose-s leaves a busy machine time to discover the node's metadata before the first "waiting:".

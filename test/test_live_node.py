@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-import json
 import re
-import subprocess
-import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +16,7 @@ from roi_node.core.metadata import metadata_schema
 from roi_node.core.pipeline import RoiPipeline
 from roi_node.core.robot_models import resolve_robot_reference
 
-from .conftest import CONFIG, REPO
+from .conftest import CONFIG
 from .live.harness import (
     PATIENT_SYNC,
     RELIABLE_INPUT,
@@ -30,11 +26,12 @@ from .live.harness import (
     next_domain,
     node_args,
     process,
+    publish,
     ros_env,
 )
 from .rigs import base_rig, look_at_quat_xyzw, marker_centroid, write_rig
 
-pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
+pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 ARMS = ["left", "right"]
@@ -46,17 +43,12 @@ def run_session(tmp_path: Path, spec: dict[str, Any], *params: str, config: Path
     domain = next_domain()
     env = ros_env(domain)
     spec = {"rig": str(config), **spec}
-    (tmp_path / "spec.json").write_text(json.dumps(spec))
     collector = Collector(domain, arms, with_global=with_global)
     node_log = tmp_path / "node.log"
     try:
         with process(node_args(config, *params), env, node_log) as node:
             collector.wait_for_node()
-            pub = subprocess.run(
-                [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
-                cwd=REPO, env=env, capture_output=True, text=True, timeout=120,
-            )
-            assert pub.returncode == 0, pub.stderr
+            truth = publish(tmp_path, env, spec)
             want = expect if expect is not None else spec.get("frames", 30)
             collector.wait_until(lambda: len(collector.metadata) >= want, 10.0)
             collector.wait_until(lambda: len(collector.diagnostics) >= 2, 3.0)
@@ -66,7 +58,7 @@ def run_session(tmp_path: Path, spec: dict[str, Any], *params: str, config: Path
         assert node.returncode == 0, f"node exit {node.returncode}:\n{node_log.read_text()}"
     finally:
         collector.close()
-    return collector, json.loads((tmp_path / "truth.json").read_text()), node_log.read_text()
+    return collector, truth, node_log.read_text()
 
 
 def observations(collector: Collector) -> dict[int, Any]:
@@ -228,37 +220,24 @@ def test_arm_behind_the_camera_is_flagged_and_the_other_arm_still_cropped(tmp_pa
     assert arm["flags_since_start"]["behind_camera"] == 15
 
 
-def test_overload_drops_oldest_counts_them_and_memory_stays_bounded(tmp_path: Path) -> None:
-    """Frames offered faster than the node can process: the pending queue stays bounded, drops are counted."""
-    import psutil
-
-    spec = {"frames": 1500, "rate_hz": 500.0, "distinct_frames": 20, "joint_rate_hz": 500.0}  # several times what it can process
-    domain = next_domain()
-    env = ros_env(domain)
-    (tmp_path / "spec.json").write_text(json.dumps({"rig": str(BIMANUAL), **spec}))
-    collector = Collector(domain, ARMS)
-    rss_mb: list[float] = []
-    try:
-        with process(node_args(BIMANUAL, "sync.max_pending_frames:=3"), env, tmp_path / "node.log") as node:
-            collector.wait_for_node()
-            pub = subprocess.Popen(
-                [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
-                cwd=REPO, env=env,
-            )
-            while pub.poll() is None:
-                rss_mb.append(psutil.Process(node.pid).memory_info().rss / 2**20)
-                time.sleep(0.5)
-            assert pub.returncode == 0
-            collector.wait_until(lambda: len(collector.diagnostics) >= 2, 3.0)
-            time.sleep(1.5)
-    finally:
-        collector.close()
+def test_a_full_pending_queue_drops_its_oldest_frame_counts_it_and_keeps_stamp_order(tmp_path: Path) -> None:
+    """No joint state for the first 30 frames, and a frame may wait 5 s for one: the pending queue (3 frames) fills
+    and each newer frame pushes the oldest out, counted as overflow, on any machine. What a node offered frames faster
+    than it can process drops, and its memory meanwhile, depend on the machine: bench/live_overload.py measures those."""
+    no_joints_before, pending = 30, 3
+    spec = {"frames": 60, "no_joints_before_frame": no_joints_before}
+    reliable = ("qos.subscription_reliability:=reliable", "qos.subscription_depth:=90", "qos.joint_state_depth:=2000")
+    params = (*reliable, f"sync.max_pending_frames:={pending}", "sync.max_wait_ms:=5000.0")
+    collector, truth, _ = run_session(tmp_path, spec, *params, expect=spec["frames"] - no_joints_before)
     inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
     totals, drops = inputs["totals"], inputs["dropped_by_reason"]
-    assert drops.get("overflow", 0) > 0, f"expected overload at 500 Hz: {totals}"
-    assert totals["frames_in"] == totals["frames_out"] + sum(drops.values()), "every frame is published or counted"
+    # a frame before the first joint state never has one before it: it leaves the queue pushed out, or after 5 s
+    assert drops["overflow"] >= no_joints_before - pending, inputs
+    assert set(drops) == {"overflow"}, inputs
+    assert totals["frames_in"] == len(truth["frames"]), "reliable input: every frame arrived"
+    assert totals["frames_in"] == totals["frames_out"] + drops["overflow"], "every frame is published or counted"
     assert len(collector.metadata) == totals["frames_out"]
     stamps = [r["stamp_ns"] for r in collector.metadata]
     assert stamps == sorted(stamps), "outputs stay in stamp order"
-    steady = rss_mb[len(rss_mb) // 3 :]
-    assert max(steady) - min(steady) < 150, f"node RSS grew: {rss_mb}"
+    index_of = {f["stamp_ns"]: f["index"] for f in truth["frames"]}
+    assert min(index_of[stamp] for stamp in stamps) >= no_joints_before - pending, "the oldest frames were the ones dropped"

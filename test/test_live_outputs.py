@@ -20,7 +20,7 @@ from .live.harness import RELIABLE_INPUT, Collector, next_domain, node_args, pro
 from .test_live_node import observations
 from .test_overlay import box_edges, segments_by_colour
 
-pytestmark = pytest.mark.dds  # a DDS participant in the run's domains: runs one at a time (see Makefile)
+pytestmark = pytest.mark.dds  # a DDS participant, on a domain of its own (live/harness.py next_domain)
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 ARMS = ["left", "right"]

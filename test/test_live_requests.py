@@ -11,9 +11,7 @@ shuts it down.
 from __future__ import annotations
 
 import contextlib
-import json
 import subprocess
-import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,12 +24,12 @@ from lifecycle_msgs.srv import ChangeState
 from roi_node.core.config import load_rig_config
 from roi_node.ros.runtime_params import SYNC_LIMITS, arm_parameters
 
-from .conftest import CONFIG, REPO
-from .live.harness import Collector, next_domain, process, ros_env
+from .conftest import CONFIG
+from .live.harness import Collector, next_domain, process, ros_env, start_publisher
 from .runtime_oracle import EDGE_VALUES, NON_FINITE, as_parameter_value, rig_file_verdict
 from .test_live_runtime import SERVICE_TIMEOUT_S, call, set_parameter, state
 
-pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
+pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 ARMS = ["left", "right"]
@@ -54,8 +52,7 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveNode]:
     domain = next_domain()
     env = ros_env(domain)
     log = tmp_path / "node.log"
-    spec = {"rig": str(BIMANUAL), "frames": 100_000, "distinct_frames": 30, "rate_hz": 10.0}
-    (tmp_path / "spec.json").write_text(json.dumps(spec))
+    spec = {"frames": 100_000, "distinct_frames": 30, "rate_hz": 10.0}
     with contextlib.ExitStack() as stack:
         collector = Collector(domain, ARMS)
         stack.callback(collector.close)
@@ -63,10 +60,7 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveNode]:
         node = LiveNode(collector, proc, log)
         assert change_state(node, Transition.TRANSITION_CONFIGURE), log.read_text()
         assert change_state(node, Transition.TRANSITION_ACTIVATE), log.read_text()
-        publisher = subprocess.Popen(
-            [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
-            cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        )
+        publisher = start_publisher(tmp_path, env, spec)
         stack.callback(publisher.wait)
         stack.callback(publisher.kill)
         assert_publishing(node)

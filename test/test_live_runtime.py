@@ -8,10 +8,6 @@ sim publisher, and this test's own rclpy node as the service client, calling
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -26,11 +22,11 @@ from sensor_msgs.msg import Image
 from roi_node.core.config import load_rig_config
 from roi_node.core.pipeline import RoiPipeline
 
-from .conftest import CONFIG, REPO
-from .live.harness import Collector, diagnostics_values, next_domain, process, ros_env
+from .conftest import CONFIG
+from .live.harness import Collector, diagnostics_values, next_domain, process, ros_env, start_publisher
 from .rigs import base_rig, write_rig
 
-pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
+pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 ARMS = ["left", "right"]
@@ -76,14 +72,15 @@ def inactive_drops(collector: Collector) -> int:
     return int(diagnostics_values(collector.diagnostics, "roi_node: input").get("dropped_by_reason", {}).get("inactive", 0))
 
 
-def start_publisher(tmp_path: Path, env: dict[str, str], frames: int) -> subprocess.Popen[bytes]:
-    """The sim publisher for `frames` frames at 30 Hz; 30 distinct images (rendered before it starts), repeated."""
-    spec = {"rig": str(BIMANUAL), "frames": frames, "distinct_frames": min(frames, 30)}
-    (tmp_path / "spec.json").write_text(json.dumps(spec))
-    return subprocess.Popen(
-        [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
-        cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )
+def outputs_counted(collector: Collector) -> bool:
+    """The newest /diagnostics counts as published every record this test received: none is still on its way."""
+    totals = diagnostics_values(collector.diagnostics, "roi_node: input").get("totals", {})
+    return bool(totals) and totals.get("frames_out", -1) == len(collector.metadata)
+
+
+def sim_frames(frames: int) -> dict[str, Any]:
+    """The publisher's spec for `frames` frames at 30 Hz; 30 distinct images (rendered before it starts), repeated."""
+    return {"frames": frames, "distinct_frames": min(frames, 30)}
 
 
 def test_lifecycle_node_publishes_only_while_active_and_a_broken_rig_fails_configure(tmp_path: Path) -> None:
@@ -103,7 +100,7 @@ def test_lifecycle_node_publishes_only_while_active_and_a_broken_rig_fails_confi
             assert set_parameter(collector, "config", str(BIMANUAL)).successful, "any parameter may change while unconfigured"
             assert transition(collector, Transition.TRANSITION_CONFIGURE)
             assert state(collector) == State.PRIMARY_STATE_INACTIVE
-            publisher = start_publisher(tmp_path, env, frames=900)
+            publisher = start_publisher(tmp_path, env, sim_frames(900))
             collector.wait_for_node()
             assert collector.wait_until(lambda: inactive_drops(collector) >= 15, 30.0), "frames reach the inactive node"
             inactive = (len(collector.metadata), len(roi_images))
@@ -112,9 +109,15 @@ def test_lifecycle_node_publishes_only_while_active_and_a_broken_rig_fails_confi
             assert state(collector) == State.PRIMARY_STATE_ACTIVE
             assert collector.wait_until(lambda: len(collector.metadata) >= 20, 20.0), log_path.read_text()
             assert transition(collector, Transition.TRANSITION_DEACTIVATE)
-            time.sleep(0.5)  # messages published just before the deactivate are still in flight
+            # records published just before the deactivate may still be on their way: a report sent after it (it counts
+            # frames dropped as inactive since) that counts every record received says none is
+            dropped_at_deactivate = inactive_drops(collector)
+            assert collector.wait_until(
+                lambda: inactive_drops(collector) >= dropped_at_deactivate + 5 and outputs_counted(collector), 20.0
+            ), diagnostics_values(collector.diagnostics, "roi_node: input")
             deactivated = (len(collector.metadata), len(roi_images))
-            time.sleep(1.5)
+            dropped_since = inactive_drops(collector)
+            assert collector.wait_until(lambda: inactive_drops(collector) >= dropped_since + 30, 20.0), "frames keep coming"
             after = (len(collector.metadata), len(roi_images))
 
             assert transition(collector, Transition.TRANSITION_CLEANUP)
@@ -153,7 +156,7 @@ def test_runtime_offset_moves_the_next_centres_and_changes_crop_offset_ver(tmp_p
         args = ["-m", "roi_node.cli", "run", "--config", str(BIMANUAL), "--ros-args", "-p", "status_period_s:=0.5"]
         with process(args, env, log_path) as node:
             collector.wait_for_node()
-            publisher = start_publisher(tmp_path, env, frames=300)
+            publisher = start_publisher(tmp_path, env, sim_frames(300))
             assert collector.wait_until(lambda: len(collector.metadata) >= 15, 20.0), log_path.read_text()
             changed = set_parameter(collector, "arms.left.offset_px", 40.0)
             count_at_change = len(collector.metadata)

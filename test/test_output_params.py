@@ -17,7 +17,7 @@ from roi_node.ros.params import NodeParams, declare_and_read
 from .conftest import CONFIG
 from .live.harness import next_domain
 
-pytestmark = pytest.mark.dds  # a DDS participant in the run's domains: runs one at a time (see Makefile)
+pytestmark = pytest.mark.dds  # a DDS participant, on a domain of its own (live/harness.py next_domain)
 
 @pytest.fixture(scope="module")
 def context() -> Iterator[Context]:

@@ -16,7 +16,7 @@ import pytest
 from .conftest import REPO
 from .live.harness import next_domain, ros_env
 
-pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
+pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 
 
 def _tracked_files() -> list[str]:

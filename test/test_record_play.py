@@ -22,7 +22,7 @@ from roi_node.bag.writer import typestore
 from .conftest import CONFIG, REPO
 from .live.harness import PATIENT_SYNC, RELIABLE_INPUT, Collector, next_domain, node_args, process, ros_env
 
-pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
+pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 INPUTS = ["/image_raw", "/joint_states"]

@@ -28,7 +28,7 @@ from .live.harness import next_domain, process, ros_env
 from .roibags import read_records
 from .test_record_play import wait_for_log
 
-pytestmark = pytest.mark.dds  # real DDS processes: run one at a time (see Makefile)
+pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 TOPICS = ["/image_raw", "/joint_states", "/camera_info"]

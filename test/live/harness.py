@@ -126,6 +126,34 @@ def process(args: list[str], env: dict[str, str], log: Path) -> Iterator[subproc
                     proc.wait()
 
 
+BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
+
+
+def publisher_args(folder: Path, spec: dict[str, Any]) -> list[str]:
+    """The camera + joint-state publisher's command (test/live/publisher.py), its spec written to `folder`/spec.json
+    (the bimanual rig unless the spec names one); it writes the truth to `folder`/truth.json."""
+    (folder / "spec.json").write_text(json.dumps({"rig": str(BIMANUAL), **spec}))
+    return [sys.executable, "-m", "test.live.publisher", str(folder / "spec.json"), str(folder / "truth.json")]
+
+
+def start_publisher(folder: Path, env: dict[str, str], spec: dict[str, Any], *, log: Path | None = None) -> subprocess.Popen[bytes]:
+    """The publisher in the background, its output to `log` (or discarded); the caller waits for or kills it."""
+    out = log.open("wb") if log is not None else subprocess.DEVNULL
+    try:
+        return subprocess.Popen(publisher_args(folder, spec), cwd=REPO, env=env, stdout=out, stderr=subprocess.STDOUT)
+    finally:
+        if log is not None:
+            out.close()  # type: ignore[union-attr]
+
+
+def publish(folder: Path, env: dict[str, str], spec: dict[str, Any]) -> dict[str, Any]:
+    """Run the publisher to its end (it must succeed) and return its truth: stamps, positions, what was injected."""
+    pub = subprocess.run(publisher_args(folder, spec), cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+    assert pub.returncode == 0, pub.stderr
+    truth: dict[str, Any] = json.loads((folder / "truth.json").read_text())
+    return truth
+
+
 def node_args(config: Path, *params: str) -> list[str]:
     ros = ["--ros-args", *itertools.chain.from_iterable(("-p", p) for p in params)] if params else []
     return ["-m", "roi_node.cli", "run", "--config", str(config), *ros]
@@ -164,32 +192,50 @@ class Collector:
             pass
 
     def wait_for_node(self, timeout_s: float = 30.0) -> None:
-        """Until every subscription here matched the node's publisher, plus a settle.
+        """Until every subscription here matched the node's publisher and a /diagnostics array from the node arrived.
 
-        Reliable data sent before the reader side matched is lost, and discovery
-        takes 1-3 s here.
+        Reliable data sent before the writer side matched is lost, and a reader that matched says nothing of the
+        writer: a /diagnostics array received shows the node's participant has taken this one's endpoints, which
+        it learns of together.
         """
-        deadline = time.monotonic() + timeout_s
         subscriptions = [s for s in self.node.subscriptions if s.topic_name != "/diagnostics"]
-        while not all(s.get_publisher_count() >= 1 for s in subscriptions):
-            if time.monotonic() > deadline:
-                waiting = [s.topic_name for s in subscriptions if s.get_publisher_count() < 1]
-                raise TimeoutError(f"no roi_node publisher matched on {waiting}")
-            time.sleep(0.05)
-        time.sleep(1.0)
+        if not wait_until(lambda: all(s.get_publisher_count() >= 1 for s in subscriptions), timeout_s):
+            waiting = [s.topic_name for s in subscriptions if s.get_publisher_count() < 1]
+            raise TimeoutError(f"no roi_node publisher matched on {waiting}")
+        if not wait_until(lambda: bool(self.diagnostics), timeout_s):
+            raise TimeoutError("the node's publishers matched, but no /diagnostics array arrived")
 
     def wait_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
-        deadline = time.monotonic() + timeout_s
-        while not predicate():
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(0.05)
-        return True
+        return wait_until(predicate, timeout_s)
 
     def close(self) -> None:
         self.context.try_shutdown()
         self._thread.join(timeout=5)
         self.executor.shutdown()
+
+
+def wait_until(predicate: Callable[[], bool], timeout_s: float) -> bool:
+    """Poll `predicate` until it holds (True) or `timeout_s` passed (False): the caller asserts the result."""
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
+@contextmanager
+def graph_probe(domain_id: int) -> Iterator[Node]:
+    """A bare rclpy node on `domain_id` (a context of its own) for asking the ROS graph who publishes or subscribes.
+
+    It subscribes to nothing, so it adds no count to what it asks about.
+    """
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    try:
+        yield Node("test_graph_probe", context=context)
+    finally:
+        context.try_shutdown()
 
 
 def every_frame_accounted(collector: Collector) -> bool:
