@@ -84,7 +84,7 @@ def make_batch(features: PolicyFeatures, observation: Observation, record: Frame
     values = columns.select([0], features.state_names)
     batch[STATE_KEY] = values[STATE_KEY][0]
     for numeric in features.numeric:
-        value = values[numeric.key][0]
+        value = np.asarray(values[numeric.key][0])  # a row of a 1-d column is a numpy scalar, not an array
         batch[numeric.key] = value.reshape(()) if numeric.shape == (1,) else value.reshape(numeric.shape)
     batch[TASK_KEY] = task
     return batch
@@ -123,7 +123,9 @@ class PolicyObservationStream:
             self._node, self._executor = self._owned.enter_context(client_node(self._ros_args))
             self._spinner = threading.Thread(target=self._spin, name="policy-observations", daemon=True)
         assert self._node is not None
-        self._client = ObservationClient(self._node, None, max_buffer=4 if self.latest else 60, transport=self._transport)
+        # subscribed to the policy's images from the start, so no frame the node sends once they matched is missed
+        self._client = ObservationClient(self._node, self.features.arm_ids or None, with_global=self.features.with_global,
+                                         max_buffer=4 if self.latest else 60, transport=self._transport)
         if self._spinner is not None:
             self._spinner.start()
         return self
@@ -145,10 +147,14 @@ class PolicyObservationStream:
             raise RuntimeError("PolicyObservationStream: use it inside a `with` block")
         return self._client
 
-    def _next_frame(self, timeout_s: float, every_frame: bool) -> Observation:
+    def matched(self) -> bool:
+        """Whether the node's outputs the policy takes all have a publisher (frames sent from then on arrive)."""
+        return self.client.matched()
+
+    def _next_frame(self, timeout_s: float) -> Observation:
         client = self.client
         started = time.monotonic()
-        frame = client.get(timeout_s) if every_frame else client.latest(self._last_stamp_ns, timeout_s)
+        frame = client.latest(self._last_stamp_ns, timeout_s) if self.latest else client.get(timeout_s)
         if frame is None:
             raise NodeNotObservedError(time.monotonic() - started, client.waiting_for() or "no new complete frame")
         self._last_stamp_ns = frame.stamp_ns
@@ -156,7 +162,7 @@ class PolicyObservationStream:
 
     def next(self, timeout_s: float | None = None) -> PolicyObservation:
         """The next observation (see `latest`); NodeNotObservedError after `timeout_s` (default: the stream's)."""
-        frame = self._next_frame(self.timeout_s if timeout_s is None else timeout_s, not self.latest)
+        frame = self._next_frame(self.timeout_s if timeout_s is None else timeout_s)
         record = FrameRecord.from_dict(frame.metadata)
         batch = make_batch(self.features, frame, record, self.task)
         assert self._node is not None
@@ -172,19 +178,30 @@ class PolicyObservationStream:
     def describe_node(self, frames: int = DESCRIBE_FRAMES, timeout_s: float | None = None) -> NodePublication:
         """What the node publishes, from `frames` consecutive complete frames (the preflight's input).
 
-        Every frame in order, whatever `latest` says: the camera rate is the
-        median gap between consecutive stamps."""
-        deadline = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)
-        records: list[FrameRecord] = []
-        first: Observation | None = None
-        while len(records) < frames:
-            frame = self._next_frame(max(deadline - time.monotonic(), 0.0), every_frame=True)
-            first = first or frame
-            records.append(FrameRecord.from_dict(frame.metadata))
-        assert first is not None
-        rois = tuple(_size(first.rois[arm]) for arm in self.client.arm_ids)
+        Read by a client of its own that discovers the node's arms and global
+        view from its records (not the policy's: a renamed arm is a mismatch
+        to report, not a topic to wait on), taking every frame in order, so
+        the camera rate is the median gap between consecutive stamps; its
+        subscriptions end with it.
+        """
+        assert self._node is not None
+        probe = ObservationClient(self._node, None, max_buffer=frames, transport=self._transport)
+        started = time.monotonic()
+        deadline = started + (self.timeout_s if timeout_s is None else timeout_s)
+        seen: list[Observation] = []
+        try:
+            while len(seen) < frames:
+                frame = probe.get(max(deadline - time.monotonic(), 0.0))
+                if frame is None:
+                    raise NodeNotObservedError(time.monotonic() - started, probe.waiting_for() or
+                                               f"{len(seen)} of {frames} complete frames")
+                seen.append(frame)
+        finally:
+            probe.close()
+        first = seen[0]
+        rois = tuple(_size(first.rois[arm]) for arm in probe.arm_ids)
         view = None if first.global_image is None else _size(first.global_image)
-        return NodePublication.from_observations(records, rois, view)
+        return NodePublication.from_observations([FrameRecord.from_dict(f.metadata) for f in seen], rois, view)
 
 
 def _size(pixels: np.ndarray) -> ImageSize:

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.subscription import Subscription
 from sensor_msgs.msg import CompressedImage, Image
 from std_msgs.msg import String
 
@@ -102,17 +103,19 @@ class ObservationClient:
         self._cond = threading.Condition()
         self.dropped_unconsumed = 0  # complete observations pushed out of the full buffer
         self.dropped_incomplete = 0  # stamps evicted before every part arrived
+        self._subscriptions: list[Subscription] = []
         if arm_ids is not None and with_global is not None:
             self._subscribe_images()
-        node.create_subscription(String, topics.METADATA, self._on_metadata, self._qos)
+        self._subscriptions.append(node.create_subscription(String, topics.METADATA, self._on_metadata, self._qos))
 
     def _subscribe_images(self) -> None:
         sources = {arm: topics.roi_image(arm) for arm in self.arm_ids} | ({GLOBAL: topics.GLOBAL_IMAGE} if self.with_global else {})
         for key, topic in sources.items():
             if self._compressed:
-                self._node.create_subscription(CompressedImage, compressed_topic(topic), self._image_callback(key), self._qos)
+                sub = self._node.create_subscription(CompressedImage, compressed_topic(topic), self._image_callback(key), self._qos)
             else:
-                self._node.create_subscription(Image, topic, self._image_callback(key), self._qos)
+                sub = self._node.create_subscription(Image, topic, self._image_callback(key), self._qos)
+            self._subscriptions.append(sub)
         self._expected = set(self.arm_ids) | ({GLOBAL} if self.with_global else set())
 
     def _discover(self, record: dict[str, Any]) -> None:
@@ -125,6 +128,16 @@ class ObservationClient:
         if self.with_global is None:
             self.with_global = self._node.count_publishers(self._node.resolve_topic_name(self._image_topic(GLOBAL))) > 0
         self._subscribe_images()
+
+    def matched(self) -> bool:
+        """Whether every topic subscribed so far has a publisher: frames published from now on can arrive."""
+        return all(sub.get_publisher_count() > 0 for sub in self._subscriptions)
+
+    def close(self) -> None:
+        """Stop receiving: the subscriptions are destroyed (the node stays), and nothing new completes."""
+        for sub in self._subscriptions:
+            self._node.destroy_subscription(sub)
+        self._subscriptions.clear()
 
     def waiting_for(self) -> str | None:
         """Why no observation has completed yet, as one line naming the topic; None once one has."""
