@@ -1,5 +1,100 @@
-"""roi_node: hand-centric ROI crops from one fixed external camera via FK projection."""
+"""roi_node: hand-centric ROI crops from one fixed external camera via FK projection.
+
+The Python API runs the engine without ROS: load a rig (`load_rig_config`),
+build a `RoiPipeline` from it, and give `RoiPipeline.process` one image (uint8,
+the calibrated size) with the joint positions at its capture time (a
+`SyncResult`); it returns a `FrameResult`: one `ArmRoi` per arm (the crop and
+its `ArmRecord`) and the frame's `FrameRecord`, whose `to_json()` is the
+`/roi/metadata` record. `replay_bag` runs a whole recorded bag, as `roi-node
+replay` does. Every error is a `RoiNodeError` subclass whose message names
+the file, key or value at fault. examples/python_api.py shows the calls.
+
+The names are imported on first use, so `import roi_node` (which every
+`roi-node` verb does) stays cheap.
+"""
 
 from __future__ import annotations
 
+from importlib import import_module
+from typing import TYPE_CHECKING
+
 __version__ = "0.1.0"
+
+if TYPE_CHECKING:
+    from .bag.replay import replay_bag
+    from .core.camera import CameraModel, load_calibration_yaml
+    from .core.config import RigConfig, load_rig_config
+    from .core.errors import (
+        BagError,
+        CalibrationError,
+        ConfigError,
+        ImageError,
+        InputDataError,
+        JointStateError,
+        KinematicsError,
+        RoiNodeError,
+    )
+    from .core.pipeline import ArmRoi, FrameResult, RoiPipeline
+    from .core.records import ArmRecord, FrameRecord
+    from .core.sync import SyncResult, SyncStatus
+
+_EXPORTS = {
+    "RoiPipeline": "roi_node.core.pipeline",
+    "FrameResult": "roi_node.core.pipeline",
+    "ArmRoi": "roi_node.core.pipeline",
+    "SyncResult": "roi_node.core.sync",
+    "SyncStatus": "roi_node.core.sync",
+    "load_rig_config": "roi_node.core.config",
+    "RigConfig": "roi_node.core.config",
+    "load_calibration_yaml": "roi_node.core.camera",
+    "CameraModel": "roi_node.core.camera",
+    "FrameRecord": "roi_node.core.records",
+    "ArmRecord": "roi_node.core.records",
+    "replay_bag": "roi_node.bag.replay",
+    "RoiNodeError": "roi_node.core.errors",
+    "ConfigError": "roi_node.core.errors",
+    "CalibrationError": "roi_node.core.errors",
+    "KinematicsError": "roi_node.core.errors",
+    "InputDataError": "roi_node.core.errors",
+    "ImageError": "roi_node.core.errors",
+    "JointStateError": "roi_node.core.errors",
+    "BagError": "roi_node.core.errors",
+}
+
+__all__ = [
+    "ArmRecord",
+    "ArmRoi",
+    "BagError",
+    "CalibrationError",
+    "CameraModel",
+    "ConfigError",
+    "FrameRecord",
+    "FrameResult",
+    "ImageError",
+    "InputDataError",
+    "JointStateError",
+    "KinematicsError",
+    "RigConfig",
+    "RoiNodeError",
+    "RoiPipeline",
+    "SyncResult",
+    "SyncStatus",
+    "__version__",
+    "load_calibration_yaml",
+    "load_rig_config",
+    "replay_bag",
+]
+
+
+def __getattr__(name: str) -> object:
+    """Import an exported name from its module on first use (PEP 562)."""
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'roi_node' has no attribute {name!r}")
+    value = getattr(import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)
