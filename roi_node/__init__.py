@@ -16,27 +16,9 @@ The names are imported on first use, so `import roi_node` (which every
 from __future__ import annotations
 
 from importlib import import_module
-from typing import TYPE_CHECKING
+from typing import Any
 
 __version__ = "0.1.0"
-
-if TYPE_CHECKING:
-    from .bag.replay import replay_bag
-    from .core.camera import CameraModel, load_calibration_yaml
-    from .core.config import RigConfig, load_rig_config
-    from .core.errors import (
-        BagError,
-        CalibrationError,
-        ConfigError,
-        ImageError,
-        InputDataError,
-        JointStateError,
-        KinematicsError,
-        RoiNodeError,
-    )
-    from .core.pipeline import ArmRoi, FrameResult, RoiPipeline
-    from .core.records import ArmRecord, FrameRecord
-    from .core.sync import SyncResult, SyncStatus
 
 _EXPORTS = {
     "RoiPipeline": "roi_node.core.pipeline",
@@ -86,8 +68,12 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> object:
-    """Import an exported name from its module on first use (PEP 562)."""
+def __getattr__(name: str) -> Any:
+    """Import an exported name from its module on first use (PEP 562).
+
+    Not imported under TYPE_CHECKING either: the package root imports no layer (test/test_import_graph.py), as
+    every layer imports it for `__version__`; a type checker reaches the classes through their modules.
+    """
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'roi_node' has no attribute {name!r}")
