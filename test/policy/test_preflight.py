@@ -1,4 +1,5 @@
-"""`roi-node policy preflight` against a running node: a sim camera and a live roi_node on their own DDS domain.
+"""`roi-node policy preflight` and `observe` against a running node: a sim camera and a live roi_node on their own
+DDS domain.
 
 The policy side is a checkpoint folder without its weights file (config.json
 and train_config.json naming its dataset, a real export of a session of the
@@ -22,9 +23,11 @@ from typing import Any
 
 import pytest
 
+from roi_node.policy.observations import LIVE_ABSENT_KEYS, TASK_KEY
+
 from ..conftest import REPO
 from ..live.harness import next_domain, node_args, process, ros_env
-from .policyrig import RATE_HZ, export_dataset, read_info, record_session, write_checkpoint
+from .policyrig import RATE_HZ, TASK, export_dataset, read_info, record_session, write_checkpoint
 
 pytestmark = pytest.mark.dds
 WEIGHTS = "model.safetensors"
@@ -113,3 +116,33 @@ def test_the_checkpoint_and_the_dataset_of_the_same_rig_pass(dataset: tuple[Path
         assert result.returncode == 0, result.stderr
         assert result.stdout.startswith(f"roi-node policy preflight: {features} fits the node: 3 images, 18 state joints, "
                                         f"{RATE_HZ} fps against a {RATE_HZ:.1f} Hz camera, 18 actions"), result.stdout
+
+
+def test_observe_prints_one_line_per_frame_keyed_like_the_dataset_with_its_ages(dataset: tuple[Path, Path],
+                                                                                live_node: dict[str, str]) -> None:
+    info = read_info(dataset[1])
+    result = subprocess.run([sys.executable, "-m", "roi_node.cli", "policy", "observe", "--features", str(dataset[1]),
+                             "--task", TASK, "--count", "3", "--every-frame", "--timeout-s", TIMEOUT_S],
+                            cwd=REPO, env=live_node, capture_output=True, text=True, timeout=180)
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert len(lines) == 3, lines
+    # the dataset's keys in its order (LeRobot's: the videos first), less those a live frame has no value for
+    features = info["features"]
+    keys = [k for k, s in features.items() if s["dtype"] == "video"] + [
+        k for k, s in features.items() if s["dtype"] != "video" and k not in LIVE_ABSENT_KEYS]
+    stamps = []
+    for line in lines:
+        head, task = line.split(f" {TASK_KEY}=", 1)
+        assert task == repr(TASK), line
+        fields = head.split(" ")
+        assert fields[0] == "observation" and fields[2].startswith("frame_age_s=") and fields[3].startswith("joint_age_s="), line
+        stamps.append(int(fields[1].removeprefix("stamp_ns=")))
+        printed = dict(field.split("=", 1) for field in fields[4:])
+        assert list(printed) == keys, line
+        for key in keys:
+            spec = features[key]
+            shape = [spec["shape"][2], *spec["shape"][:2]] if spec["dtype"] == "video" else spec["shape"]
+            dtype = "float32" if spec["dtype"] == "video" else spec["dtype"]
+            assert printed[key] == f"{'x'.join(map(str, shape)) if shape != [1] else 'scalar'}:{dtype}", key
+    assert stamps == sorted(stamps) and len(set(stamps)) == 3  # every frame in order
