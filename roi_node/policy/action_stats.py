@@ -7,6 +7,7 @@ the observation path add together before the robot is told anything new.
 
 from __future__ import annotations
 
+import threading
 from collections import Counter, deque
 from dataclasses import dataclass, field
 
@@ -25,9 +26,20 @@ class LatencySummary:
     max_ms: float
 
 
+@dataclass(frozen=True)
+class Refusals:
+    by_kind: dict[str, int]  # since start
+    window_by_kind: dict[str, int]  # since the last diagnostics window
+    last: str  # the latest refusal's message
+
+
 @dataclass
 class ActionStats:
-    """Counts since start, and since the last diagnostics window for the level of the status."""
+    """Counts since start, and since the last diagnostics window for the level of the status.
+
+    The policy's thread counts calls, refusals and observation ages while the
+    loop's thread counts the rest and reads everything: both go through `_lock`.
+    """
 
     published: int = 0
     chunks: int = 0
@@ -41,11 +53,22 @@ class ActionStats:
     late_ticks: int = 0  # ticks skipped because the policy computed past them
     _latencies_ms: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     _observation_ages_ms: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     def count_refusal(self, kind: str, message: str) -> None:
-        self.refused[kind] += 1
-        self.refused_window[kind] += 1
-        self.last_refusal = message
+        with self._lock:
+            self.refused[kind] += 1
+            self.refused_window[kind] += 1
+            self.last_refusal = message
+
+    def refusals(self) -> Refusals:
+        """A consistent copy of the refusal counts (the policy's thread may be adding one)."""
+        with self._lock:
+            return Refusals(dict(self.refused), dict(self.refused_window), self.last_refusal)
+
+    def count_policy_call(self) -> None:
+        with self._lock:
+            self.policy_calls += 1
 
     def count_clamps(self, clamped: dict[ClampKind, tuple[str, ...]]) -> None:
         for kind, joints in clamped.items():
@@ -57,7 +80,8 @@ class ActionStats:
 
     def count_observation_age(self, frame_age_s: float) -> None:
         """How old a frame was when its observation reached the policy (delivery - header stamp)."""
-        self._observation_ages_ms.append(frame_age_s * 1e3)
+        with self._lock:
+            self._observation_ages_ms.append(frame_age_s * 1e3)
 
     def latency(self) -> LatencySummary | None:
         """Frame stamp -> first action of the chunk published."""
@@ -65,20 +89,22 @@ class ActionStats:
 
     def observation_age(self) -> LatencySummary | None:
         """Frame stamp -> observation delivered to the policy."""
-        return _summary(self._observation_ages_ms)
+        with self._lock:
+            return _summary(self._observation_ages_ms)
 
     def end_window(self) -> None:
-        self.refused_window.clear()
+        with self._lock:
+            self.refused_window.clear()
         for counts in self.clamps_window.values():
             counts.clear()
 
     def summary(self) -> str:
-        latency = self.latency()
+        latency, refused = self.latency(), self.refusals().by_kind
         clamps = {kind.value: sum(c.values()) for kind, c in self.clamps.items()}
         return (
             f"{self.published} actions published from {self.chunks} chunks ({self.policy_calls} policy calls); "
-            f"{self.held_ticks} ticks held the last target, {self.late_ticks} skipped late; refused {sum(self.refused.values())}"
-            + (f" ({', '.join(f'{k} {v}' for k, v in sorted(self.refused.items()))})" if self.refused else "")
+            f"{self.held_ticks} ticks held the last target, {self.late_ticks} skipped late; refused {sum(refused.values())}"
+            + (f" ({', '.join(f'{k} {v}' for k, v in sorted(refused.items()))})" if refused else "")
             + f"; clamped {clamps[ClampKind.LIMIT]} to a URDF limit, {clamps[ClampKind.STEP]} to the maximum step; "
             + ("frame -> first action n/a" if latency is None
                else f"frame -> first action p50 {latency.p50_ms:.1f} ms, p99 {latency.p99_ms:.1f} ms")

@@ -30,11 +30,12 @@ def _percentiles(summary: LatencySummary | None) -> dict[str, float] | None:
 
 
 def policy_diagnostics_msg(stamp_ns: int, stats: ActionStats, command_topic: str) -> DiagnosticArray:
-    refused_window = sum(stats.refused_window.values())
+    refusals = stats.refusals()
+    refused_window = sum(refusals.window_by_kind.values())
     clamped_window = {kind.value: dict(c) for kind, c in stats.clamps_window.items() if c}
     latency, observation_age = stats.latency(), stats.observation_age()
     if refused_window:
-        level, message = DiagnosticStatus.ERROR, f"{refused_window} policy outputs refused in the last window: {stats.last_refusal}"
+        level, message = DiagnosticStatus.ERROR, f"{refused_window} policy outputs refused in the last window: {refusals.last}"
     elif clamped_window:
         level = DiagnosticStatus.WARN
         message = "clamped in the last window: " + "; ".join(f"{k} {sorted(v)}" for k, v in clamped_window.items())
@@ -45,8 +46,8 @@ def policy_diagnostics_msg(stamp_ns: int, stats: ActionStats, command_topic: str
         "actions_published": stats.published,
         "chunks": stats.chunks,
         "policy_calls": stats.policy_calls,
-        "refused_by_kind": dict(stats.refused),
-        "last_refusal": stats.last_refusal,
+        "refused_by_kind": refusals.by_kind,
+        "last_refusal": refusals.last,
         "clamped_by_joint": {kind.value: dict(c) for kind, c in stats.clamps.items()},
         "held_ticks": stats.held_ticks,
         "late_ticks": stats.late_ticks,

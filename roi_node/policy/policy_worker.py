@@ -136,7 +136,7 @@ class PolicyWorker:
             output = self.policy.act(observation.batch)
         except Exception as exc:  # the policy's own failure: named with the frame, never a traceback
             raise PolicyCallError(self.policy.label, observation.stamp_ns, exc) from exc
-        self.stats.policy_calls += 1
+        self.stats.count_policy_call()
         try:
             steps = as_action_chunk(output, self.action_names, self.policy.label)
         except NonFiniteActionError as exc:

@@ -133,7 +133,7 @@ def test_nan_outputs_are_refused_counted_and_never_published(bench: Bench) -> No
     positions = np.array([list(m.position) for m in bench.commands])
     assert np.isfinite(positions).all() and list(bench.commands[0].name) == list(NAMES)
     np.testing.assert_allclose(positions, np.tile(target, (len(positions), 1)))  # every command is the valid target
-    assert dict(bench.stats.refused) == {"NonFiniteActionError": 3} and len(calls) >= 5
+    assert bench.stats.refusals().by_kind == {"NonFiniteActionError": 3} and len(calls) >= 5
     assert bench.wait_for(lambda: any(s.name == STATUS_NAME for a in bench.diagnostics for s in a.status))
     statuses = [s for a in bench.diagnostics for s in a.status if s.name == STATUS_NAME]
     assert statuses[0].level == DiagnosticStatus.ERROR and "left_panda_joint1" in statuses[0].message
