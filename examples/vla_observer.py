@@ -2,6 +2,7 @@
 
     roi-node run --config config/rig_demo_bimanual.yaml &
     python examples/vla_observer.py --count 10 [--latest] [--arms left right] [--no-global] [--ros-args -r __ns:=/rig1]
+    python examples/vla_observer.py --features DATASET_ROOT --task "hand the cube over" --latest
 
 Each observation is (I_global, I_roi_left, I_roi_right, s): the global view,
 the per-arm ROI crops and the joint positions they were computed from, all of
@@ -12,6 +13,13 @@ The arms and whether the node publishes a global view are discovered from its
 metadata unless given; ROS arguments after --ros-args reach rclpy (a
 namespace, remaps). While nothing arrives, the observer says after
 `--diagnose-s` which topic is silent.
+
+`--features PATH` (a LeRobot dataset root or info.json, or a policy
+checkpoint folder) is what a policy should take instead: each observation
+keyed, shaped, typed and ordered as `LeRobotDataset.__getitem__` yields that
+dataset's frames (`roi_node.policy.observations`), after the preflight
+refused any mismatch between the policy and the node; `roi-node policy
+observe` is the same from the command line.
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.utilities import remove_ros_args
 
+from roi_node.core.errors import RoiNodeError
 from roi_node.ros.consumer import Observation, ObservationClient
 
 
@@ -51,7 +60,11 @@ def main() -> int:
     parser.add_argument("--timeout-s", type=float, default=30.0, help="give up after this long without one (default: 30)")
     parser.add_argument("--diagnose-s", type=float, default=3.0,
                         help="say which topic is silent after this long without an observation (default: 3)")
+    parser.add_argument("--features", help="keyed like this LeRobot dataset or checkpoint (root, info.json or config.json)")
+    parser.add_argument("--task", default="", help="with --features: the language instruction each observation carries")
     args = parser.parse_args(remove_ros_args(sys.argv)[1:])
+    if args.features:
+        return observe_as_dataset(args)
     rclpy.init(args=sys.argv)
     node = Node("vla_observer")
     # every-frame mode keeps up to a second of complete observations (at 30 Hz) while this loop prints
@@ -81,6 +94,29 @@ def main() -> int:
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
+    return 0
+
+
+def observe_as_dataset(args: argparse.Namespace) -> int:
+    """The policy-side stream: the preflight first (nothing runs on a mismatch), then one batch per frame."""
+    from roi_node.policy.features import PolicyFeatures
+    from roi_node.policy.observations import PolicyObservationStream
+    from roi_node.policy.preflight import require_fit
+
+    features = PolicyFeatures.load(args.features)
+    ros_args = sys.argv[sys.argv.index("--ros-args"):] if "--ros-args" in sys.argv else []
+    try:
+        with PolicyObservationStream(features, task=args.task, latest=args.latest, timeout_s=args.timeout_s,
+                                     ros_args=ros_args) as stream:
+            require_fit(features, stream.describe_node())
+            for _ in range(args.count):
+                obs = stream.next()
+                shapes = " ".join(f"{key}={getattr(value, 'shape', value)!s}" for key, value in obs.batch.items())
+                print(f"stamp_ns={obs.stamp_ns} frame_age_s={obs.frame_age_s:.3f} joint_age_s={obs.joint_age_s} {shapes}",
+                      flush=True)
+    except RoiNodeError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     return 0
 
 

@@ -110,12 +110,15 @@ def test_a_mismatch_is_one_line_naming_the_key_and_both_values_before_any_weight
 
 def test_the_checkpoint_and_the_dataset_of_the_same_rig_pass(dataset: tuple[Path, Path], live_node: dict[str, str],
                                                               tmp_path: Path) -> None:
-    checkpoint = write_checkpoint(tmp_path, read_info(dataset[1]))
+    info = read_info(dataset[1])
+    checkpoint = write_checkpoint(tmp_path, info)
+    images = sum(spec["dtype"] == "video" for spec in info["features"].values())
+    joints = len(info["features"]["observation.state"]["names"])
     for features in (checkpoint, dataset[1]):
         result = preflight(live_node, features)
         assert result.returncode == 0, result.stderr
-        assert result.stdout.startswith(f"roi-node policy preflight: {features} fits the node: 3 images, 18 state joints, "
-                                        f"{RATE_HZ} fps against a {RATE_HZ:.1f} Hz camera, 18 actions"), result.stdout
+        assert result.stdout.startswith(f"roi-node policy preflight: {features} fits the node: {images} images, {joints} state "
+                                        f"joints, {RATE_HZ} fps against a {RATE_HZ:.1f} Hz camera, {joints} actions"), result.stdout
 
 
 def test_observe_prints_one_line_per_frame_keyed_like_the_dataset_with_its_ages(dataset: tuple[Path, Path],
@@ -146,3 +149,14 @@ def test_observe_prints_one_line_per_frame_keyed_like_the_dataset_with_its_ages(
             dtype = "float32" if spec["dtype"] == "video" else spec["dtype"]
             assert printed[key] == f"{'x'.join(map(str, shape)) if shape != [1] else 'scalar'}:{dtype}", key
     assert stamps == sorted(stamps) and len(set(stamps)) == 3  # every frame in order
+
+
+def test_the_example_observer_takes_the_dataset_keyed_stream(dataset: tuple[Path, Path], live_node: dict[str, str]) -> None:
+    result = subprocess.run([sys.executable, "examples/vla_observer.py", "--features", str(dataset[1]), "--count", "2",
+                             "--task", TASK, "--timeout-s", TIMEOUT_S], cwd=REPO, env=live_node, capture_output=True,
+                            text=True, timeout=180)
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    joints = len(read_info(dataset[1])["features"]["observation.state"]["names"])
+    assert len(lines) == 2, lines
+    assert all(f" observation.state=({joints},) " in line and line.endswith(f" task={TASK}") for line in lines), lines
