@@ -26,18 +26,12 @@ from roi_node.bag.writer import typestore
 from roi_node.sim.bag_sink import write_sim_bag
 
 from .bagtools import small_rig
+from .cli_run import run_cli
 from .conftest import REPO
 from .roibags import read_records
 from .storage_faults import DiskFillsAfter
 
 IMAGE = "/image_raw"
-
-
-def _cli(*args: str | Path, disk_fills_after_bytes: int | None = None) -> subprocess.CompletedProcess[str]:
-    """`roi-node <args>` in its own process; with `disk_fills_after_bytes`, its storage writes then fail (ENOSPC)."""
-    entry = ["roi_node.cli"] if disk_fills_after_bytes is None else ["test.storage_faults", str(disk_fills_after_bytes)]
-    return subprocess.run([sys.executable, "-m", *entry, *map(str, args)], cwd=REPO, capture_output=True, text=True,
-                          timeout=120)
 
 
 def _digest(path: Path) -> dict[str, str]:
@@ -60,7 +54,7 @@ def sim_bag(tmp_path_factory: pytest.TempPathFactory, rig: Path) -> Path:
     return write_sim_bag(rig, tmp_path_factory.mktemp("sim") / "sim", duration_s=2.0, seed=3).path
 
 
-def test_chunks_carry_crcs_that_the_mcap_reader_verifies(sim_bag: Path) -> None:
+def test_chunks_carry_crcs_that_the_mcap_reader_verifies(sim_bag: Path, capfd: pytest.CaptureFixture[str]) -> None:
     storage = sim_bag / "sim.mcap"
     with storage.open("rb") as stream:
         reader = make_reader(stream, validate_crcs=True)
@@ -71,12 +65,14 @@ def test_chunks_carry_crcs_that_the_mcap_reader_verifies(sim_bag: Path) -> None:
         stream.seek(summary.chunk_indexes[0].chunk_start_offset + 9 + 24)
         crc = int.from_bytes(stream.read(4), "little")
     assert crc != 0
-    check = _cli("inspect", "--check", sim_bag)
+    check = run_cli(capfd, "inspect", "--check", sim_bag)
     assert check.returncode == 0, check.stdout + check.stderr
     assert check.stdout.strip().endswith("result: ok")
 
 
-def test_a_corrupted_chunk_is_named_by_inspect_check_and_replay(tmp_path: Path, sim_bag: Path, rig: Path) -> None:
+def test_a_corrupted_chunk_is_named_by_inspect_check_and_replay(
+    tmp_path: Path, sim_bag: Path, rig: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
     bag = tmp_path / "damaged"
     shutil.copytree(sim_bag, bag)
     storage = bag / "sim.mcap"
@@ -93,11 +89,11 @@ def test_a_corrupted_chunk_is_named_by_inspect_check_and_replay(tmp_path: Path, 
         stream.seek(start)
         stream.write(bytes(b ^ 0xFF for b in data))
     where = f"{storage}: chunk at byte {index.chunk_start_offset} is damaged"
-    check = _cli("inspect", "--check", bag)
+    check = run_cli(capfd, "inspect", "--check", bag)
     assert check.returncode == 1
     assert where in check.stdout and f"topics affected: {', '.join(topics)}" in check.stdout
     out = tmp_path / "out"
-    replay = _cli("replay", bag, "-o", out, "--config", rig)
+    replay = run_cli(capfd, "replay", bag, "-o", out, "--config", rig)
     assert replay.returncode == 2
     lines = replay.stderr.strip().splitlines()
     assert len(lines) == 1 and where in lines[0] and f"topics affected: {', '.join(topics)}" in lines[0], replay.stderr
@@ -107,14 +103,16 @@ def test_a_corrupted_chunk_is_named_by_inspect_check_and_replay(tmp_path: Path, 
         stream.seek(index.chunk_start_offset)
         chunk = next(StreamReader(stream, skip_magic=True, emit_chunks=True).records)
         in_chunk = sum(isinstance(r, Message) for r in breakup_chunk(chunk))  # type: ignore[arg-type]  # records yields any record
-    fixed = _cli("recover", bag, "-o", tmp_path / "fixed")
+    fixed = run_cli(capfd, "recover", bag, "-o", tmp_path / "fixed")
     assert fixed.returncode == 0, fixed.stderr
     assert f"1 damaged chunks skipped (at bytes {index.chunk_start_offset})" in fixed.stdout
     assert sum(_counts(tmp_path / "fixed").values()) == sum(_counts(sim_bag).values()) - in_chunk > 0
 
 
 @pytest.mark.parametrize("compression", ["lz4", "zstd"])
-def test_compressed_bags_replay_like_raw_ones(tmp_path: Path, sim_bag: Path, rig: Path, compression: str) -> None:
+def test_compressed_bags_replay_like_raw_ones(
+    tmp_path: Path, sim_bag: Path, rig: Path, compression: str, capfd: pytest.CaptureFixture[str]
+) -> None:
     packed = write_sim_bag(rig, tmp_path / "packed", duration_s=2.0, seed=3, chunk_compression=compression).path
     with (packed / "packed.mcap").open("rb") as stream:
         summary = make_reader(stream).get_summary()
@@ -122,17 +120,22 @@ def test_compressed_bags_replay_like_raw_ones(tmp_path: Path, sim_bag: Path, rig
     assert sum(1 for _ in read_ros2_messages(str(packed / "packed.mcap"))) == sum(_counts(sim_bag).values())
     plain, squeezed = tmp_path / "plain_roi", tmp_path / "packed_roi"
     replay_bag(sim_bag, plain, rig)
-    out = _cli("replay", packed, "-o", squeezed, "--config", rig, "--compression", compression)
+    out = run_cli(capfd, "replay", packed, "-o", squeezed, "--config", rig, "--compression", compression)
     assert out.returncode == 0, out.stderr
     assert read_records(squeezed) == read_records(plain) and len(read_records(plain)) == 60
 
 
-def test_overwrite_with_a_failing_run_keeps_the_old_output_byte_identical(tmp_path: Path, sim_bag: Path, rig: Path) -> None:
+def test_overwrite_with_a_failing_run_keeps_the_old_output_byte_identical(
+    tmp_path: Path, sim_bag: Path, rig: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "out"
-    first = _cli("replay", sim_bag, "-o", out, "--config", rig)
+    first = run_cli(capfd, "replay", sim_bag, "-o", out, "--config", rig)
     assert first.returncode == 0, first.stderr
     before = _digest(out)
-    failed = _cli("replay", sim_bag, "-o", out, "--config", rig, "--overwrite", disk_fills_after_bytes=200000)
+    from roi_node.bag import writer
+
+    monkeypatch.setattr(writer, "open_storage", DiskFillsAfter(200000))  # this process's storage writes then fail
+    failed = run_cli(capfd, "replay", sim_bag, "-o", out, "--config", rig, "--overwrite")
     assert failed.returncode == 2
     assert failed.stderr.strip().splitlines()[-1].startswith("roi-node replay: error: ")
     assert "write failed (No space left on device)" in failed.stderr
@@ -140,7 +143,9 @@ def test_overwrite_with_a_failing_run_keeps_the_old_output_byte_identical(tmp_pa
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no partial sibling left
 
 
-def test_recover_finishes_a_bag_cut_mid_record_and_leaves_the_input_alone(tmp_path: Path, sim_bag: Path, rig: Path) -> None:
+def test_recover_finishes_a_bag_cut_mid_record_and_leaves_the_input_alone(
+    tmp_path: Path, sim_bag: Path, rig: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
     cut = tmp_path / "cut.mcap"
     data = (sim_bag / "sim.mcap").read_bytes()
     with (sim_bag / "sim.mcap").open("rb") as stream:
@@ -149,9 +154,9 @@ def test_recover_finishes_a_bag_cut_mid_record_and_leaves_the_input_alone(tmp_pa
     last = summary.chunk_indexes[-3]
     cut.write_bytes(data[: last.chunk_start_offset + last.chunk_length // 2])  # no summary, no footer, a torn chunk
     before = hashlib.sha256(cut.read_bytes()).hexdigest()
-    refused = _cli("replay", cut, "-o", tmp_path / "x", "--config", rig)
+    refused = run_cli(capfd, "replay", cut, "-o", tmp_path / "x", "--config", rig)
     assert refused.returncode == 2 and f"`roi-node recover {cut}`" in refused.stderr
-    done = _cli("recover", cut)
+    done = run_cli(capfd, "recover", cut)
     assert done.returncode == 0, done.stderr
     recovered = tmp_path / "cut_recovered"
     assert f"into {recovered} (status recovered)" in done.stdout and "cut inside a record" in done.stdout
@@ -165,13 +170,13 @@ def test_recover_finishes_a_bag_cut_mid_record_and_leaves_the_input_alone(tmp_pa
     assert sum(got.values()) == expected
     assert all(f"  {topic}: {n} messages" in done.stdout for topic, n in got.items())
     assert sum(1 for _ in read_ros2_messages(str(recovered / "cut_recovered.mcap"))) == expected
-    assert _cli("inspect", "--check", recovered).returncode == 0
+    assert run_cli(capfd, "inspect", "--check", recovered).returncode == 0
     out = tmp_path / "roi"
-    assert _cli("replay", recovered, "-o", out, "--config", rig).returncode == 0
+    assert run_cli(capfd, "replay", recovered, "-o", out, "--config", rig).returncode == 0
     assert len(read_records(out)) == got[IMAGE]
 
 
-def test_split_recording_lists_each_finished_file_in_metadata_yaml_as_it_goes(tmp_path: Path) -> None:
+def test_split_recording_lists_each_finished_file_in_metadata_yaml_as_it_goes(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     """The recorder's writer (in place): numbered files, metadata.yaml rewritten at each split, readable mid-recording."""
     import yaml
 
@@ -201,21 +206,23 @@ def test_split_recording_lists_each_finished_file_in_metadata_yaml_as_it_goes(tm
     with AnyReader([bag], default_typestore=typestore()) as reader:
         texts = [reader.deserialize(raw, c.msgtype).data[:4] for c, _, raw in reader.messages()]
     assert texts == [f"{i:04d}" for i in range(400)]
-    assert _cli("inspect", "--check", bag).returncode == 0
+    assert run_cli(capfd, "inspect", "--check", bag).returncode == 0
 
 
-def test_a_failing_validate_report_keeps_the_previous_report(tmp_path: Path, sim_bag: Path, rig: Path) -> None:
+def test_a_failing_validate_report_keeps_the_previous_report(
+    tmp_path: Path, sim_bag: Path, rig: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
     roi = tmp_path / "roi"
     replay_bag(sim_bag, roi, rig)
     report = tmp_path / "report"
-    first = _cli("validate", roi, "--report", report)
+    first = run_cli(capfd, "validate", roi, "--report", report)
     assert first.returncode in (0, 1), first.stderr
     before = _digest(report)
     broken = tmp_path / "broken"
     shutil.copytree(roi, broken)
     with (broken / "roi.mcap").open("r+b") as stream:
         stream.truncate(5000)
-    failed = _cli("validate", roi, broken, "--report", report)
+    failed = run_cli(capfd, "validate", roi, broken, "--report", report)
     assert failed.returncode == 2 and "roi-node recover" in failed.stderr
     assert _digest(report) == before and sorted(p.name for p in tmp_path.iterdir()) == ["broken", "report", "roi"]
 
@@ -251,7 +258,7 @@ def test_a_write_failure_anywhere_leaves_a_finalized_bag_of_what_was_written(
     assert texts == [f"{i:04d}" for i in range(stored)]  # a prefix of what was sent, nothing torn or reordered
 
 
-def test_inspect_check_compares_the_message_index_with_the_chunk(tmp_path: Path, sim_bag: Path) -> None:
+def test_inspect_check_compares_the_message_index_with_the_chunk(tmp_path: Path, sim_bag: Path, capfd: pytest.CaptureFixture[str]) -> None:
     bag = tmp_path / "reindexed"
     shutil.copytree(sim_bag, bag)
     storage = bag / "sim.mcap"
@@ -265,7 +272,7 @@ def test_inspect_check_compares_the_message_index_with_the_chunk(tmp_path: Path,
         length = int.from_bytes(stream.read(4), "little")
         stream.seek(offset + 9 + 2)
         stream.write((length - 16).to_bytes(4, "little"))
-    check = _cli("inspect", "--check", bag)
+    check = run_cli(capfd, "inspect", "--check", bag)
     assert check.returncode == 1
     listed = length // 16
     assert (f"{storage}: message index at byte {offset}: channel " in check.stdout
@@ -299,7 +306,9 @@ def test_invalid_utf8_in_metadata_yaml_is_one_line_for_check_replay_and_recover(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad_meta"]
 
 
-def test_recover_skips_a_zstd_chunk_that_does_not_decompress_and_keeps_the_rest(tmp_path: Path, rig: Path) -> None:
+def test_recover_skips_a_zstd_chunk_that_does_not_decompress_and_keeps_the_rest(
+    tmp_path: Path, rig: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
     packed = write_sim_bag(rig, tmp_path / "packed", duration_s=1.0, seed=3, chunk_compression="zstd").path
     storage = packed / "packed.mcap"
     with storage.open("rb") as stream:
@@ -315,9 +324,9 @@ def test_recover_skips_a_zstd_chunk_that_does_not_decompress_and_keeps_the_rest(
         assert stream.read(4) == b"\x28\xb5\x2f\xfd"
         stream.seek(data_at)
         stream.write(b"\x00")
-    check = _cli("inspect", "--check", packed)
+    check = run_cli(capfd, "inspect", "--check", packed)
     assert check.returncode == 1 and f"{storage}: chunk at byte {index.chunk_start_offset} is damaged (does not decompress" in check.stdout
-    fixed = _cli("recover", packed, "-o", tmp_path / "fixed")
+    fixed = run_cli(capfd, "recover", packed, "-o", tmp_path / "fixed")
     assert fixed.returncode == 0, fixed.stderr
     assert f"1 damaged chunks skipped (at bytes {index.chunk_start_offset})" in fixed.stdout
     assert sum(_counts(tmp_path / "fixed").values()) == sum(_counts(packed).values()) - in_chunk > 0

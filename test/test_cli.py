@@ -8,7 +8,11 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+import pytest
+
 from roi_node.cli import build_parser
+
+from .cli_run import run_cli
 
 
 def _roi_node(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
@@ -25,14 +29,14 @@ def test_bad_config_is_one_clear_line_and_exit_2(tmp_path: Path) -> None:
     assert missing.returncode == 2 and "nope.yaml: rig config not found" in missing.stderr
 
 
-def test_unknown_verb_and_help() -> None:
-    help_out = subprocess.run([sys.executable, "-m", "roi_node.cli", "--help"], capture_output=True, text=True)
+def test_unknown_verb_and_help(capsys: pytest.CaptureFixture[str]) -> None:
+    help_out = run_cli(capsys, "--help")
     assert help_out.returncode == 0
     for verb in ("run", "replay", "record", "play", "validate", "manifest", "sim", "demo", "inspect", "recover"):
         assert verb in help_out.stdout
-        verb_help = subprocess.run([sys.executable, "-m", "roi_node.cli", verb, "--help"], capture_output=True, text=True)
+        verb_help = run_cli(capsys, verb, "--help")
         assert verb_help.returncode == 0 and "usage: roi-node " + verb in verb_help.stdout
-    bad = subprocess.run([sys.executable, "-m", "roi_node.cli", "frobnicate"], capture_output=True, text=True)
+    bad = run_cli(capsys, "frobnicate")
     assert bad.returncode != 0 and "invalid choice" in bad.stderr
 
 
@@ -44,7 +48,7 @@ def _verbs(parser: argparse.ArgumentParser, prefix: str = "") -> Iterator[tuple[
                 yield from _verbs(sub, prefix + name + " ")
 
 
-def test_every_verb_has_a_description_in_its_help() -> None:
+def test_every_verb_has_a_description_in_its_help(capsys: pytest.CaptureFixture[str]) -> None:
     """Walks the parser the CLI builds, so a new verb without a description fails here."""
     verbs = dict(_verbs(build_parser()))
     assert {"run", "record", "play", "replay", "inspect", "sim", "demo", "export", "export lerobot", "check-config", "frames"} <= set(verbs)
@@ -53,27 +57,26 @@ def test_every_verb_has_a_description_in_its_help() -> None:
         assert len(description.split()) >= 8, f"roi-node {name}: no description"
         help_text = " ".join(parser.format_help().split())
         assert " ".join(description.split()[:8]) in help_text, name
-    shown = subprocess.run([sys.executable, "-m", "roi_node.cli", "play", "--help"], capture_output=True, text=True)
+    shown = run_cli(capsys, "play", "--help")
     assert " ".join(verbs["play"].description.split()[:6]) in " ".join(shown.stdout.split())  # type: ignore[union-attr]
 
 
-def test_record_sizes_and_bad_split_options() -> None:
+def test_record_sizes_and_bad_split_options(capsys: pytest.CaptureFixture[str]) -> None:
     from roi_node.ros.verbs import size_bytes
 
     assert [size_bytes(t) for t in ("12345", "500MB", "1GiB", "1.5kb", "2 MiB")] == [12345, 500 * 10**6, 2**30, 1500, 2 * 2**20]
     for option, value, why in (("--max-size", "12XB", "expected bytes or a size like 500MB or 1GiB, got '12XB'"),
                                ("--max-duration", "0", "must be positive, got '0'"),
                                ("--jpeg-quality", "101", "must be 1..100, got 101")):
-        bad = subprocess.run([sys.executable, "-m", "roi_node.cli", "record", "-o", "x", "--all", option, value],
-                             capture_output=True, text=True, timeout=60)
+        bad = run_cli(capsys, "record", "-o", "x", "--all", option, value)
         assert bad.returncode == 2 and bad.stderr.strip().endswith(f"argument {option}: {why}"), bad.stderr
 
 
-def test_counts_below_their_minimum_are_one_argparse_line() -> None:
+def test_counts_below_their_minimum_are_one_argparse_line(capsys: pytest.CaptureFixture[str]) -> None:
     cases = ((["replay", "b", "-o", "o", "--config", "c", "--workers", "0"], "--workers", "must be at least 1, got 0"),
              (["replay", "b", "-o", "o", "--config", "c", "--workers", "two"], "--workers", "invalid int value: 'two'"),
              (["replay", "b", "-o", "o", "--config", "c", "--ray", "--ray-retries", "-1"], "--ray-retries", "must be at least 0, got -1"),
              (["export", "lerobot", "b", "-o", "o", "--fps", "0"], "--fps", "must be at least 1, got 0"))
     for args, option, why in cases:
-        bad = subprocess.run([sys.executable, "-m", "roi_node.cli", *args], capture_output=True, text=True, timeout=60)
+        bad = run_cli(capsys, *args)
         assert bad.returncode == 2 and bad.stderr.strip().endswith(f"argument {option}: {why}"), bad.stderr

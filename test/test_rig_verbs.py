@@ -1,4 +1,4 @@
-"""`roi-node check-config` and `roi-node frames` as a user runs them (subprocesses of `python -m roi_node.cli`).
+"""`roi-node check-config` and `roi-node frames` as a user runs them (the CLI's `main`, all it prints captured).
 
 Oracles: the rig file itself (every value it gives appears unchanged in the
 resolved config) and the URDF read with xml.etree here (the frame tree; an
@@ -8,8 +8,6 @@ joints below the wrist).
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
@@ -19,15 +17,12 @@ import yaml
 
 from roi_node.core.robot_models import EXAMPLE_ROBOT_DATA_PREFIX, resolve_robot_reference
 
+from .cli_run import run_cli
 from .conftest import CONFIG
 from .rigs import write_rig
 
 BUNDLED_RIGS = sorted(CONFIG.glob("rig_*.yaml"))
 MOVABLE = ("revolute", "continuous", "prismatic")
-
-
-def _cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "roi_node.cli", *args], capture_output=True, text=True, timeout=120)
 
 
 def _urdf_path(reference: str, rig: Path) -> Path:
@@ -90,8 +85,8 @@ def _leaves(doc: Any, path: tuple[Any, ...] = ()) -> list[tuple[tuple[Any, ...],
 
 
 @pytest.mark.parametrize("rig", BUNDLED_RIGS, ids=lambda p: p.name)
-def test_check_config_prints_the_resolved_rig_and_each_arms_joints(rig: Path) -> None:
-    result = _cli("check-config", str(rig))
+def test_check_config_prints_the_resolved_rig_and_each_arms_joints(rig: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    result = run_cli(capfd, "check-config", str(rig))
     assert result.returncode == 0, result.stderr
     report = yaml.safe_load(result.stdout)
     written = yaml.safe_load(rig.read_text())
@@ -135,20 +130,22 @@ def test_check_config_prints_the_resolved_rig_and_each_arms_joints(rig: Path) ->
         (("camera", "extrinsics", "ofset"), 1, "camera.extrinsics.ofset"),
     ],
 )
-def test_check_config_on_a_broken_rig_is_one_line_naming_the_key(tmp_path: Path, key_path: tuple[Any, ...], value: Any, named: str) -> None:
+def test_check_config_on_a_broken_rig_is_one_line_naming_the_key(
+    tmp_path: Path, key_path: tuple[Any, ...], value: Any, named: str, capfd: pytest.CaptureFixture[str]
+) -> None:
     doc = yaml.safe_load((CONFIG / "rig_demo_bimanual.yaml").read_text())
     node = doc
     for key in key_path[:-1]:
         node = node[key]
     node[key_path[-1]] = value
-    result = _cli("check-config", str(write_rig(tmp_path, doc)))
+    result = run_cli(capfd, "check-config", str(write_rig(tmp_path, doc)))
     assert result.returncode == 2
     assert result.stdout == ""
     lines = result.stderr.splitlines()
     assert len(lines) == 1 and f"{named}:" in lines[0], result.stderr
 
 
-def test_check_config_on_a_rig_with_a_malformed_urdf_is_one_line(tmp_path: Path) -> None:
+def test_check_config_on_a_rig_with_a_malformed_urdf_is_one_line(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     """The URDF's structure is checked before placo loads it (placo crashes on a link with two parents)."""
     panda = resolve_robot_reference("example-robot-data:panda", "test").read_text()
     extra = "<joint name='extra' type='fixed'><parent link='panda_link0'/><child link='panda_hand'/></joint>"
@@ -156,7 +153,7 @@ def test_check_config_on_a_rig_with_a_malformed_urdf_is_one_line(tmp_path: Path)
     (tmp_path / "two_parents.urdf").write_text(twice)
     doc = yaml.safe_load((CONFIG / "rig_panda_single.yaml").read_text())
     doc["robots"][0]["urdf"] = "two_parents.urdf"
-    result = _cli("check-config", str(write_rig(tmp_path, doc)))
+    result = run_cli(capfd, "check-config", str(write_rig(tmp_path, doc)))
     assert result.returncode == 2 and result.stdout == ""
     lines = result.stderr.splitlines()
     assert len(lines) == 1 and "link 'panda_hand': is the child of two joints" in lines[0], result.stderr
@@ -168,11 +165,11 @@ def _urdfs() -> list[str]:
 
 
 @pytest.mark.parametrize("reference", _urdfs())
-def test_frames_prints_every_link_under_its_parent(reference: str) -> None:
+def test_frames_prints_every_link_under_its_parent(reference: str, capfd: pytest.CaptureFixture[str]) -> None:
     path = _urdf_path(reference, CONFIG / "rig.yaml")
     oracle = UrdfOracle(path)
     for argument in (reference, str(path)) if reference.endswith("panda") else (reference,):
-        result = _cli("frames", argument)
+        result = run_cli(capfd, "frames", argument)
         assert result.returncode == 0, result.stderr
         header, root, *rows = result.stdout.splitlines()
         assert f"{len(oracle.links)} links, {len(oracle.joints)} joints" in header
@@ -200,7 +197,9 @@ def test_frames_prints_every_link_under_its_parent(reference: str) -> None:
          "type 'hinge'"),
     ],
 )
-def test_frames_on_a_bad_urdf_is_one_line_and_exit_2(tmp_path: Path, content: str | None, expected: str) -> None:
+def test_frames_on_a_bad_urdf_is_one_line_and_exit_2(
+    tmp_path: Path, content: str | None, expected: str, capfd: pytest.CaptureFixture[str]
+) -> None:
     if content is None:
         argument = "example-robot-data:no_such_robot"
     elif content == "absent":
@@ -208,7 +207,7 @@ def test_frames_on_a_bad_urdf_is_one_line_and_exit_2(tmp_path: Path, content: st
     else:
         (tmp_path / "bad.urdf").write_text(content)
         argument = str(tmp_path / "bad.urdf")
-    result = _cli("frames", argument)
+    result = run_cli(capfd, "frames", argument)
     assert result.returncode == 2 and result.stdout == ""
     lines = result.stderr.splitlines()
     assert len(lines) == 1 and expected in lines[0], result.stderr
