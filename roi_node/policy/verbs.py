@@ -92,7 +92,10 @@ def register(verbs: Any) -> None:
     add_features_arguments(check)
     check.set_defaults(func=_cmd_preflight)
 
-    observe = sub.add_parser("observe", help="print one line per live observation keyed like the policy's dataset, with its ages")
+    observe = sub.add_parser("observe", help="print one line per live observation keyed like the policy's dataset, with its ages",
+                             description="After the preflight, one line per live frame: its stamp, its age and its joint "
+                             "sample's age at delivery, and every key of the observation with its shape and dtype, exactly "
+                             "as LeRobotDataset.__getitem__ yields the policy's dataset frames.")
     add_features_arguments(observe)
     observe.add_argument("--task", default="", help="the language instruction every observation carries (default: empty)")
     observe.add_argument("--count", type=int_at_least(1), default=10, help="observations to print, then exit (default: 10)")
