@@ -262,5 +262,5 @@ def report_lines(s: SizeSummary) -> list[str]:
 
 
 def final_line(s: SizeSummary) -> str:
-    """The line the two benches are compared by."""
-    return f"{s.label} node-added p50 {s.added_p50_ms:.2f} ms (live.py definition)"
+    """The line the two benches are compared by (an INVALID size says so there too: its figure compares nothing)."""
+    return f"{s.label} node-added p50 {s.added_p50_ms:.2f} ms (live.py definition)" + ("; INVALID" if s.invalid_because else "")
