@@ -34,7 +34,7 @@ from roi_node.core.errors import ConfigError
 from roi_node.core.sync import NS_PER_S
 from roi_node.core.transforms import Float64Array
 
-HISTORY_NS = 5 * NS_PER_S  # segments kept behind the latest one: far more than a frame's capture-to-render lag
+HISTORY_NS = 60 * NS_PER_S  # segments kept behind the latest one: more than a frame lags its capture even in --late-frames send
 
 
 class CommandIssue(StrEnum):
