@@ -90,7 +90,8 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     sim = verbs.add_parser(
         "sim",
         help="a simulated rig: rendered camera + joint states, live on DDS or into a bag",
-        description="Simulate the rig of a rig config: its robots follow a seeded trajectory, a camera with the rig's "
+        description="Simulate the rig of a rig config: its robots follow a seeded trajectory (or, live with --follow-commands, "
+        "a policy's position commands), a camera with the rig's "
         "calibration renders them, and images, camera info and joint states are published live on DDS (the default) or "
         "written into a rosbag2 MCAP bag with --bag, whose parent folders are created. Live, the camera keeps the wall "
         "clock as a real one does: a frame that cannot go out before the next one is due is dropped, and the last line "
