@@ -74,6 +74,7 @@ bench: $(STAMP)
 	$(PY) bench/overlay.py
 	$(PY) bench/ray.py
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-73} $(PY) bench/live.py
+	$(PY) bench/live_overload.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 2 ))
 
 # docs/rig-config.md's key table from config/rig.schema.json (test/test_rig_doc.py fails when it is stale)
 docs: $(STAMP)

@@ -20,7 +20,18 @@ from roi_node.bag.replay import replay_bag
 from roi_node.bag.writer import typestore
 
 from .conftest import CONFIG, REPO
-from .live.harness import PATIENT_SYNC, RELIABLE_INPUT, Collector, next_domain, node_args, process, ros_env
+from .live.harness import (
+    PATIENT_SYNC,
+    RELIABLE_INPUT,
+    Collector,
+    graph_probe,
+    next_domain,
+    node_args,
+    process,
+    publish,
+    ros_env,
+    wait_until,
+)
 
 pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 
@@ -51,12 +62,14 @@ def by_stamp(messages: list[tuple[int, Any]]) -> dict[int, Any]:
 
 
 def wait_for_log(log: Path, needles: list[str], timeout_s: float = 30.0) -> None:
-    """Until the recorder says it subscribed to every output, then a settle: its readers match a moment later."""
+    """Until the recorder says it subscribed to every topic in `needles`.
+
+    The publisher then waits for its writers to match the recorder's readers (its spec's min_subscribers).
+    """
     deadline = time.monotonic() + timeout_s
     while not all(n in log.read_text() for n in needles):
         assert time.monotonic() < deadline, f"recorder never subscribed: {log.read_text()}"
         time.sleep(0.1)
-    time.sleep(1.5)
 
 
 # live == offline is about determinism, not latency: a frame may wait 1 s for the joint sample after it, so a busy
@@ -73,20 +86,19 @@ def record_session(
     bag = tmp_path / "session"
     # the recorder and the node stop when the publisher exits: it lingers 3 s, so a node a loaded machine held back
     # (RECORDING lets it keep 2 s of frames) has published and the recorder written every output by then
-    full_spec = {"rig": str(BIMANUAL), "frames": frames, "min_subscribers": 2, "settle_s": 1.0, "linger_s": 3.0, **(spec or {})}
-    (tmp_path / "spec.json").write_text(json.dumps(full_spec))
-    with process(node_args(BIMANUAL, *params), env, tmp_path / "node.log"):
+    full_spec = {"frames": frames, "min_subscribers": 2, "settle_s": 1.0, "linger_s": 3.0, **(spec or {})}
+    with graph_probe(domain) as probe, process(node_args(BIMANUAL, *params), env, tmp_path / "node.log"):
         with process(["-m", "roi_node.cli", "record", "-o", str(bag), "--topics", *inputs, *OUTPUTS], env, tmp_path / "rec.log") as rec:
             wait_for_log(tmp_path / "rec.log", [f"recording {t} " for t in OUTPUTS])
-            pub = subprocess.run(
-                [sys.executable, "-m", "test.live.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
-                cwd=REPO, env=env, capture_output=True, text=True, timeout=120,
-            )
-            assert pub.returncode == 0, pub.stderr
+            # the node's outputs are not the publisher's to wait for: the recorder's readers of them are in the graph
+            # (the node learns of them with this probe), and the publisher settles 1 s after its own writers matched
+            assert wait_until(lambda: all(probe.count_subscribers(t) >= 1 and probe.count_publishers(t) >= 1 for t in OUTPUTS),
+                              30.0), {t: (probe.count_publishers(t), probe.count_subscribers(t)) for t in OUTPUTS}
+            truth = publish(tmp_path, env, full_spec)
         assert rec.returncode == 0, (tmp_path / "rec.log").read_text()
     log = (tmp_path / "rec.log").read_text()
     assert "finalized (complete)" in log and "0 dropped" in log
-    return bag, json.loads((tmp_path / "truth.json").read_text())
+    return bag, truth
 
 
 @pytest.fixture(scope="module")
