@@ -12,6 +12,7 @@ windows matter here, and they do not depend on the pixels.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -86,13 +87,10 @@ def run(
             truths[k] = world.ground_truth(world.capture_ns(k))
         pending[stamps[k]] = truths[k]
         engine.feed(FrameEvent(stamps[k], blank))
-        for ready in engine.pop_ready(None):
-            result = engine.run(ready)
-            if result is None:
-                continue
+        for result in engine.release_all(time.perf_counter):  # as replay releases its frames
             record = result.record
             records.append(record)
-            truth = pending.pop(ready.payload.stamp_ns)
+            truth = pending.pop(result.stamp_ns)
             frames.append([_compare(truth.gripper(arm.arm_id), arm, camera.width_px, camera.height_px) for arm in record.arms])
     return records, frames
 

@@ -135,7 +135,8 @@ def decode_frame(msg: Any, msgtype: str, where: str) -> np.ndarray:
 
 
 def camera_from_msg(msg: Any, rectified: bool, where: str) -> CameraModel:
-    """A CameraModel from a sensor_msgs/CameraInfo (CalibrationError when it holds no calibration)."""
+    """A CameraModel from a sensor_msgs/CameraInfo, rosbags' or rclpy's (CalibrationError naming `where` when it
+    holds no calibration): the one conversion, for replay, calibration checks and the live node."""
     return camera_from_info(
         width_px=int(msg.width),
         height_px=int(msg.height),

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -32,18 +31,12 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
 
 from ..core import topics
-from ..core.compressed_outputs import (
-    DEFAULT_JPEG_QUALITY,
-    JPEG_QUALITY_RANGE,
-    OutputTransport,
-    compressed_format,
-    compressed_topic,
-    encode_jpeg,
-)
+from ..core.compressed_outputs import DEFAULT_JPEG_QUALITY, JPEG_QUALITY_RANGE, OutputTransport
 from ..core.config import RigConfig, load_rig_config
-from ..core.engine import CameraInfoEvent, CommandEvent, Event, FrameEvent, JointStateEvent, StreamEngine
+from ..core.drop_kinds import DropKind
+from ..core.engine import CameraInfoEvent, CommandEvent, Event, FrameEvent, JointStateEvent, Refusal, StreamEngine
 from ..core.errors import BagError, BagWriteError, CalibrationError, ConfigError, ImageError, RoiNodeError, UsageError
-from ..core.overlay_cdr import overlay_cdr
+from ..core.frame_outputs import OutputOptions, frame_outputs
 from ..core.pipeline import FrameResult
 from .bag_status import BagStatus
 from .indexed_mcap import CrcLedger
@@ -51,6 +44,7 @@ from .inputs import InputSelection, check_frame_stream, decode_frame, select_inp
 from .interrupt import DeferredInterrupt
 from .mcap_file import Compression
 from .messages import MessageFactory
+from .outgoing import outgoing_cdr
 from .progress import Progress
 from .reader import DESERIALIZE_ERRORS, Cdr, check_bag_path, deserialize, open_bag, read_messages, stamp_ns, topic_stats, verify_chunks
 from .rig_attachments import RigInputs, rig_inputs
@@ -176,9 +170,8 @@ class _Replay:
             raise BagError(f"{source}: {selection.camera_info_topic}: no usable CameraInfo message")
         self.from_bag = from_bag
         self.engine = StreamEngine(rig, intrinsics_from_stream=from_bag, max_pending=selection.frame_count + 1)
-        self.stats = self.engine.stats
-        self.frames_read = 0
-        self.frames_undecodable = 0
+        self.stats = self.engine.stats  # read for the summary; the engine keeps every count
+        self.unreadable_messages = streams.bad.count  # joint states, commands, camera infos the first pass could not read
         self._check_joint_names(streams)
         self.joint_messages = len(streams.joints)
         self.stamp_audit = StampAudit()  # what the engine refuses as implausible without returning it
@@ -202,19 +195,19 @@ class _Replay:
 
     def _check_joint_names(self, streams: Streams) -> None:
         have = streams.joint_names()
-        pipeline = self.engine.pipeline
-        assert pipeline is not None  # the URDF comes from the rig's files offline
-        required = pipeline.required_joints
-        missing = [j for j in required if j not in have]
-        if missing:
+        missing = self.engine.missing_joints(have)
+        if missing:  # the engine could pair no frame of this bag: fail before any output
             raise ConfigError(
                 f"{self.rig.source}: the rig needs joints {', '.join(missing)} that {self.source} does not have on "
                 f"{', '.join(self.selection.joint_topics)}; the bag's joint states name {', '.join(sorted(have)) or 'no joints'}"
             )
         if self.selection.joint_topics_detected:
-            # merging by name is right for complementary streams (one per arm), wrong for measured + commanded
+            # which topics are the inputs is the driver's choice: merging by name is right for complementary
+            # streams (one per arm), wrong for measured + commanded
             carriers = streams.topics_by_joint()
-            shared = [j for j in required if len(carriers[j]) > 1]
+            pipeline = self.engine.pipeline
+            assert pipeline is not None  # the URDF comes from the rig's files offline
+            shared = [j for j in pipeline.required_joints if len(carriers[j]) > 1]
             if shared:
                 raise BagError(
                     f"{self.source}: joints {', '.join(shared)} are on several JointState topics "
@@ -251,7 +244,7 @@ class _Replay:
                     if self.stats.frames_out == 0:
                         first = self.bad.examples[0] if self.bad.examples else "no frame was released"
                         raise ImageError(
-                            f"{self.frame_where}: none of the {self.frames_read} frames could be used; first problem: {first}"
+                            f"{self.frame_where}: none of the {self.stats.frames_in} frames could be used; first problem: {first}"
                         )
             except KeyboardInterrupt:
                 self.progress.finish()
@@ -263,16 +256,15 @@ class _Replay:
         return summary
 
     def _frame(self, reader: AnyReader, raw: Cdr, outputs: _OutputTopics) -> None:
-        index = self.frames_read
-        self.frames_read += 1
+        index = self.stats.frames_in  # every image message read is counted in, so this is the message's position
         msgtype = self.selection.image_type
         try:
             msg: Any = deserialize(reader, raw, msgtype)
         except DESERIALIZE_ERRORS as exc:
-            self._bad_frame(f"{self.frame_where}: message {index} cannot be deserialized as {msgtype} ({exc})")
+            self._reject_frame(f"{self.frame_where}: message {index} cannot be deserialized as {msgtype} ({exc})")
             return
         stamp = stamp_ns(msg.header)
-        self.stats.frame_arrived(stamp)  # every image read counts toward the gaps, whatever becomes of it (as live)
+        self.engine.frame_arrived(stamp)  # every image read counts toward the gaps, whatever becomes of it (as live)
         if not self._stream_checked:
             check_frame_stream(msg, msgtype, self.frame_where)  # the rig cannot use this stream at all: fatal
             self._stream_checked = True
@@ -280,22 +272,17 @@ class _Replay:
         try:
             image = decode_frame(msg, msgtype, where)
         except ImageError as exc:
-            self._bad_frame(str(exc))
+            self._reject_frame(str(exc))
             return
         if not self._size_checked:
             self._check_size(image.shape[1], image.shape[0])
         refusal = self.engine.feed(FrameEvent(stamp, image, where=self.frame_where))
         if refusal is not None:
-            self._bad_frame(refusal.message)
-            return
-        for ready in self.engine.pop_ready(None):  # offline every joint sample is loaded: release at once
-            started = time.perf_counter()
-            result = self.engine.run(ready)
-            if result is None:
-                continue
+            self.bad.add(refusal.message)
+        # offline every joint sample is loaded: release at once; each written frame is counted by the engine
+        for result in self.engine.release_all(time.perf_counter):
             outputs.write(result, msg.header.frame_id)
-            self.stats.frame_out(result.record, None, (time.perf_counter() - started) * 1000)
-        self.progress.update(self.frames_read)
+        self.progress.update(self.stats.frames_in)
 
     def _check_before_keeping(self) -> None:
         """A partial output is kept only if every chunk the first pass left unchecked is intact.
@@ -314,9 +301,9 @@ class _Replay:
             ) from None
 
     def _check_size(self, width: int, height: int) -> None:
-        """The first frame decides whether this stream fits the rig's camera at all."""
-        camera = self.engine.first_camera()
-        if camera is not None and (width, height) != (camera.width_px, camera.height_px):
+        """The first frame decides whether this stream fits the rig's camera at all (the engine says whether it fits)."""
+        camera = self.engine.misfit_camera(width, height)
+        if camera is not None:
             source = "the bag's camera info" if self.from_bag else f"the rig config {self.rig.source}"
             raise CalibrationError(
                 f"{self.frame_where}: frames are {width}x{height} but the intrinsics from {source} are for "
@@ -324,10 +311,11 @@ class _Replay:
             )
         self._size_checked = True
 
-    def _bad_frame(self, message: str) -> None:
-        self.frames_undecodable += 1
+    def _reject_frame(self, message: str) -> None:
+        """An image message that cannot be deserialized or decoded: counted by the engine, as live, and quoted."""
+        self.engine.reject_frame(Refusal(DropKind.IMAGE, message))
         self.bad.add(message)
-        self.progress.update(self.frames_read)
+        self.progress.update(self.stats.frames_in)
 
     def _summary(self, target: Path, status: BagStatus, started: float) -> ReplaySummary:
         intrinsics = f"{self.selection.camera_info_topic} in the bag" if self.from_bag else f"the rig config {self.rig.path}"
@@ -339,20 +327,11 @@ class _Replay:
             image_topic=self.selection.image_topic,
             joint_topics=self.selection.joint_topics,
             intrinsics_source=intrinsics,
-            frames_read=self.frames_read,
-            frames_bad=self.frames_undecodable,
             joint_messages=self.joint_messages,
-            bad_messages=self.bad.count - self.frames_undecodable,
+            unreadable_messages=self.unreadable_messages,
             problems=tuple(self.bad.examples),
             elapsed_s=time.perf_counter() - started,
         )
-
-
-@dataclass(frozen=True)
-class OutputOptions:
-    transport: OutputTransport
-    jpeg_quality: int
-    overlay: bool
 
 
 def _output_options(transport: OutputTransport | str, jpeg_quality: int, overlay: bool) -> OutputOptions:
@@ -361,7 +340,7 @@ def _output_options(transport: OutputTransport | str, jpeg_quality: int, overlay
     low, high = JPEG_QUALITY_RANGE
     if not low <= jpeg_quality <= high:
         raise UsageError(f"JPEG quality must be in {low}..{high}, got {jpeg_quality}")
-    return OutputOptions(OutputTransport(transport), jpeg_quality, overlay)
+    return OutputOptions(OutputTransport(transport), jpeg_quality=jpeg_quality, overlay=overlay)
 
 
 class _OutputTopics:
@@ -372,41 +351,18 @@ class _OutputTopics:
         self.factory = MessageFactory(writer.typestore)
         self.size = rig.output.size_px
         self.options = options
-        self.arm_topics = {
-            arm: (topics.absolute(topics.roi_image(arm)), topics.absolute(topics.roi_camera_info(arm))) for arm in arm_ids
-        }
-        self.global_topic = topics.absolute(topics.GLOBAL_IMAGE)
-        self.metadata_topic = topics.absolute(topics.METADATA)
-        self.overlay_topic = topics.absolute(topics.OVERLAY)
         self.names: set[str] = set()
-        outputs = topics.output_topics(list(self.arm_topics), rig.output.global_enabled, transport=options.transport,
+        outputs = topics.output_topics(list(arm_ids), rig.output.global_enabled, transport=options.transport,
                                        overlay=options.overlay)
         for name, msgtype in outputs.items():
             writer.add_topic(topics.absolute(name), msgtype)
             self.names.add(topics.absolute(name))
 
     def write(self, result: FrameResult, frame_id: str) -> None:
-        stamp = result.stamp_ns
-        factory, writer = self.factory, self.writer
-        out_w, out_h = self.size
-        for roi in result.rois:
-            image_topic, info_topic = self.arm_topics[roi.arm_id]
-            self._image(image_topic, stamp, frame_id, roi.image)
-            writer.write_cdr(info_topic, stamp, factory.camera_info_cdr(stamp, frame_id, roi.camera, out_w, out_h))
-        if result.global_view is not None:
-            self._image(self.global_topic, stamp, frame_id, result.global_view)
-        writer.write(self.metadata_topic, stamp, factory.string(result.record_json))
-        if self.options.overlay:
-            writer.write_cdr(self.overlay_topic, stamp, overlay_cdr(result.record, frame_id))
-
-    def _image(self, topic: str, stamp: int, frame_id: str, pixels: Any) -> None:
-        transport = self.options.transport
-        if transport.raw:
-            self.writer.write(topic, stamp, self.factory.image(stamp, frame_id, pixels))
-        if transport.compressed:
-            data = encode_jpeg(pixels, self.options.jpeg_quality)
-            message = self.factory.compressed(stamp, frame_id, compressed_format(pixels, "rgb8"), data)
-            self.writer.write(compressed_topic(topic), stamp, message)
+        """The frame's messages in the one order both drivers send them (core/frame_outputs.py)."""
+        for message in frame_outputs(result, frame_id, self.size, self.options):
+            data = outgoing_cdr(self.factory, self.writer.typestore, message)
+            self.writer.write_cdr(topics.absolute(message.topic), result.stamp_ns, data)
 
 
 def _add_input_topics(writer: BagWriter, connections: list[Connection], output_names: set[str], source: Path) -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..core.drop_kinds import DropKind
 from ..core.stream_stats import StreamStats
 from .bag_status import BagStatus
 
@@ -28,10 +29,10 @@ class ReplaySummary:
     image_topic: str
     joint_topics: tuple[str, ...]
     intrinsics_source: str
-    frames_in: int  # image messages read
+    frames_in: int  # image messages read, usable or not: the live node's frames_in for the same stream
     frames_out: int  # frames written (ROIs + metadata)
-    frames_bad: int  # image messages that could not be decoded: skipped, as live
-    frames_dropped: dict[str, int]  # by the synchronizer (out_of_order, overflow)
+    frames_bad: int  # image messages that could not be decoded or do not fit the intrinsics: skipped, as live
+    frames_dropped: dict[str, int]  # every other reason a frame read was not written (sync, refused stamps), by reason
     frames_missing: int  # estimated from gaps in the readable image stamps (core/frame_loss.py), as live
     joint_messages: int
     bad_messages: int  # joint state / command / camera info messages skipped
@@ -76,14 +77,15 @@ def summary_from_stats(
     image_topic: str,
     joint_topics: tuple[str, ...],
     intrinsics_source: str,
-    frames_read: int,
-    frames_bad: int,
     joint_messages: int,
-    bad_messages: int,
+    unreadable_messages: int,
     problems: tuple[str, ...],
     elapsed_s: float,
 ) -> ReplaySummary:
-    """A replay's summary from the engine's statistics (the same type the live node's /diagnostics reports)."""
+    """A replay's summary from the engine's statistics (the same type the live node's /diagnostics reports).
+
+    `unreadable_messages`: joint state, command and camera info messages the first pass could not read, which
+    never became events; every other count is the engine's."""
     return ReplaySummary(
         input_path=input_path,
         output_path=output_path,
@@ -91,13 +93,13 @@ def summary_from_stats(
         image_topic=image_topic,
         joint_topics=joint_topics,
         intrinsics_source=intrinsics_source,
-        frames_in=frames_read,
+        frames_in=stats.frames_in,
         frames_out=stats.frames_out,
-        frames_bad=frames_bad,
-        frames_dropped={"out_of_order": 0, "overflow": 0, **dict(stats.drops)},
+        frames_bad=stats.drops[DropKind.BAD_IMAGE],
+        frames_dropped={"out_of_order": 0, "overflow": 0, **{k: n for k, n in stats.drops.items() if k != DropKind.BAD_IMAGE}},
         frames_missing=stats.lost_before_node,
         joint_messages=joint_messages,
-        bad_messages=bad_messages,
+        bad_messages=unreadable_messages + stats.other_bad_messages,
         problems=problems,
         arms={
             arm: ArmStats(stats.in_frame_mean(arm), stats.flagged_frames[arm], stats.arm_flags(arm))

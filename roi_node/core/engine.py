@@ -19,10 +19,21 @@ lives here, so live and offline agree because they run the same code:
   stamped at or after it, so live sees the same camera info as offline does;
 - before a URDF is known, joint states are kept (bounded) and frames refused.
 
-Only `now_ns` (when a live frame stops waiting) and `latency_ms` depend on a
-clock, and the caller supplies both. Errors of the messages are counted in
-`stats` by kind and returned as a `Refusal`, never raised; `process` raises
-only for bugs or resource errors, which the driver counts.
+Only `now_ns` (when a live frame stops waiting), `latency_ms` and the
+processing time depend on a clock, and the caller supplies them. Errors of the
+messages are counted in `stats` by kind and returned as a `Refusal`, never
+raised; `process` raises only for bugs or resource errors.
+
+The engine keeps every count of a stream, so that /diagnostics, the status
+line and a replay summary read the same numbers: what it admits (`feed`), what
+a driver could not even turn into an event (`reject_frame`, `report`), frames
+a driver drops (`drop_frames`) or fails on (`processing_failed`), and what it
+sends (`emit`). Drivers only feed, publish or write, and report. `frames_in`
+is every image message the driver received (live: taken from DDS; offline:
+read from the bag), decodable or not, used or not: each such frame is either
+fed or reported through one of those calls exactly once, so the count means
+the same live and offline, and `frames_in = frames_out + drops` once the
+stream is finished.
 """
 
 from __future__ import annotations
@@ -30,7 +41,7 @@ from __future__ import annotations
 import bisect
 import math
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -245,9 +256,10 @@ class StreamEngine:
         return refusal
 
     def _refuse(self, event: Event, refusal: Refusal) -> None:
-        self.stats.bad_message(refusal.kind, refusal.message)
         if isinstance(event, FrameEvent):
-            self.stats.drop(refusal.kind)
+            self.stats.frame_refused(refusal.kind, refusal.message, refusal.kind)
+        else:
+            self.stats.bad_message(refusal.kind, refusal.message)
 
     def _admit(self, event: StampedEvent) -> Refusal | None:
         """Judge the event's stamp on its stream's clock; use it, hold it, or refuse it (and settle held ones)."""
@@ -422,9 +434,19 @@ class StreamEngine:
         newest = self._newest_info_ns.get(frame.epoch)
         return newest is not None and newest >= frame.payload.stamp_ns
 
-    def warm_up(self) -> None:
+    def warm_up(self) -> str | None:
         """Run the pipeline once on a blank frame, so that first-use costs (OpenCV, the resampling kernels'
-        dispatch, FK) are paid before the first real frame rather than while joint states queue behind it."""
+        dispatch, FK) are paid before the first real frame rather than while joint states queue behind it.
+
+        A failure is counted as a processing error and returned as its one line: the real frames will show
+        whether processing works."""
+        try:
+            self._warm_up()
+        except Exception as exc:
+            return self.stats.processing_error(exc)
+        return None
+
+    def _warm_up(self) -> None:
         pipeline, camera = self.pipeline, self.first_camera()
         if pipeline is None or camera is None:
             return
@@ -447,6 +469,18 @@ class StreamEngine:
         schedule = self._cameras.get(epoch)
         camera = schedule.at(stamp_ns) if schedule is not None else None
         return camera if isinstance(camera, CameraModel) else None
+
+    def missing_joints(self, available: Collection[str]) -> tuple[str, ...]:
+        """The joints the rig's arms need that joint states naming only `available` lack: no frame of such a
+        stream can be paired, so offline replay, which knows every name in the bag beforehand, stops there."""
+        pipeline = self.pipeline
+        return () if pipeline is None else tuple(j for j in pipeline.required_joints if j not in available)
+
+    def misfit_camera(self, width_px: int, height_px: int) -> CameraModel | None:
+        """The intrinsics a frame of this size does not fit (`prepare` refuses every such frame as `image`), or
+        None: offline replay asks it of the first frame, since a bag whose camera is another stops there."""
+        camera = self.first_camera()
+        return camera if camera is not None and (width_px, height_px) != (camera.width_px, camera.height_px) else None
 
     def first_camera(self) -> CameraModel | None:
         """The rig's intrinsics, or the first streamed ones: what a stream's image size is checked against."""
@@ -502,8 +536,7 @@ class StreamEngine:
         return PreparedFrame(ready, pipeline, self._flagged_joints(ready))
 
     def _refuse_frame(self, refusal: Refusal, drop_reason: DropKind | None = None) -> None:
-        self.stats.bad_message(refusal.kind, refusal.message)
-        self.stats.drop(drop_reason or refusal.kind)
+        self.stats.frame_refused(refusal.kind, refusal.message, drop_reason or refusal.kind)
 
     def _flagged_joints(self, ready: ReadyFrame) -> frozenset[str]:
         if not self._limit_refusals:
@@ -540,3 +573,54 @@ class StreamEngine:
         """`prepare` then `process`, for single-threaded drivers (offline replay, tests)."""
         prepared = self.prepare(ready)
         return None if prepared is None else self.process(prepared)
+
+    def release_all(self, clock_s: Callable[[], float]) -> Iterator[FrameResult]:
+        """Offline: every waiting frame released (`pop_ready(None)`), processed and yielded; each is counted as
+        emitted once the caller asks for the next, i.e. once it has written it. `clock_s` (seconds) times a
+        frame's processing and writing for the statistics."""
+        for ready in self.pop_ready(None):
+            started_s = clock_s()
+            result = self.run(ready)
+            if result is None:
+                continue
+            yield result
+            self.emit(result, None, (clock_s() - started_s) * 1000)
+
+    # -- what drivers report: frames they could not feed, failures, outputs sent ----------------------
+
+    def frame_arrived(self, stamp_ns: int) -> None:
+        """A frame reached the driver, whatever becomes of it: its stamp, for the frames lost before it."""
+        self.stats.frame_arrived(stamp_ns)
+
+    def reject_frame(self, refusal: Refusal) -> None:
+        """A received frame the driver could not turn into an event (it cannot be deserialized or decoded, or
+        its header declares another size): counted in `frames_in`, as a bad message of its kind and as dropped
+        (an undecodable `image` as `bad_image`)."""
+        self.stats.frame_in()
+        self._refuse_frame(refusal, DropKind.BAD_IMAGE if refusal.kind is DropKind.IMAGE else None)
+
+    def report(self, refusal: Refusal) -> None:
+        """A message the driver could not turn into an event other than a frame (a CameraInfo without a
+        calibration), or a complaint about a frame still fed (`codec_warning`): counted as a bad message."""
+        self.stats.bad_message(refusal.kind, refusal.message)
+
+    def drop_frames(self, reason: DropKind, count: int = 1, *, fed: bool) -> None:
+        """`count` frames the driver discards for `reason` (inactive, decoder queue full, shutdown); `fed=False`
+        for frames that never reached `feed`, which are counted in `frames_in` here."""
+        if not fed:
+            self.stats.frame_in(count)
+        if count:
+            self.stats.drop(reason, count)
+
+    def processing_failed(self, exc: BaseException, *, fed: bool = True) -> str:
+        """A frame whose processing or publishing (or, `fed=False`, decoding) raised: the exception counted by
+        type, the frame dropped as `processing_error`; returns the exception's one line."""
+        if not fed:
+            self.stats.frame_in()
+        line = self.stats.processing_error(exc)
+        self.stats.drop(DropKind.PROCESSING_ERROR)
+        return line
+
+    def emit(self, result: FrameResult, latency_ms: float | None, process_ms: float) -> None:
+        """A frame's outputs were sent: counted out, with its record's sync status, flags and in-frame ratios."""
+        self.stats.frame_out(result.record, latency_ms, process_ms)

@@ -47,6 +47,7 @@ class StreamStats:
         self.totals: Counter[str] = Counter()
         self.drops: Counter[str] = Counter()  # frames never published, by reason
         self.bad: Counter[str] = Counter()  # malformed or unusable messages, by kind
+        self.frames_refused = 0  # of the bad messages: frames (each also among the drops)
         self.errors: Counter[str] = Counter()  # processing failures, by exception type
         self.status: Counter[str] = Counter({s.value: 0 for s in STATUS_ORDER})
         self.flags: Counter[str] = Counter()
@@ -64,6 +65,8 @@ class StreamStats:
 
     @property
     def frames_in(self) -> int:
+        """Every image message the driver received (live: taken from DDS; offline: read from the bag), decodable
+        or not, used or not: one definition for both drivers, so the live and offline counts of a stream agree."""
         return self.totals["frames_in"]
 
     @property
@@ -94,6 +97,17 @@ class StreamStats:
     def bad_message(self, kind: DropKind, error: str) -> None:
         self.bad[kind] += 1
         self.last_error[kind] = error
+
+    def frame_refused(self, kind: DropKind, error: str, drop_reason: DropKind) -> None:
+        """A frame refused: a bad message of `kind` and a drop for `drop_reason` (they differ for `image`)."""
+        self.bad_message(kind, error)
+        self.drop(drop_reason)
+        self.frames_refused += 1
+
+    @property
+    def other_bad_messages(self) -> int:
+        """Bad messages that are not refused frames: joint states, commands, camera infos, URDFs, codec warnings."""
+        return sum(self.bad.values()) - self.frames_refused
 
     def processing_error(self, exc: BaseException) -> str:
         """Count an exception raised while processing a frame; returns its one-line description."""

@@ -21,7 +21,7 @@ from std_msgs.msg import Header
 
 from ..bag.messages import MessageFactory
 from ..bag.writer import typestore
-from ..core.camera import CameraModel, camera_from_info, camera_info_fields
+from ..core.camera import CameraModel, camera_info_fields
 from ..core.image_codec import output_pixels
 from ..core.stamps import ns_to_stamp, stamp_to_ns
 
@@ -85,17 +85,3 @@ def camera_info_cdr(t_ns: int, frame_id: str, camera: CameraModel | None, width_
     """An ROI's CameraInfo as the bytes to publish (`Publisher.publish(bytes)`): exactly what replay writes."""
     return _bag_messages().camera_info_cdr(t_ns, frame_id, camera, width_px, height_px)
 
-
-def camera_from_msg(msg: CameraInfo, rectified: bool, where: str) -> CameraModel:
-    """Intrinsics from a CameraInfo (raises CalibrationError naming `where`)."""
-    return camera_from_info(
-        width_px=msg.width,
-        height_px=msg.height,
-        distortion_model=msg.distortion_model,
-        d=list(msg.d),
-        k=list(msg.k),
-        r=list(msg.r),
-        p=list(msg.p),
-        rectified=rectified,
-        where=where,
-    )

@@ -43,9 +43,9 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState
 from std_msgs.msg import String
-from visualization_msgs.msg import ImageMarker
 
 from .. import __version__
+from ..bag.inputs import camera_from_msg
 from ..core import topics
 from ..core.area_resample import start_warm_up
 from ..core.compressed_header import DeclaredSizeError
@@ -58,23 +58,25 @@ from ..core.engine import (
     FrameEvent,
     JointStateEvent,
     PreparedFrame,
+    Refusal,
     StreamEngine,
     UrdfEvent,
 )
 from ..core.errors import ConfigError, ParameterError, RoiNodeError
+from ..core.frame_outputs import OutputOptions, frame_outputs
 from ..core.image_codec import image_from_compressed, image_from_msg
-from ..core.overlay_cdr import overlay_cdr
 from ..core.pipeline import FrameResult
 from ..core.short_repr import short_text
 from ..core.stamps import NS_PER_MS, NS_PER_S
 from ..core.status_line import StatusWindow
 from ..core.stream_stats import StreamStats
 from ..process_memory import prefault_heap
-from .compressed import CompressedPublishers
-from .conversions import camera_from_msg, camera_info_cdr, image_msg, stamp_ns
+from .conversions import stamp_ns
 from .diagnostics import StreamHealth, diagnostics_msg
 from .drain import draining_subscription
 from .frame_decoder import CodecLines, EncodedFrame, FrameDecoder
+from .msg_types import message_class
+from .outgoing import live_message
 from .params import NodeParams, declare_and_read
 from .runtime_params import RuntimePolicy, declare_policy, refusal, undeclare_policy
 
@@ -134,10 +136,8 @@ class StreamNode(Node):
             stats=self.stats,
             overlap_global_view=self.overlap_global_view,
         )
-        try:
-            self.engine.warm_up()
-        except Exception as exc:  # counted and logged; the real frames will show whether processing works
-            self.get_logger().error(f"warm-up frame failed: {self.stats.processing_error(exc)}")
+        if (warm_up_error := self.engine.warm_up()) is not None:  # counted; the real frames will show whether processing works
+            self.get_logger().error(f"warm-up frame failed: {warm_up_error}")
         self._prefault_receive_heap()
         self._create_endpoints()
         if self.params.status_period_s > 0:
@@ -192,21 +192,11 @@ class StreamNode(Node):
         if p.robot_description_source == "topic":
             latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
             self.create_subscription(String, topics.ROBOT_DESCRIPTION, self._on_robot_description, latched)
-        raw, global_view = p.output_transport.raw, self.rig.output.global_enabled
-        self._roi_pubs = {
-            arm.id: (
-                self.create_publisher(Image, topics.roi_image(arm.id), pub_qos) if raw else None,
-                self.create_publisher(CameraInfo, topics.roi_camera_info(arm.id), pub_qos),
-            )
-            for arm in self.rig.arms
-        }
-        self._global_pub = self.create_publisher(Image, topics.GLOBAL_IMAGE, pub_qos) if global_view and raw else None
-        self._compressed_pubs = (
-            CompressedPublishers(self, [a.id for a in self.rig.arms], global_view, pub_qos, p.jpeg_quality, p.output_encoding)
-            if p.output_transport.compressed else None
+        outputs = topics.output_topics(
+            [a.id for a in self.rig.arms], self.rig.output.global_enabled, transport=p.output_transport, overlay=p.overlay
         )
-        self._overlay_pub = self.create_publisher(ImageMarker, topics.OVERLAY, pub_qos) if p.overlay else None
-        self._metadata_pub = self.create_publisher(String, topics.METADATA, pub_qos)
+        # by relative topic name, as core/frame_outputs.py names a frame's messages
+        self._output_pubs = {name: self.create_publisher(message_class(msgtype), name, pub_qos) for name, msgtype in outputs.items()}
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
 
@@ -241,14 +231,14 @@ class StreamNode(Node):
         if refusal is not None:
             self._warn(refusal.kind, refusal.message)
 
-    def _refused(self, kind: DropKind, message: str) -> None:
-        """A message that could not even become an event (undecodable): counted like an engine refusal."""
+    def _refused(self, refusal: Refusal, *, frame: bool) -> None:
+        """A message that could not even become an event (undecodable): counted by the engine like its refusals."""
         with self._lock:
-            self.stats.bad_message(kind, message)
-            if kind in (DropKind.IMAGE, DropKind.DECLARED_SIZE):
-                self.stats.frame_in()
-                self.stats.drop(DropKind.BAD_IMAGE if kind == DropKind.IMAGE else kind)
-        self._warn(kind, message)
+            if frame:
+                self.engine.reject_frame(refusal)
+            else:
+                self.engine.report(refusal)
+        self._warn(refusal.kind, refusal.message)
 
     def _on_image(self, msg: Image) -> None:
         self._offer_frame(msg.header, lambda: image_from_msg(msg, self._image_topic))
@@ -271,7 +261,7 @@ class StreamNode(Node):
         stamp = frame.header.stamp
         said = f"; the decoder said: {' / '.join(codec_lines)}" if codec_lines else ""
         kind = DeclaredSizeError.kind if isinstance(error, DeclaredSizeError) else DropKind.IMAGE
-        self._refused(kind, f"{error} (frame stamped {stamp.sec}.{stamp.nanosec:09d}){said}")
+        self._refused(Refusal(kind, f"{error} (frame stamped {stamp.sec}.{stamp.nanosec:09d}){said}"), frame=True)
 
     def _on_decoded(self, frame: EncodedFrame, pixels: Any, codec_lines: CodecLines) -> None:
         """Decoder thread: the decoded frame goes to the engine with the time it arrived (unless deactivated meanwhile).
@@ -281,29 +271,25 @@ class StreamNode(Node):
             stamp = frame.header.stamp
             warning = f"{self._image_topic}: frame stamped {stamp.sec}.{stamp.nanosec:09d}: {' / '.join(codec_lines)}"
             with self._lock:
-                self.stats.bad_message(DropKind.CODEC_WARNING, warning)
+                self.engine.report(Refusal(DropKind.CODEC_WARNING, warning))
             self._warn(DropKind.CODEC_WARNING, warning)
         if not self.active:
             with self._lock:
-                self.stats.frame_in()
-                self.stats.drop(DropKind.INACTIVE)
+                self.engine.drop_frames(DropKind.INACTIVE, fed=False)
             return
         self._offer_frame(frame.header, lambda: pixels, frame.arrival_ns)
 
     def _on_decode_error(self, frame: EncodedFrame, exc: Exception) -> None:
         """Counted like a processing error; decoding that always fails stops the node after max_failure_s."""
         with self._lock:
-            self.stats.frame_in()
-            line = self.stats.processing_error(exc)
-            self.stats.drop(DropKind.PROCESSING_ERROR)
+            line = self.engine.processing_failed(exc, fed=False)
         stamp = frame.header.stamp
         self._warn("processing", f"decoding the frame stamped {stamp.sec}.{stamp.nanosec:09d}: {line}", error_level=True)
         self._check_persistent_failure(line)
 
     def _on_decode_overflow(self) -> None:
         with self._lock:
-            self.stats.frame_in()
-            self.stats.drop(DropKind.DECODE_OVERFLOW)
+            self.engine.drop_frames(DropKind.DECODE_OVERFLOW, fed=False)
 
     def _frame_arrived(self, msg_header: Any) -> int | None:
         """The arrival time of a frame to take, or None for one refused (counted) because the node is inactive.
@@ -312,11 +298,10 @@ class StreamNode(Node):
         arrival_ns = time.monotonic_ns()
         self.health.frame_seen(arrival_ns)
         with self._lock:
-            self.stats.frame_arrived(stamp_ns(msg_header))
+            self.engine.frame_arrived(stamp_ns(msg_header))
             if self.active:
                 return arrival_ns
-            self.stats.frame_in()
-            self.stats.drop(DropKind.INACTIVE)
+            self.engine.drop_frames(DropKind.INACTIVE, fed=False)
         return None
 
     def _offer_frame(self, msg_header: Any, decode: Callable[[], Any], arrival_ns: int | None = None) -> None:
@@ -326,7 +311,7 @@ class StreamNode(Node):
             pixels = decode()
             stamp = stamp_ns(msg_header)
         except RoiNodeError as exc:
-            self._refused(DropKind.IMAGE, str(exc))
+            self._refused(Refusal(DropKind.IMAGE, str(exc)), frame=True)
             return
         self._frame_id = msg_header.frame_id
         self._feed(FrameEvent(stamp, pixels, arrival_ns, self._image_topic))
@@ -346,7 +331,7 @@ class StreamNode(Node):
         try:
             camera = camera_from_msg(msg, self.rig.camera.rectified, where)
         except RoiNodeError as exc:
-            self._refused(DropKind.CAMERA_INFO, str(exc))
+            self._refused(Refusal(DropKind.CAMERA_INFO, str(exc)), frame=False)
             return
         first = self.engine.waiting_for() is not None
         self._feed(CameraInfoEvent(stamp_ns(msg.header), camera, where))
@@ -394,20 +379,19 @@ class StreamNode(Node):
             result = self.engine.process(prepared, latency_ms)
             if not self.active:  # deactivated while this frame was in hand
                 with self._lock:
-                    self.stats.drop(DropKind.INACTIVE)
+                    self.engine.drop_frames(DropKind.INACTIVE, fed=True)
                 return
             self._publish(result, frame_id)
         except Exception as exc:  # any failure on one frame is counted and reported; the next frame is tried
             with self._lock:
-                line = self.stats.processing_error(exc)
-                self.stats.drop(DropKind.PROCESSING_ERROR)
+                line = self.engine.processing_failed(exc)
             self._warn("processing", f"frame stamp {prepared.ready.payload.stamp_ns}: {line}", error_level=True)
             self._check_persistent_failure(line)
             return
         process_ms = (time.perf_counter() - start) * 1000
         with self._lock:
             self._failing_since = None
-            self.stats.frame_out(result.record, latency_ms, process_ms)
+            self.engine.emit(result, latency_ms, process_ms)
             if latency_ms is not None:
                 self._status.note_latency(latency_ms)
 
@@ -432,25 +416,11 @@ class StreamNode(Node):
         self.context.try_shutdown()
 
     def _publish(self, result: FrameResult, frame_id: str) -> None:
-        # the ROIs (what a policy waits for) first, then the metadata, the global view last
-        out_w, out_h = self.rig.output.size_px
-        encoding = self.params.output_encoding
-        for roi in result.rois:
-            image_pub = self._roi_pubs[roi.arm_id][0]
-            if image_pub is not None:
-                image_pub.publish(image_msg(result.stamp_ns, frame_id, roi.image, encoding))
-        if self._compressed_pubs is not None:
-            self._compressed_pubs.publish_rois(result, frame_id)
-        for roi in result.rois:
-            # the bytes replay writes (bag/messages.py): live and offline store the same CameraInfo
-            self._roi_pubs[roi.arm_id][1].publish(camera_info_cdr(result.stamp_ns, frame_id, roi.camera, out_w, out_h))
-        self._metadata_pub.publish(String(data=result.record_json))
-        if self._overlay_pub is not None:
-            self._overlay_pub.publish(overlay_cdr(result.record, frame_id))  # CDR packed directly: core/overlay_cdr.py
-        if self._global_pub is not None and result.global_view is not None:
-            self._global_pub.publish(image_msg(result.stamp_ns, frame_id, result.global_view, encoding))
-        if self._compressed_pubs is not None:
-            self._compressed_pubs.publish_global(result, frame_id)
+        """The frame's messages in the one order both drivers send them (core/frame_outputs.py)."""
+        p = self.params
+        options = OutputOptions(p.output_transport, p.output_encoding, p.jpeg_quality, p.overlay)
+        for message in frame_outputs(result, frame_id, self.rig.output.size_px, options):
+            self._output_pubs[message.topic].publish(live_message(message))
 
     def _publish_diagnostics(self) -> None:
         now_ns = time.monotonic_ns()
@@ -524,9 +494,8 @@ class StreamNode(Node):
         self._worker.join(timeout=5.0)
         with self._lock:
             self.engine.finish()
-            self.stats.frame_in(undecoded)
-            if self.engine.pending + undecoded:
-                self.stats.drop(DropKind.SHUTDOWN, self.engine.pending + undecoded)
+            self.engine.drop_frames(DropKind.SHUTDOWN, self.engine.pending, fed=True)
+            self.engine.drop_frames(DropKind.SHUTDOWN, undecoded, fed=False)
             summary = self.stats.summary_line()
         self.get_logger().info(f"stopped: {summary}")
 
