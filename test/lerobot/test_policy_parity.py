@@ -35,7 +35,7 @@ from roi_node.policy.observations import LIVE_ABSENT_KEYS, TASK_KEY, PolicyObser
 
 from ..conftest import REPO
 from ..exportbags import psnr_db
-from ..live.harness import PATIENT_SYNC, RELIABLE_INPUT, next_domain, node_args, process, ros_env
+from ..live.harness import PATIENT_SYNC, RELIABLE_INPUT, next_domain, node_args, process, ros_env, wait_until
 from ..policy.policyrig import TASK, Session, export_dataset, record_session
 
 lerobot_dataset = pytest.importorskip("lerobot.datasets.lerobot_dataset")
@@ -69,7 +69,7 @@ def live(session: Session, lossless: Path, tmp_path_factory: pytest.TempPathFact
             patch.setenv(name, env[name])
         features = PolicyFeatures.load(lossless)
         with PolicyObservationStream(features, task=TASK, latest=False, timeout_s=QUIET_S) as stream:
-            assert _wait(stream.matched, MATCH_TIMEOUT_S), f"the node's outputs never matched (log: {logs / 'node.log'})"
+            assert wait_until(stream.matched, MATCH_TIMEOUT_S), f"the node's outputs never matched (log: {logs / 'node.log'})"
             player = subprocess.Popen([sys.executable, "-m", "roi_node.cli", "play", str(session.raw)], cwd=REPO, env=env,
                                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
             delivered: dict[int, PolicyObservation] = {}
@@ -90,15 +90,6 @@ def live(session: Session, lossless: Path, tmp_path_factory: pytest.TempPathFact
             assert time.monotonic() < deadline, f"the session did not play through within {PLAY_TIMEOUT_S:g} s: {player_err}"
             assert player.returncode == 0, player_err
         yield delivered
-
-
-def _wait(condition: Any, timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.05)
-    return True
 
 
 def _item(dataset: Any, index: int) -> dict[str, Any]:
