@@ -67,7 +67,6 @@ def write_sim_bag(
     sim = SimRig(
         rig_config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms, start_ns=start_ns, look=look
     )
-    bag.rig = rig_inputs(sim.rig)  # the bag carries the rig it was simulated from (bag/rig_attachments.py)
     return _drain(sim, bag, duration_s, fmt, Progress(f"sim {bag.path.name}", sim.frame_count(duration_s), progress))
 
 
@@ -87,6 +86,7 @@ def _drain(sim: SimRig, bag: BagWriter, duration_s: float, fmt: str | None, prog
     width, height = sim.camera.width_px, sim.camera.height_px
     frames = joint_states = 0
     first = last = None
+    bag.rig = rig_inputs(sim.rig)  # the bag carries the rig it was simulated from (bag/rig_attachments.py)
     with bag:
         factory = MessageFactory(bag.typestore)
         bag.add_topic(image_topic, topics.COMPRESSED_IMAGE_TYPE if fmt else topics.IMAGE_TYPE)
