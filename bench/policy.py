@@ -1,0 +1,200 @@
+"""Policy latency at 720p30: frame stamp -> observation delivered, and frame stamp -> first action published.
+
+For each policy (the hold-pose callable, examples/hold_pose_policy.py, and a
+LeRobot ACT policy with random weights built from the dataset's features, on
+the CPU), one run of real processes on one loopback DDS domain: `roi-node
+sim` (the bundled 1280x720 bimanual rig at 30 Hz, following the commands),
+`roi-node run`, and `roi-node policy run`. After --warmup-s, the bench reads
+the runner's /diagnostics status ('roi_node: policy actions') for
+--seconds: its frame_to_observation_ms and frame_to_first_action_ms p50/p99
+(over the runner's latest 1000 values), and measures the frame period in the
+same run from the node's /roi/metadata stamps (median gap), so each latency
+is printed in ms and as a ratio to that period. The first action of a chunk
+is what a frame's observation changes on the robot; the other steps of a
+chunk were computed from an older frame by design.
+
+ACT needs lerobot and torch: run the bench with .venv-lerobot/bin/python (the
+ACT case is skipped, and says so, where lerobot is missing). Run:
+`.venv-lerobot/bin/python bench/policy.py --domain 205 [--seconds 30] [--policies callable act]`
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+RIG = REPO / "config" / "rig_demo_bimanual.yaml"
+FPS = 30
+COMMAND_TOPIC = "joint_commands"
+STATUS_NAME = "roi_node: policy actions"
+
+
+def cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "roi_node.cli", *args]
+
+
+def env_for(domain: int) -> dict[str, str]:
+    return dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1",
+                FASTRTPS_DEFAULT_PROFILES_FILE=str(REPO / "config" / "fastdds_shm.xml"), HF_HUB_OFFLINE="1",
+                MALLOC_MMAP_THRESHOLD_="33554432", MALLOC_TRIM_THRESHOLD_="4000000000")
+
+
+def export_dataset(tmp: Path, env: dict[str, str]) -> Path:
+    raw, roi, dataset = tmp / "raw", tmp / "roi", tmp / "dataset"
+    for args in (("sim", "--config", str(RIG), "--bag", str(raw), "--duration", "2", "--rate-hz", str(FPS)),
+                 ("replay", str(raw), "--config", str(RIG), "-o", str(roi)),
+                 ("export", "lerobot", str(roi), "-o", str(dataset), "--fps", str(FPS), "--task", "bench")):
+        subprocess.run(cli(*args), env=env, check=True, stdout=subprocess.DEVNULL)
+    return dataset
+
+
+class Listener:
+    """The runner's latest status and the node's metadata stamps, in an rclpy context of the bench's own."""
+
+    def __init__(self, domain: int) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        from std_msgs.msg import String
+
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = Node("bench_policy_listener", context=self.context)
+        self.status: dict[str, Any] = {}
+        self.stamps_ns: list[int] = []
+        self.recording = False
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._diagnostics, 100)
+        self.node.create_subscription(String, "roi/metadata", self._metadata, 100)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self) -> None:
+        try:
+            while self.context.ok():
+                self.executor.spin_once(timeout_sec=0.05)
+        except Exception:  # shut down under us: the run is over
+            pass
+
+    def _diagnostics(self, array: Any) -> None:
+        for status in array.status:
+            if status.name == STATUS_NAME:
+                self.status = {kv.key: _decoded(kv.value) for kv in status.values}
+
+    def _metadata(self, msg: Any) -> None:
+        if self.recording:
+            self.stamps_ns.append(int(json.loads(msg.data)["stamp_ns"]))
+
+    def frame_period_ms(self) -> float:
+        stamps = sorted(set(self.stamps_ns))
+        gaps = [(b - a) / 1e6 for a, b in itertools.pairwise(stamps)]
+        return statistics.median(gaps) if gaps else float("nan")
+
+    def close(self) -> None:
+        self.context.try_shutdown()
+        self.thread.join(timeout=5)
+        self.executor.shutdown()
+
+
+def _decoded(text: str) -> Any:
+    """A status value: JSON, except the plain strings (the topic, the last refusal)."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def run_case(name: str, policy: list[str], domain: int, warmup_s: float, seconds: float, logs: Path) -> dict[str, Any] | None:
+    env = env_for(domain)
+    listener = Listener(domain)
+    procs = [subprocess.Popen(cli(*args), env=env, cwd=REPO, stdout=(logs / f"{name}_{tag}.log").open("wb"), stderr=subprocess.STDOUT)
+             for tag, args in (("node", ("run", "--config", str(RIG))),
+                               ("sim", ("sim", "--config", str(RIG), "--follow-commands", COMMAND_TOPIC, "--duration", "3600",
+                                        "--rate-hz", str(FPS), "--min-subscribers", "1")),
+                               ("policy", ("policy", "run", *policy, "--config", str(RIG), "--command-topic", COMMAND_TOPIC,
+                                           "--timeout-s", "120")))]
+    try:
+        deadline = time.monotonic() + 300
+        while not listener.status.get("frame_to_first_action_ms"):
+            if time.monotonic() > deadline or procs[2].poll() is not None:
+                print(f"{name}: the runner published no action (see {logs / (name + '_policy.log')})", file=sys.stderr)
+                return None
+            time.sleep(0.2)
+        time.sleep(warmup_s)
+        listener.recording = True
+        time.sleep(seconds)
+        listener.recording = False
+        return {"status": dict(listener.status), "frame_period_ms": listener.frame_period_ms()}
+    finally:
+        for proc in reversed(procs):
+            proc.send_signal(signal.SIGINT)
+        for proc in reversed(procs):
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        listener.close()
+
+
+def report(name: str, result: dict[str, Any]) -> None:
+    period = result["frame_period_ms"]
+    status = result["status"]
+    print(f"{name}: frame period {period:.2f} ms (median of /roi/metadata stamp gaps in this run); "
+          f"{status['chunks']} chunks, {status['actions_published']} actions, {status['late_ticks']} late ticks, "
+          f"{status['held_ticks']} held")
+    for key, label in (("frame_to_observation_ms", "frame stamp -> observation delivered"),
+                       ("frame_to_first_action_ms", "frame stamp -> first action published")):
+        values = status[key]
+        print(f"  {label}: p50 {values['p50']:.1f} ms ({values['p50'] / period:.2f} periods), "
+              f"p99 {values['p99']:.1f} ms ({values['p99'] / period:.2f} periods), n {values['count']}")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--domain", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "73")), help="ROS domain id of the runs")
+    parser.add_argument("--seconds", type=float, default=30.0, help="measured seconds per policy (default: 30)")
+    parser.add_argument("--warmup-s", type=float, default=5.0, help="after the first action, before measuring (default: 5)")
+    parser.add_argument("--policies", nargs="+", choices=["callable", "act"], default=["callable", "act"])
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory(prefix="bench_policy_") as folder:
+        tmp = Path(folder)
+        dataset = export_dataset(tmp, env_for(args.domain))
+        cases: dict[str, list[str]] = {}
+        if "callable" in args.policies:
+            cases["callable"] = ["--policy", "examples.hold_pose_policy:hold_pose", "--features", str(dataset)]
+        if "act" in args.policies:
+            try:
+                sys.path.insert(0, str(REPO))
+                from test.lerobot.act_policy import save_random_act
+            except ImportError as exc:
+                print(f"act: skipped: {exc} (run with .venv-lerobot/bin/python)", file=sys.stderr)
+            else:
+                save_random_act(dataset, tmp / "act", chunk_size=FPS)
+                cases["act"] = ["--policy", str(tmp / "act"), "--features", str(tmp / "act"), "--dataset", str(dataset)]
+        for name, policy in cases.items():
+            result = run_case(name, policy, args.domain, args.warmup_s, args.seconds, tmp)
+            if result is None:
+                print((tmp / f"{name}_policy.log").read_text()[-2000:], file=sys.stderr)
+                return 1
+            report(name, result)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
