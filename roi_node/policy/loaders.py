@@ -19,6 +19,7 @@ horizon the policy was trained to execute.
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -59,11 +60,15 @@ def policy_kind(spec: str) -> PolicyKind:
 
 
 def check_lerobot_folder(spec: str) -> Path:
-    """The folder, with its config.json and model.safetensors present (checked before the preflight, without opening them)."""
+    """The folder, with its files present and lerobot and torch installed: checked before the preflight, nothing opened."""
     folder = Path(spec)
     missing = [name for name in LEROBOT_FILES if not (folder / name).is_file()]
     if missing:
         raise PolicyLoadError(spec, f"not a LeRobot pretrained-policy folder: no {' or '.join(missing)} in it")
+    absent = [name for name in ("torch", "lerobot") if importlib.util.find_spec(name) is None]
+    if absent:
+        raise PolicyLoadError(spec, f"a LeRobot policy needs lerobot and torch ({' and '.join(absent)} not installed here): "
+                                    "run it with the LeRobot environment's python (make test-lerobot builds .venv-lerobot)")
     return folder
 
 

@@ -11,6 +11,7 @@ one line and exit 2.
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import signal
 import subprocess
@@ -147,3 +148,19 @@ def test_action_names_the_rig_lacks_are_one_line(dataset: Path) -> None:
                       "--config", str(CONFIG / "rig_panda_single.yaml"))
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
     assert "action name 'left_panda_joint1' is no joint of the rig" in done.stderr
+
+
+def test_a_folder_without_weights_is_one_line_naming_the_missing_file(dataset: Path, tmp_path: Path) -> None:
+    (tmp_path / "config.json").write_text("{}")
+    done = policy_run("--policy", str(tmp_path), "--features", str(dataset), "--config", str(RIG))
+    assert done.returncode == 2 and done.stderr.strip() == (
+        f"roi-node policy: error: --policy {tmp_path}: not a LeRobot pretrained-policy folder: no model.safetensors in it")
+
+
+@pytest.mark.skipif(importlib.util.find_spec("lerobot") is not None, reason="lerobot is installed in this environment")
+def test_a_lerobot_folder_without_lerobot_installed_is_refused_before_dds(dataset: Path, tmp_path: Path) -> None:
+    for name in ("config.json", "model.safetensors"):
+        (tmp_path / name).write_text("{}")
+    done = policy_run("--policy", str(tmp_path), "--features", str(dataset), "--config", str(RIG))
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
+    assert "a LeRobot policy needs lerobot and torch" in done.stderr and ".venv-lerobot" in done.stderr
