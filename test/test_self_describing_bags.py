@@ -100,8 +100,9 @@ def test_replay_without_config_uses_the_bags_rig_and_writes_the_same_bytes(
     assert main(["replay", str(sim_bag), "-o", str(tmp_path / "with_config" / "roi"), "--config", str(two_urdf_rig)]) == 0
     capsys.readouterr()
     assert main(["replay", str(sim_bag), "-o", str(tmp_path / "from_bag" / "roi")]) == 0
-    err = capsys.readouterr().err
+    out, err = capsys.readouterr()
     assert f"replay: using the rig stored in {sim_bag} (rig.yaml, 2 URDFs, 1 calibration)" in err.splitlines()
+    assert f"intrinsics from the rig config {sim_bag}:rig/rig.yaml" in out  # the file in the bag, not a deleted temporary copy
     assert folder_bytes(tmp_path / "from_bag" / "roi") == folder_bytes(tmp_path / "with_config" / "roi")
     # and the output carries the rig as the input stored it, not the rewritten copy replay loaded
     assert attachments(tmp_path / "from_bag" / "roi" / "roi.mcap") == attachments(sim_bag / "sim.mcap")

@@ -22,6 +22,7 @@ An interrupt (Ctrl-C) finalizes the output with what was done.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -47,7 +48,7 @@ from .messages import MessageFactory
 from .outgoing import outgoing_cdr
 from .progress import Progress
 from .reader import DESERIALIZE_ERRORS, Cdr, check_bag_path, deserialize, open_bag, read_messages, stamp_ns, topic_stats, verify_chunks
-from .rig_attachments import RigInputs, rig_inputs
+from .rig_attachments import RIG_ATTACHMENT, RigInputs, rig_inputs
 from .stamp_audit import IMPLAUSIBLE_STAMPS_KEY, StampAudit
 from .streams import BadMessages, Streams, read_streams
 from .summary import ReplaySummary, summary_from_stats
@@ -122,6 +123,8 @@ def replay_bag(
     check_output_path(source, target, overwrite)
     outputs = _output_options(output_transport, jpeg_quality, overlay)
     rig = load_rig_config(config_path)
+    if carried_rig is not None:  # extracted to a temporary folder: messages name it as the file inside the bag
+        rig = dataclasses.replace(rig, source=Path(f"{source}:{RIG_ATTACHMENT}"))
     carried = carried_rig or rig_inputs(rig)
     from_bag = rig.camera.intrinsics is None or intrinsics_from_bag or camera_info_topic is not None
     started = time.perf_counter()
@@ -318,7 +321,7 @@ class _Replay:
         self.progress.update(self.stats.frames_in)
 
     def _summary(self, target: Path, status: BagStatus, started: float) -> ReplaySummary:
-        intrinsics = f"{self.selection.camera_info_topic} in the bag" if self.from_bag else f"the rig config {self.rig.path}"
+        intrinsics = f"{self.selection.camera_info_topic} in the bag" if self.from_bag else f"the rig config {self.rig.source}"
         return summary_from_stats(
             self.stats,
             input_path=self.source,
