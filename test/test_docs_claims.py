@@ -237,3 +237,20 @@ def test_the_where_a_change_goes_section_names_real_files_and_names() -> None:
     for name in ("ARM_METRICS", "BAG_METRICS", "DRIFT_METRICS", "CALIBRATION_METRICS", "VERB_MODULES", "EXAMPLE_ROBOT_URDFS",
                  "SYNC_POLICIES", "_resolve_one", "_OutputTopics", "output_topics", "_publish"):
         assert name in section and re.search(rf"\b{name}\b", sources), name
+
+
+def test_the_python_api_page_runs_and_its_table_is_the_packages_exports() -> None:
+    """docs/python-api.md: its code block runs as written, and its table names exactly `roi_node.__all__`."""
+    import roi_node
+
+    page = _text(DOCS / "python-api.md")
+    block = page.split("```python\n")[1].split("```")[0]
+    namespace: dict[str, Any] = {}
+    exec(compile(block, "docs/python-api.md", "exec"), namespace)  # the page's own example, as a reader runs it
+    result = namespace["result"]
+    assert len(result.rois) == len(load_rig_config("rig_panda_single.yaml").arms)
+    assert result.rois[0].image.shape == (256, 256, 3)
+    assert roi_node.FrameRecord.from_json(result.record.to_json()) == result.record
+    table = page.split("| name | what |")[1].split("\n\n")[0]
+    named = set(re.findall(r"`([A-Za-z_]+)", table))
+    assert set(roi_node.__all__) - {"__version__"} <= named, set(roi_node.__all__) - named
