@@ -235,7 +235,7 @@ def test_the_where_a_change_goes_section_names_real_files_and_names() -> None:
         assert (REPO / "roi_node" / path).exists() or (REPO / path).exists(), path
     sources = "\n".join(_text(p) for p in REPO.glob("roi_node/**/*.py"))
     for name in ("ARM_METRICS", "BAG_METRICS", "DRIFT_METRICS", "CALIBRATION_METRICS", "VERB_MODULES", "EXAMPLE_ROBOT_URDFS",
-                 "SYNC_POLICIES", "_resolve_one", "_OutputTopics", "output_topics", "_publish"):
+                 "SYNC_POLICIES", "_resolve_one", "output_topics", "frame_outputs"):
         assert name in section and re.search(rf"\b{name}\b", sources), name
 
 
