@@ -13,10 +13,9 @@ import traceback
 from collections.abc import Sequence
 
 from . import __version__
-from .core.errors import RoiNodeError
+from .core.errors import EXIT_ERROR, RoiNodeError
 from .ray_options import ray_requested
 
-EXIT_ERROR = 2
 DEBUG_FLAG = "--debug"
 
 

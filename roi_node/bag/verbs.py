@@ -9,13 +9,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..arg_types import int_at_least
-from ..core.errors import UsageError
+from ..core.errors import EXIT_ERROR, UsageError
 from ..ray_options import RayJob, add_ray_options
 
 if TYPE_CHECKING:
     from .summary import ReplaySummary
 
-EXIT_FAILED = 2  # as cli.EXIT_ERROR: some input could not be used
+EXIT_FAILED = EXIT_ERROR  # some input could not be used
 EXIT_INTERRUPTED = 130
 
 

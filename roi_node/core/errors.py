@@ -9,6 +9,9 @@ fields.
 
 from __future__ import annotations
 
+EXIT_ERROR = 2
+"""The exit status of a verb refused on bad input (a RoiNodeError, or a check that found the input unusable)."""
+
 
 class RoiNodeError(Exception):
     """Base class for every error roi_node raises on bad input or a failing environment."""

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from roi_node.arg_types import float_at_least, int_at_least
+from roi_node.core.errors import EXIT_ERROR
 
 DEFAULT_TIMEOUT_S = 10.0
 
@@ -50,8 +51,6 @@ def _cmd_preflight(args: argparse.Namespace) -> int:
     for mismatch in mismatches:
         print(f"roi-node policy preflight: error: {features.source}: {mismatch.line()}", file=sys.stderr, flush=True)
     if mismatches:
-        from roi_node.cli import EXIT_ERROR
-
         return EXIT_ERROR
     print(f"roi-node policy preflight: {features.source} fits the node: {len(features.images)} images, "
           f"{len(features.state_names)} state joints, {features.fps} fps against a {node.camera_rate_hz:.1f} Hz camera, "
