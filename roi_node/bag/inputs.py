@@ -18,7 +18,6 @@ from typing import Any
 import numpy as np
 
 from ..core import topics
-from ..core.camera import CameraModel, camera_from_info
 from ..core.errors import BagError, ImageError
 from ..core.image_codec import COMPRESSED_FORMATS, INPUT_ENCODINGS, image_from_compressed, image_from_msg
 from .reader import TopicStats
@@ -133,18 +132,3 @@ def decode_frame(msg: Any, msgtype: str, where: str) -> np.ndarray:
         return image_from_compressed(msg.format, msg.data, where)
     return image_from_msg(msg, where)
 
-
-def camera_from_msg(msg: Any, rectified: bool, where: str) -> CameraModel:
-    """A CameraModel from a sensor_msgs/CameraInfo, rosbags' or rclpy's (CalibrationError naming `where` when it
-    holds no calibration): the one conversion, for replay, calibration checks and the live node."""
-    return camera_from_info(
-        width_px=int(msg.width),
-        height_px=int(msg.height),
-        distortion_model=str(msg.distortion_model),
-        d=msg.d,
-        k=msg.k,
-        r=msg.r,
-        p=msg.p,
-        rectified=rectified,
-        where=where,
-    )

@@ -21,9 +21,10 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 
 from ..core.camera import CameraModel
+from ..core.camera_info import camera_from_msg
 from ..core.errors import CalibrationError
 from .indexed_mcap import CrcLedger
-from .inputs import InputSelection, camera_from_msg
+from .inputs import InputSelection
 from .reader import DESERIALIZE_ERRORS, deserialize, read_messages, stamp_ns
 
 MAX_REPORTED = 5  # bad messages quoted in full; the rest are counted

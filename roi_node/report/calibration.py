@@ -32,10 +32,11 @@ from typing import Any
 import numpy as np
 from rosbags.highlevel import AnyReader
 
-from ..bag.inputs import IMAGE_TYPES, OUTPUT_NAMESPACE, InputSelection, camera_from_msg, decode_frame, select_inputs
+from ..bag.inputs import IMAGE_TYPES, OUTPUT_NAMESPACE, InputSelection, decode_frame, select_inputs
 from ..bag.reader import DESERIALIZE_ERRORS, Cdr, TopicStats, deserialize, open_bag, read_messages, stamp_ns, topic_stats
 from ..core import topics as topics_module
 from ..core.camera import CameraModel
+from ..core.camera_info import camera_from_msg
 from ..core.config import RigConfig
 from ..core.errors import BagError, CalibrationError, ImageError
 from ..core.kinematics import RobotKinematics

@@ -45,9 +45,9 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState
 from std_msgs.msg import String
 
 from .. import __version__
-from ..bag.inputs import camera_from_msg
 from ..core import topics
 from ..core.area_resample import start_warm_up
+from ..core.camera_info import camera_from_msg
 from ..core.compressed_header import DeclaredSizeError
 from ..core.config import RigConfig, load_rig_config
 from ..core.drop_kinds import DropKind
