@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -219,9 +218,9 @@ def test_every_file_of_a_split_bag_carries_the_rig(tmp_path: Path, single_rig_pa
 @pytest.mark.dds
 def test_a_recorded_bag_replays_from_its_own_rig_byte_identical(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """`record --config --preset rosbag2`: the recording carries the rig; replay without --config equals replay with it."""
-    from .live.harness import process, ros_env
+    from .live.harness import next_domain, process, ros_env
 
-    env = ros_env(int(os.environ.get("ROS_DOMAIN_ID", "220")))
+    env = ros_env(next_domain())
     spec = {"rig": str(BIMANUAL), "frames": 8, "min_subscribers": 1, "settle_s": 1.0, "linger_s": 1.0}
     (tmp_path / "spec.json").write_text(json.dumps(spec))
     bag = tmp_path / "session"
