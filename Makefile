@@ -73,8 +73,11 @@ bench: $(STAMP)
 	$(PY) bench/jpeg.py
 	$(PY) bench/overlay.py
 	$(PY) bench/ray.py
+	$(PY) bench/record_preset.py
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-73} $(PY) bench/live.py
+	$(PY) bench/live_independent.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 4 ))
 	$(PY) bench/live_overload.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 2 ))
+	$(PY) bench/policy.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 6 )) --policies callable  # ACT: run it with .venv-lerobot/bin/python
 
 # docs/rig-config.md's key table from config/rig.schema.json (test/test_rig_doc.py fails when it is stale)
 docs: $(STAMP)
