@@ -197,10 +197,13 @@ def _progress(watch: MetadataWatch, expected: int, started: float, final: bool =
     with watch.lock:
         lat = np.asarray(watch.latency_ms[-300:]) if watch.latency_ms else None
         frames = watch.frames
+        malformed = watch.malformed
     elapsed = time.monotonic() - started
     text = f"\r[demo {elapsed:5.1f} s] ROI frames {frames}/{expected}"
     if lat is not None:
         text += f", camera->ROI latency p50 {np.median(lat):.1f} ms, p99 {np.percentile(lat, 99):.1f} ms"
+    if malformed:
+        text += f", {malformed} malformed metadata records"
     if sys.stdout.isatty():
         print(text, end="\n" if final else "", flush=True)
     elif final or int(elapsed * 2) % 4 == 0:

@@ -3,7 +3,11 @@
 `ObservationClient` subscribes to a node's outputs and matches them on the
 header stamp into `Observation(stamp_ns, global, rois, joint_positions,
 metadata)`: the paper's (I_global, I_roi1, I_roi2, s) tuple, with language
-left to the policy. The joint positions are the synchronised state the ROIs
+left to the policy. Each record is read once as a `FrameRecord` (kept as
+`Observation.record`); `metadata` stays the record's JSON mapping because
+policy servers and examples take a plain mapping. A malformed record is
+counted (`malformed_records`) and named by `waiting_for()`, never raised in the
+executor's callback, where it would stop every subscription of the node. The joint positions are the synchronised state the ROIs
 were computed from (the record's `joint_positions`). Completed observations go
 to a bounded queue (oldest dropped and counted) for consumers that want every
 frame, and `latest()` serves control loops that want only the newest complete
@@ -12,7 +16,6 @@ one. Incomplete stamps are evicted once `max_partial` newer stamps started.
 
 from __future__ import annotations
 
-import json
 import threading
 import time
 from collections import Counter, OrderedDict, deque
@@ -31,6 +34,7 @@ from ..core import topics
 from ..core.compressed_outputs import OutputTransport, compressed_topic
 from ..core.errors import ConfigError
 from ..core.image_codec import image_from_compressed, image_from_msg
+from ..core.records import FrameRecord, RecordFormatError
 from .conversions import stamp_ns
 
 GLOBAL = "global"
@@ -42,7 +46,8 @@ class Observation:
     global_image: np.ndarray | None  # HxWx3 RGB, None when the node runs without a global view
     rois: dict[str, np.ndarray]  # arm_id -> HxWx3 RGB
     joint_positions: dict[str, float]
-    metadata: dict[str, Any]
+    metadata: dict[str, Any]  # the record as its JSON mapping (record.as_dict())
+    record: FrameRecord
 
     def as_dict(self) -> dict[str, Any]:
         """The mapping a policy server usually takes: {stamp_ns, global, rois, joint_positions, metadata}."""
@@ -58,7 +63,7 @@ class Observation:
 @dataclass
 class _Partial:
     images: dict[str, np.ndarray] = field(default_factory=dict)
-    metadata: dict[str, Any] | None = None
+    record: FrameRecord | None = None
 
 
 class ObservationClient:
@@ -103,6 +108,8 @@ class ObservationClient:
         self._cond = threading.Condition()
         self.dropped_unconsumed = 0  # complete observations pushed out of the full buffer
         self.dropped_incomplete = 0  # stamps evicted before every part arrived
+        self.malformed_records = 0  # metadata messages that are not a FrameRecord, dropped
+        self.last_malformed: RecordFormatError | None = None
         self._subscriptions: list[Subscription] = []
         if arm_ids is not None and with_global is not None:
             self._subscribe_images()
@@ -118,9 +125,9 @@ class ObservationClient:
             self._subscriptions.append(sub)
         self._expected = set(self.arm_ids) | ({GLOBAL} if self.with_global else set())
 
-    def _discover(self, record: dict[str, Any]) -> None:
+    def _discover(self, record: FrameRecord) -> None:
         """The first record: which arms exist, and (unless given) whether a global view is published."""
-        self.listed_arms = tuple(str(arm["arm_id"]) for arm in record.get("arms", []))
+        self.listed_arms = tuple(arm.arm_id for arm in record.arms)
         if self._expected is not None:
             return
         if not self.arm_ids:
@@ -146,6 +153,9 @@ class ObservationClient:
                 return None
             after = f"after {time.monotonic() - self._start_s:.0f} s"
             metadata = self._node.resolve_topic_name(topics.METADATA)
+            if self.last_malformed is not None and self.listed_arms is None:
+                return (f"metadata on {metadata} is malformed ({self.malformed_records} records {after}), "
+                        f"the latest: {self.last_malformed}")
             if not self._received["metadata"]:
                 if self._node.count_publishers(metadata) == 0:
                     return f"no metadata on {metadata} {after}, and no publisher of it (another namespace or ROS_DOMAIN_ID?)"
@@ -156,7 +166,8 @@ class ObservationClient:
                     topic = self._node.resolve_topic_name(self._image_topic(key))
                     hint = " (without a global view: --no-global / with_global=False)" if key == GLOBAL else ""
                     return f"no image on {topic} {after}; metadata lists arms {listed}{hint}"
-            return f"images and metadata arrive but no frame has all of them {after} ({self.dropped_incomplete} incomplete)"
+            malformed = f", {self.malformed_records} malformed records, the latest: {self.last_malformed}" if self.last_malformed else ""
+            return f"images and metadata arrive but no frame has all of them {after} ({self.dropped_incomplete} incomplete{malformed})"
 
     def _image_topic(self, key: str) -> str:
         topic = topics.GLOBAL_IMAGE if key == GLOBAL else topics.roi_image(key)
@@ -176,15 +187,22 @@ class ObservationClient:
         return callback
 
     def _on_metadata(self, msg: String) -> None:
-        record = json.loads(msg.data)
+        try:
+            record = FrameRecord.from_json(msg.data)
+        except RecordFormatError as exc:
+            with self._cond:
+                self._received["metadata"] += 1
+                self.malformed_records += 1
+                self.last_malformed = exc
+            return
         with self._cond:
             self._received["metadata"] += 1
             if self.listed_arms is None:
                 self._discover(record)
-            part = self._part(int(record["stamp_ns"]))
+            part = self._part(record.stamp_ns)
             if part is not None:
-                part.metadata = record
-                self._complete(int(record["stamp_ns"]))
+                part.record = record
+                self._complete(record.stamp_ns)
 
     def _part(self, stamp: int) -> _Partial | None:
         if stamp in self._partial:
@@ -199,7 +217,7 @@ class ObservationClient:
 
     def _complete(self, stamp: int) -> None:
         part = self._partial[stamp]
-        if part.metadata is None or self._expected is None or set(part.images) != self._expected:
+        if part.record is None or self._expected is None or set(part.images) != self._expected:
             return
         del self._partial[stamp]
         for older in [s for s in self._partial if s < stamp]:  # a newer frame is complete: older ones are stale
@@ -209,8 +227,9 @@ class ObservationClient:
             stamp_ns=stamp,
             global_image=part.images.get(GLOBAL),
             rois={arm: part.images[arm] for arm in self.arm_ids},
-            joint_positions=dict(part.metadata.get("joint_positions", {})),
-            metadata=part.metadata,
+            joint_positions=dict(part.record.joint_positions),
+            metadata=part.record.as_dict(),
+            record=part.record,
         )
         if len(self._ready) == self._ready.maxlen:
             self.dropped_unconsumed += 1

@@ -1,12 +1,13 @@
 """MetadataWatch: a subscriber in its own rclpy context that times every ROI record and sees the graph.
 
 Used by the demo to print progress (camera stamp -> record here) and to wait
-until the node and the recorder are connected before the rig starts.
+until the node and the recorder are connected before the rig starts. A
+malformed record is counted (`malformed`) and not timed: the callback runs in
+the executor, where an exception would stop the watch.
 """
 
 from __future__ import annotations
 
-import json
 import threading
 import time
 from collections.abc import Sequence
@@ -19,12 +20,14 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
 from ..core import topics
+from ..core.records import FrameRecord, RecordFormatError
 
 
 class MetadataWatch:
     def __init__(self, domain_id: int) -> None:
         self.latency_ms: list[float] = []
         self.frames = 0
+        self.malformed = 0  # metadata messages that are not a FrameRecord
         self.lock = threading.Lock()
         self._context = Context()
         rclpy.init(context=self._context, domain_id=domain_id)
@@ -38,9 +41,14 @@ class MetadataWatch:
         self._spinner.start()
 
     def _on_metadata(self, msg: String) -> None:
-        stamp = json.loads(msg.data)["stamp_ns"]
+        try:
+            stamp_ns = FrameRecord.from_json(msg.data).stamp_ns
+        except RecordFormatError:
+            with self.lock:
+                self.malformed += 1
+            return
         with self.lock:
-            self.latency_ms.append((time.time_ns() - stamp) / 1e6)
+            self.latency_ms.append((time.time_ns() - stamp_ns) / 1e6)
             self.frames += 1
 
     def _spin(self) -> None:
