@@ -32,9 +32,10 @@ from ..core.metadata import METADATA_SCHEMA
 from ..core.resources import config_dir
 from .bagfiles import bag_files, fingerprint, relative_name, sha256_file
 from .gates import GATES_SCHEMA, GateParams, GateSet, load_gates
-from .results import VALIDATION_SCHEMA, BagScan
+from .results import VALIDATION_SCHEMA, BagScan, BagValidation
 from .schema_check import error_path
 from .validate import judge, scan_bag, unique_names
+from .validation_records import ValidationFormatError
 
 MANIFEST_SCHEMA = "roi_node/manifest/v1"
 RIG_CONFIG_KEY = "roi_node.rig_config"  # bag custom_data key a recorder may store the rig YAML under
@@ -121,21 +122,26 @@ def _validation_from_file(doc: dict[str, Any], source: Path, bag: Path) -> dict[
         if same_path and entry["fingerprint"] != current:
             raise BagError(f"{source}: its result for {bag} was made from other bag content (files changed since); validate again")
         if same_path or entry["fingerprint"] == current:
-            return _validation_entry(entry, str(source), doc["gates"])
+            try:
+                validated = BagValidation.from_dict(entry)
+            except ValidationFormatError as exc:
+                raise ConfigError(f"{source}: its result for {bag}: {exc}") from exc
+            return _validation_entry(validated, str(source), doc["gates"]["path"], doc["gates"]["sha256"])
     return None
 
 
-def _validation_entry(result: dict[str, Any], source: str, gates: dict[str, Any]) -> dict[str, Any]:
+def _validation_entry(validated: BagValidation, source: str, gates_file: str, gates_sha256: str) -> dict[str, Any]:
     """What a manifest keeps of a validation: verdict, gate results, metrics, drift."""
+    result = validated.result
     return {
         "source": source,
-        "gates_file": gates["path"],
-        "gates_sha256": gates["sha256"],
-        "passed": result["passed"],
-        "results": result["gates"],
-        "bag_metrics": result["bag_metrics"],
-        "arm_metrics": {arm: part["metrics"] for arm, part in result["arms"].items()},
-        "drift": result["drift"],
+        "gates_file": gates_file,
+        "gates_sha256": gates_sha256,
+        "passed": not validated.failed,
+        "results": [g.as_dict() for g in validated.gates],
+        "bag_metrics": result.bag_metrics,
+        "arm_metrics": {arm: part.metrics for arm, part in result.arms.items()},
+        "drift": result.drift.as_dict(),
     }
 
 
@@ -163,8 +169,7 @@ def bag_entry(
     if rig is not None:
         _check_rig_matches(rig[0], bag, details["identity"])
     if gates is not None:
-        result = judge(scan, gates, name).as_dict()
-        checked = _validation_entry(result, "validated while writing the manifest", {"path": str(gates.path), "sha256": gates.sha256})
+        checked = _validation_entry(judge(scan, gates, name), "validated while writing the manifest", str(gates.path), gates.sha256)
     files, digest, size = hash_files(bag)
     info = scan.information
     lineage = details["lineage"]

@@ -1,7 +1,8 @@
 """The validation report a person reads: REPORT.md (verdict first, then the why), figures, validation.json.
 
-REPORT.md is rendered from the same JSON that validation.json holds, so the
-two never disagree; figures live in one folder per bag next to it.
+REPORT.md is rendered from the same typed records (results.ValidationRun)
+whose `as_dict()` validation.json holds, so the two never disagree; figures
+live in one folder per bag next to it.
 """
 
 from __future__ import annotations
@@ -13,14 +14,17 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .. import __version__
 from ..core import topics
 from ..core.errors import BagError
+from ..core.metadata import METADATA_SCHEMA
 from . import figures
 from .contact_sheet import contact_row, contact_sheet, unresize_global
 from .gates import GateSet, format_value
 from .roibag import GLOBAL_TOPIC, RoiBag, roi_image_topic
 
 if TYPE_CHECKING:
+    from .drift import ArmDrift
     from .results import BagScan, BagValidation, ValidationRun
     from .samples import Sample
 
@@ -119,7 +123,7 @@ def write_bag_figures(scan: BagScan, validation: BagValidation, gates: GateSet, 
 def write_report(run: ValidationRun, report_dir: Path) -> None:
     doc = run.as_dict()
     _write(report_dir / JSON_NAME, lambda: (report_dir / JSON_NAME).write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n"))
-    _write(report_dir / REPORT_NAME, lambda: (report_dir / REPORT_NAME).write_text(render_markdown(doc)))
+    _write(report_dir / REPORT_NAME, lambda: (report_dir / REPORT_NAME).write_text(render_markdown(run)))
 
 
 # ---- Markdown -------------------------------------------------------------------------------
@@ -137,49 +141,45 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> list[str]:
     return [*lines, ""]
 
 
-def _duration(bag: Mapping[str, Any]) -> str:
-    return f"{bag['bag_metrics']['duration_s']:.2f} s"
+def _duration(bag: BagValidation) -> str:
+    return f"{bag.result.bag_metrics['duration_s']:.2f} s"
 
 
-def _failed(bag: Mapping[str, Any]) -> list[Mapping[str, Any]]:
-    return [g for g in bag["gates"] if g["status"] == "fail"]
-
-
-def render_markdown(doc: Mapping[str, Any]) -> str:
-    bags = doc["bags"]
-    n_failed = sum(1 for b in bags if not b["passed"])
-    verdict = "PASS" if doc["passed"] else "FAIL"
-    gates = doc["gates"]
+def render_markdown(run: ValidationRun) -> str:
+    bags = run.bags
+    n_failed = sum(1 for b in bags if b.failed)
+    verdict = "PASS" if run.passed else "FAIL"
+    gates = run.gates
     lines = [
         "# ROI bag validation",
         "",
         f"**Result: {verdict}** — {len(bags) - n_failed} of {len(bags)} bag(s) pass every gate.",
         "",
-        f"roi_node {doc['roi_node_version']} · metadata schema `{doc['metadata_schema']}` · "
-        f"gates `{gates['path']}` (`{gates['sha256'][:23]}`)" + (f" · baseline `{doc['baseline']}`" if doc["baseline"] else ""),
+        f"roi_node {__version__} · metadata schema `{METADATA_SCHEMA}` · "
+        f"gates `{gates.path}` (`{gates.sha256[:23]}`)" + (f" · baseline `{run.baseline}`" if run.baseline is not None else ""),
         "",
     ]
     rows = []
     for bag in bags:
-        failed = ", ".join(f"{g['gate']} ({g['arm']})" for g in _failed(bag)) or "—"
-        rows.append([f"[{bag['name']}](#{bag['name'].lower()})", bag["bag_metrics"]["frames"], _duration(bag), ", ".join(bag["arms"]),
-                     RESULT_MARK["pass" if bag["passed"] else "fail"], failed])
+        failed = ", ".join(f"{g.gate} ({g.arm})" for g in bag.failed) or "—"
+        rows.append([f"[{bag.name}](#{bag.name.lower()})", bag.result.frames, _duration(bag), ", ".join(bag.result.arms),
+                     RESULT_MARK["fail" if bag.failed else "pass"], failed])
     lines += _table(["bag", "frames", "duration", "arms", "result", "failed gates"], rows)
     for bag in bags:
         lines += _bag_section(bag)
     return "\n".join(lines)
 
 
-def _bag_section(bag: Mapping[str, Any]) -> list[str]:
-    details, metrics = bag["details"], bag["bag_metrics"]
+def _bag_section(bag: BagValidation) -> list[str]:
+    details, metrics = bag.result.details, bag.result.bag_metrics
     ident = details["identity"]
     sizes = ", ".join(f"{w}×{h}" for w, h in ident["image_sizes"])
     first, last = details["frame_index_range"]
     lines = [
         "---",
-        f"## {bag['name']}",
+        f"## {bag.name}",
         "",
-        f"`{bag['path']}` · {metrics['frames']} frames · {_duration(bag)} · frame_index {first}–{last} · camera "
+        f"`{bag.result.path}` · {metrics['frames']} frames · {_duration(bag)} · frame_index {first}–{last} · camera "
         f"{', '.join(ident['camera_ids'])} · robot {', '.join(ident['robot_ids'])} · image {sizes} · "
         f"{len(details['lineage'])} lineage tuple(s) · writer status: {details['writer_status'] or 'not recorded'}",
         "",
@@ -188,19 +188,19 @@ def _bag_section(bag: Mapping[str, Any]) -> list[str]:
     ]
     order = {"fail": 0, "no_data": 1, "pass": 2}
     gate_rows = [
-        [RESULT_MARK[g["status"]], g["gate"], g["arm"], g["value"], f"{'>=' if g['op'] == 'min' else '<='} {format_value(g['threshold'])}"]
-        for g in sorted(bag["gates"], key=lambda g: order[g["status"]])
+        [RESULT_MARK[g.status], g.gate, g.arm, g.value, g.threshold_text()]
+        for g in sorted(bag.gates, key=lambda g: order[g.status])
     ]
     lines += _table(["result", "gate", "arm", "value", "threshold"], gate_rows) if gate_rows else ["No gates configured.", ""]
-    if bag["figures"]:
+    if bag.figures:
         lines += ["### Figures", ""]
-        for name, path in bag["figures"].items():
+        for name, path in bag.figures.items():
             lines += [f"**{FIGURE_TITLES[name]}**", "", f"![{name}]({path})", ""]
     lines += _arm_section(bag)
     lines += _timing_section(bag)
     lines += _drift_section(bag)
-    lines += _calibration_section(bag)
-    lines += _rollout_section(bag)
+    lines += _calibration_section(bag.result.calibration)
+    lines += _rollout_section(bag.result.rollout)
     lines += _lineage_section(details["lineage"])
     lines += _governance_section(bag)
     return lines
@@ -223,17 +223,17 @@ ARM_ROWS = (
 )
 
 
-def _arm_section(bag: Mapping[str, Any]) -> list[str]:
-    arms = bag["arms"]
-    rows = [[label, *(" / ".join(_v(arms[a]["metrics"][k]) for k in keys) for a in arms)] for label, keys in ARM_ROWS]
+def _arm_section(bag: BagValidation) -> list[str]:
+    arms = bag.result.arms
+    rows = [[label, *(" / ".join(_v(arms[a].metrics[k]) for k in keys) for a in arms)] for label, keys in ARM_ROWS]
     return ["### Per-arm statistics", "", *_table(["metric", *arms], rows)]
 
 
 INDEX_KEYS = ("frame_index_gaps", "frames_missing", "frame_index_disorder")
 
 
-def _timing_section(bag: Mapping[str, Any]) -> list[str]:
-    m, sync = bag["bag_metrics"], bag["details"]["sync"]
+def _timing_section(bag: BagValidation) -> list[str]:
+    m, sync = bag.result.bag_metrics, bag.result.details["sync"]
     status = ", ".join(f"{k} {v}" for k, v in sync["status"].items())
     rows = [
         ["sync residual ms p50 / p95 / max", " / ".join(_v(m[f"sync_residual_ms_{s}"]) for s in ("p50", "p95", "max"))],
@@ -248,19 +248,18 @@ def _timing_section(bag: Mapping[str, Any]) -> list[str]:
     return ["### Timing", "", *_table(["measure", "value"], rows)]
 
 
-def _drift_rows(arms: Mapping[str, Any]) -> list[list[Any]]:
+def _drift_rows(arms: Mapping[str, ArmDrift]) -> list[list[Any]]:
     rows = []
     for arm_id, d in arms.items():
-        offset = d["center_offset_px"]
+        offset = d.center_offset_px
         shift = None if offset is None else float(np.hypot(*offset))
-        rows.append([arm_id, d["mode"], d["frames"], "n/a" if offset is None else f"({offset[0]:.3f}, {offset[1]:.3f})", shift,
-                     d["scale_ratio"], d["in_frame_delta"], d["padding_delta"]])
+        rows.append([arm_id, d.mode, d.frames, "n/a" if offset is None else f"({offset[0]:.3f}, {offset[1]:.3f})", shift,
+                     d.scale_ratio, d.in_frame_delta, d.padding_delta])
     return rows
 
 
-def _calibration_section(bag: Mapping[str, Any]) -> list[str]:
-    """check-calibration's findings, when validate ran it (--config, on a bag with its inputs)."""
-    check = bag.get("calibration")
+def _calibration_section(check: Mapping[str, Any] | None) -> list[str]:
+    """check-calibration's findings (its JSON view, CalibrationCheck.as_dict), when validate ran it (--config, on a bag with its inputs)."""
     if not check:
         return []
     if check["delay_ms"] is None:  # not measured: the reason says why
@@ -283,9 +282,8 @@ def _calibration_section(bag: Mapping[str, Any]) -> list[str]:
     return lines
 
 
-def _rollout_section(bag: Mapping[str, Any]) -> list[str]:
-    """The policy-driven spans of a recorded rollout, and per arm the jitter and excursions there."""
-    rollout = bag.get("rollout")
+def _rollout_section(rollout: Mapping[str, Any] | None) -> list[str]:
+    """A recorded rollout's policy-driven spans (its JSON view, RolloutSummary.as_dict), and per arm the jitter and excursions there."""
     if not rollout:
         return []
     ratio = rollout["policy_driven_ratio"]
@@ -308,19 +306,19 @@ def _rollout_section(bag: Mapping[str, Any]) -> list[str]:
     return lines
 
 
-def _drift_section(bag: Mapping[str, Any]) -> list[str]:
+def _drift_section(bag: BagValidation) -> list[str]:
     header = ["arm", "mode", "frames", "centre offset (du, dv) px", "shift px", "scale ratio", "in-frame Δ", "padding Δ"]
     lines = ["### Drift", ""]
-    base = bag["drift"]["baseline"]
+    base = bag.result.drift.baseline
     if base is not None:
-        same = "same lineage" if base["same_lineage"] else "different lineage"
-        lines += [f"Against baseline `{base['path']}` ({base['mode']}, {base['matched_frames']} frames matched by stamp, {same}):", ""]
-        lines += _table(header, _drift_rows(base["arms"]))
-    window = bag["drift"]["window"]
-    fraction = f"{window['fraction']:.3g}"
-    if window["arms"]:
+        same = "same lineage" if base.same_lineage else "different lineage"
+        lines += [f"Against baseline `{base.path}` ({base.mode}, {base.matched_frames} frames matched by stamp, {same}):", ""]
+        lines += _table(header, _drift_rows(base.arms))
+    window = bag.result.drift.window
+    fraction = f"{window.fraction:.3g}"
+    if window.arms:
         lines += [f"Last {fraction} of the bag against its first {fraction} (task motion moves these too):", ""]
-        lines += _table(header, _drift_rows(window["arms"]))
+        lines += _table(header, _drift_rows(window.arms))
     else:
         lines += ["The bag is too short to compare its first and last windows.", ""]
     return lines
@@ -333,9 +331,9 @@ def _lineage_section(segments: Sequence[Mapping[str, Any]]) -> list[str]:
     return ["### Lineage", "", note, "", *_table(["from frame_index", "frames", *keys], rows)]
 
 
-def _governance_section(bag: Mapping[str, Any]) -> list[str]:
-    gov, teleop = bag["details"]["governance"], bag["details"]["teleop"]
-    arms = list(bag["arms"])
+def _governance_section(bag: BagValidation) -> list[str]:
+    gov, teleop = bag.result.details["governance"], bag.result.details["teleop"]
+    arms = list(bag.result.arms)
     flags = sorted({f for per_arm in gov["flags"].values() for f in per_arm})
     modes = f"Padding mode: {', '.join(gov['padding_modes'])} · resize policy: {', '.join(gov['resize_policies'])}"
     lines = ["### Governance", "", modes, ""]
@@ -348,7 +346,7 @@ def _governance_section(bag: Mapping[str, Any]) -> list[str]:
         lines += ["No quality flags.", ""]
     rows = [[name, t["present_frames"], t["p50"], t["p95"], t["max"]] for name, t in teleop.items()]
     lines += ["Teleoperation context (L_t, f_t, r_t):", "", *_table(["field", "frames present", "p50", "p95", "max"], rows)]
-    custom = bag["custom_data"]
+    custom = bag.result.custom_data
     if custom:
         lines += _table(["bag custom data", "value"], [[k, f"`{v}`"] for k, v in custom.items()])
     return lines

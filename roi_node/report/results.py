@@ -14,6 +14,7 @@ from .gates import GateResult, GateSet
 from .roibag import RoiBag
 from .samples import Sample
 from .stats import BagStats, BagSummary
+from .validation_records import BagResult, ValidationFormatError, gate_result_from_dict
 
 VALIDATION_SCHEMA = "roi_node/validation/v1"
 
@@ -46,12 +47,12 @@ class BagScan:
 
 @dataclass
 class BagValidation:
-    """The verdict on one bag, in JSON-ready form (the per-frame series are not kept)."""
+    """The verdict on one bag: what validation found (`result`) and its gates (the per-frame series are not kept)."""
 
     path: Path
     name: str
     gates: list[GateResult]
-    result: dict[str, Any]
+    result: BagResult
     figures: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -59,7 +60,21 @@ class BagValidation:
         return [g for g in self.gates if g.failed]
 
     def as_dict(self) -> dict[str, Any]:
-        return {**self.result, "passed": not self.failed, "gates": [g.as_dict() for g in self.gates], "figures": dict(self.figures)}
+        gates = [g.as_dict() for g in self.gates]
+        return {**self.result.as_dict(), "passed": not self.failed, "gates": gates, "figures": dict(self.figures)}
+
+    @classmethod
+    def from_dict(cls, doc: Any) -> BagValidation:
+        """A `bags[]` entry of validation.json; `passed` is not read, the gates' statuses decide it."""
+        result = BagResult.from_dict(doc)
+        try:
+            gates = [gate_result_from_dict(g) for g in doc["gates"]]
+            figures = dict(doc["figures"])
+        except KeyError as exc:
+            raise ValidationFormatError(str(exc.args[0]), "missing") from exc
+        except (TypeError, AttributeError, ValueError) as exc:
+            raise ValidationFormatError("gates", f"of the wrong shape ({exc})") from exc
+        return cls(Path(result.path), result.name, gates, result, figures)
 
 
 @dataclass

@@ -17,7 +17,7 @@ from ..core.config import RigConfig
 from ..core.errors import BagError
 from .bagfiles import fingerprint
 from .calibration import CalibrationCheck, Tolerances, carries_inputs, check_calibration
-from .drift import ArmDrift, baseline_drift, window_drift
+from .drift import baseline_drift, window_drift
 from .gates import IMPLAUSIBLE_STAMPS_METRIC, GateParams, GateSet, evaluate
 from .report import JSON_NAME, prepare_report_dir, write_bag_figures, write_report
 from .results import BagScan, BagValidation, ValidationRun
@@ -26,6 +26,7 @@ from .rollout import RolloutSummary, analyse_rollout
 from .rollout_commands import CommandTopic, command_log_times
 from .samples import SampleChooser
 from .stats import BagStats
+from .validation_records import ArmValidation, BagResult, BaselineDrift, DriftResult, TopicCount, WindowDrift
 
 
 def scan_bag(path: Path, params: GateParams, *, with_samples: bool = False, progress: bool = False) -> BagScan:
@@ -52,10 +53,6 @@ def implausible_stamps(scan: BagScan) -> int | None:
     if not str(value).isdigit():
         raise BagError(f"{scan.path}: metadata.yaml custom_data {IMPLAUSIBLE_STAMPS_KEY}: expected a count of messages, got {value!r}")
     return int(value)
-
-
-def _drift_dict(arms: dict[str, ArmDrift]) -> dict[str, Any]:
-    return {arm_id: drift.as_dict() for arm_id, drift in arms.items()}
 
 
 def rollout_of(scan: BagScan, gates: GateSet, command: CommandTopic) -> RolloutSummary | None:
@@ -86,34 +83,26 @@ def judge(
         for arm, d in arms.items():
             drift_metrics.setdefault(arm, {}).update(d.metrics("baseline"))
         base_lineage = [seg["tuple"] for seg in baseline.summary.details["lineage"]]
-        baseline_part = {
-            "path": str(baseline.path),
-            "mode": mode,
-            "matched_frames": matched,
-            "same_lineage": base_lineage == [seg["tuple"] for seg in summary.details["lineage"]],
-            "arms": _drift_dict(arms),
-        }
+        same_lineage = base_lineage == [seg["tuple"] for seg in summary.details["lineage"]]
+        baseline_part = BaselineDrift(str(baseline.path), mode, matched, same_lineage, arms)
     calibration_metrics = calibration.gate_metrics() if calibration is not None else None
     bag_metrics = {**summary.bag_metrics, IMPLAUSIBLE_STAMPS_METRIC: implausible_stamps(scan)}
     rollout_metrics = rollout.arm_metrics if rollout is not None else None
     results = evaluate(gates, bag_metrics, summary.arm_metrics, drift_metrics, calibration_metrics, rollout_metrics)
-    result = {
-        "path": str(scan.path.resolve()),
-        "name": name,
-        "fingerprint": fingerprint(scan.path),
-        "log_time_range_ns": [scan.start_ns, scan.end_ns],
-        "topics": [{"name": t.name, "type": t.msgtype, "count": t.count} for t in scan.topics.values()],
-        "custom_data": dict(scan.information.get("custom_data") or {}),
-        "bag_metrics": bag_metrics,
-        "arms": {arm: {"metrics": metrics, "drift": drift_metrics.get(arm, {})} for arm, metrics in summary.arm_metrics.items()},
-        "details": summary.details,
-        "drift": {
-            "baseline": baseline_part,
-            "window": {"fraction": gates.params.window_fraction, "arms": _drift_dict(windows)},
-        },
-        "calibration": None if calibration is None else calibration.as_dict(),
-        "rollout": None if rollout is None else rollout.as_dict(),
-    }
+    result = BagResult(
+        path=str(scan.path.resolve()),
+        name=name,
+        fingerprint=fingerprint(scan.path),
+        log_time_range_ns=(scan.start_ns, scan.end_ns),
+        topics=tuple(TopicCount(t.name, t.msgtype, t.count) for t in scan.topics.values()),
+        custom_data=dict(scan.information.get("custom_data") or {}),
+        bag_metrics=bag_metrics,
+        arms={arm: ArmValidation(metrics, drift_metrics.get(arm, {})) for arm, metrics in summary.arm_metrics.items()},
+        details=summary.details,
+        drift=DriftResult(baseline_part, WindowDrift(gates.params.window_fraction, windows)),
+        calibration=None if calibration is None else calibration.as_dict(),
+        rollout=None if rollout is None else rollout.as_dict(),
+    )
     return BagValidation(scan.path, name, results, result)
 
 

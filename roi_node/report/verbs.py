@@ -30,14 +30,13 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     out = sys.stderr if args.json else sys.stdout  # with --json, stdout is the JSON document only
     for bag in run.bags:
         failed = bag.failed
-        frames = bag.result["bag_metrics"]["frames"]
         verdict = f"FAIL ({len(failed)} of {len(bag.gates)} gates failed)" if failed else f"PASS ({len(bag.gates)} gates)"
-        print(f"{bag.path}: {frames} frames, arms {', '.join(bag.result['arms'])}: {verdict}", file=out)
-        if (rollout := bag.result["rollout"]) is not None:
+        print(f"{bag.path}: {bag.result.frames} frames, arms {', '.join(bag.result.arms)}: {verdict}", file=out)
+        if (rollout := bag.result.rollout) is not None:
             print(f"rollout {bag.name}: {rollout_line(rollout)}", file=out)
         for gate in failed:
             print(f"FAIL {bag.name}: {gate.line()}", file=out)
-        if rig is not None and bag.result["calibration"] is None:
+        if rig is not None and bag.result.calibration is None:
             print(f"note {bag.name}: the bag has no camera stream and joint states (replay --include-inputs): calibration not checked",
                   file=out)
     if report_dir is not None:
