@@ -16,6 +16,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +34,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
 from roi_node.core.errors import UsageError
+from roi_node.core.stream_snapshot import Percentiles
 from roi_node.core.stream_stats import StreamStats
 from roi_node.ros.diagnostics import diagnostics_msg
 from roi_node.ros.diagnostics_table import DiagnosticsBoard, render
@@ -338,7 +340,7 @@ def test_the_table_shows_the_rates_drops_latency_and_arms_the_node_encodes() -> 
     stats.drop("overflow", 3)
     stats.drop("inactive", 2)
     snap = stats.snapshot(1_000_000_000)
-    snap["latency_ms"] = {"p50": 12.5, "p99": 30.25, "max": 31.0}
+    snap = replace(snap, latency_ms=Percentiles(p50=12.5, p99=30.25, max=31.0))
     board = DiagnosticsBoard()
     board.update(diagnostics_msg(1, snap, None, None))
     text = "\n".join(" ".join(line.split()) for line in render(board, "/diagnostics", 0.5))  # columns to single spaces

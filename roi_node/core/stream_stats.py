@@ -13,7 +13,6 @@ from __future__ import annotations
 
 from collections import Counter, deque
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -21,6 +20,7 @@ from .drop_kinds import DropKind
 from .frame_loss import FrameLossEstimator
 from .records import FrameRecord
 from .stamps import NS_PER_S
+from .stream_snapshot import ArmWindow, Percentiles, StreamSnapshot
 from .sync import STATUS_ORDER
 
 
@@ -173,47 +173,40 @@ class StreamStats:
         values = np.asarray(self.residuals_ms)
         return {"p50": float(np.percentile(values, 50)), "p95": float(np.percentile(values, 95)), "max": float(values.max())}
 
-    def snapshot(self, now_ns: int) -> dict[str, Any]:
+    def snapshot(self, now_ns: int) -> StreamSnapshot:
         """Everything for one diagnostics message; starts a new window."""
         w = self._window
         span_s = max(1e-9, (now_ns - self._window_start_ns) / NS_PER_S)
         for reason in set(self._drop_streaks) | set(w.drops):
             self._drop_streaks[reason] = self._drop_streaks[reason] + 1 if w.drops[reason] else 0
-        snap: dict[str, Any] = {
-            "window_s": span_s,
-            "frame_rate_in_hz": w.frames_in / span_s,
-            "joint_rate_in_hz": w.joint_msgs_in / span_s,
-            "frame_rate_out_hz": w.frames_out / span_s,
-            "totals": dict(self.totals),
-            "drops": dict(self.drops),
-            "drops_window": dict(w.drops),
-            "drop_streaks": {reason: n for reason, n in self._drop_streaks.items() if n},
-            "lost_before_node": self.lost_before_node,
-            "bad_messages": dict(self.bad),
-            "processing_errors": dict(self.errors),
-            "processing_errors_window": dict(w.errors),
-            "last_errors": dict(self.last_error),
-            "sync_status": dict(self.status),
-            "residual_ms": _summary(w.residual_ms),
-            "latency_ms": _summary(w.latency_ms),
-            "process_ms": _summary(w.process_ms),
-            "flags": dict(self.flags),
-            "arms": {
-                arm: {
-                    "frames": w.arm_frames[arm],
-                    "projection_valid_ratio": w.valid[arm] / w.arm_frames[arm] if w.arm_frames[arm] else None,
-                    "in_frame_ratio_mean": w.in_frame_sum[arm] / w.arm_frames[arm] if w.arm_frames[arm] else None,
-                }
+        snap = StreamSnapshot(
+            window_s=span_s,
+            frame_rate_in_hz=w.frames_in / span_s,
+            joint_rate_in_hz=w.joint_msgs_in / span_s,
+            frame_rate_out_hz=w.frames_out / span_s,
+            totals=dict(self.totals),
+            drops=dict(self.drops),
+            drops_window=dict(w.drops),
+            drop_streaks={reason: n for reason, n in self._drop_streaks.items() if n},
+            lost_before_node=self.lost_before_node,
+            bad_messages=dict(self.bad),
+            processing_errors=dict(self.errors),
+            processing_errors_window=dict(w.errors),
+            last_errors=dict(self.last_error),
+            sync_status=dict(self.status),
+            residual_ms=Percentiles.of(w.residual_ms),
+            latency_ms=Percentiles.of(w.latency_ms),
+            process_ms=Percentiles.of(w.process_ms),
+            flags=dict(self.flags),
+            arms={
+                arm: ArmWindow(
+                    frames=w.arm_frames[arm],
+                    projection_valid_ratio=w.valid[arm] / w.arm_frames[arm] if w.arm_frames[arm] else None,
+                    in_frame_ratio_mean=w.in_frame_sum[arm] / w.arm_frames[arm] if w.arm_frames[arm] else None,
+                )
                 for arm in self.arm_ids
             },
-        }
+        )
         self._window = _Window()
         self._window_start_ns = now_ns
         return snap
-
-
-def _summary(values: list[float]) -> dict[str, float] | None:
-    if not values:
-        return None
-    a = np.asarray(values)
-    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)), "max": float(a.max())}

@@ -8,18 +8,19 @@ longer than `silence_timeout_s`, when frames arrive but nothing can be
 published (no joint states, no intrinsics, no URDF), when the decoder cannot
 keep up (frames dropped undecoded, `decode_overflow`, in
 `SUSTAINED_OVERFLOW_WINDOWS` windows in a row: a burst is a WARN), and when
-processing raised in the last window.
+processing raised in the last window. The snapshot is a typed
+StreamSnapshot; its summaries and arms go out as the JSON they always were.
 """
 
 from __future__ import annotations
 
 import json
 from collections.abc import Sequence
-from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 from ..core.metadata import Lineage
+from ..core.stream_snapshot import Percentiles, StreamSnapshot
 from .conversions import header
 
 HARDWARE_ID = "roi_node"
@@ -34,6 +35,10 @@ def _kv(key: str, value: object) -> KeyValue:
 
 def _fmt(value: float | None) -> str:
     return "n/a" if value is None else f"{value:.2f}"
+
+
+def _percentiles(summary: Percentiles | None) -> dict[str, float] | None:
+    return None if summary is None else summary.as_dict()
 
 
 def _status(name: str, level: bytes, message: str, values: dict[str, object]) -> DiagnosticStatus:
@@ -69,22 +74,22 @@ class StreamHealth:
 
 
 def diagnostics_msg(
-    stamp_ns: int, snap: dict[str, Any], lineage: Lineage | None, waiting_for: str | None, silence: str | None = None
+    stamp_ns: int, snap: StreamSnapshot, lineage: Lineage | None, waiting_for: str | None, silence: str | None = None
 ) -> DiagnosticArray:
     statuses = []
-    bad = snap["bad_messages"]
-    drops = snap["drops"]
-    lost = snap["lost_before_node"]
-    overflow_windows = snap["drop_streaks"].get(DECODE_OVERFLOW, 0)
+    bad = snap.bad_messages
+    drops = snap.drops
+    lost = snap.lost_before_node
+    overflow_windows = snap.drop_streaks.get(DECODE_OVERFLOW, 0)
     input_level = DiagnosticStatus.OK
-    input_message = f"frames {_fmt(snap['frame_rate_in_hz'])} Hz in, {_fmt(snap['frame_rate_out_hz'])} Hz out"
+    input_message = f"frames {_fmt(snap.frame_rate_in_hz)} Hz in, {_fmt(snap.frame_rate_out_hz)} Hz out"
     if silence:
         input_level, input_message = DiagnosticStatus.ERROR, silence
     elif waiting_for:
         input_level, input_message = DiagnosticStatus.ERROR, f"waiting for {waiting_for}"
     elif overflow_windows >= SUSTAINED_OVERFLOW_WINDOWS:
         input_level = DiagnosticStatus.ERROR
-        input_message = (f"the decoder cannot keep up: {snap['drops_window'][DECODE_OVERFLOW]} frames dropped undecoded "
+        input_message = (f"the decoder cannot keep up: {snap.drops_window[DECODE_OVERFLOW]} frames dropped undecoded "
                          f"({DECODE_OVERFLOW}) in the last window, {overflow_windows} windows in a row")
     elif bad or drops or lost:
         input_level = DiagnosticStatus.WARN
@@ -96,21 +101,21 @@ def diagnostics_msg(
             input_level,
             input_message,
             {
-                "frame_rate_in_hz": round(snap["frame_rate_in_hz"], 3),
-                "joint_msg_rate_in_hz": round(snap["joint_rate_in_hz"], 3),
-                "frame_rate_out_hz": round(snap["frame_rate_out_hz"], 3),
-                "totals": snap["totals"],
+                "frame_rate_in_hz": round(snap.frame_rate_in_hz, 3),
+                "joint_msg_rate_in_hz": round(snap.joint_rate_in_hz, 3),
+                "frame_rate_out_hz": round(snap.frame_rate_out_hz, 3),
+                "totals": snap.totals,
                 "dropped_by_reason": drops,
-                "dropped_by_reason_window": snap["drops_window"],
+                "dropped_by_reason_window": snap.drops_window,
                 "lost_before_node": lost,
                 "bad_messages_by_kind": bad,
-                "last_errors": snap["last_errors"],
-                "process_ms": snap["process_ms"],
-                "latency_ms": snap["latency_ms"],
+                "last_errors": snap.last_errors,
+                "process_ms": _percentiles(snap.process_ms),
+                "latency_ms": _percentiles(snap.latency_ms),
             },
         )
     )
-    errors, window_errors = snap["processing_errors"], snap["processing_errors_window"]
+    errors, window_errors = snap.processing_errors, snap.processing_errors_window
     processing_level = DiagnosticStatus.ERROR if window_errors else DiagnosticStatus.OK
     processing_message = (
         f"{sum(window_errors.values())} frames failed in the last window ({', '.join(sorted(window_errors))})"
@@ -124,36 +129,39 @@ def diagnostics_msg(
             processing_message,
             {
                 "errors_by_type": errors,
-                "last_errors": {k: v for k, v in snap["last_errors"].items() if k.startswith("processing:")},
-                "process_ms": snap["process_ms"],
+                "last_errors": {k: v for k, v in snap.last_errors.items() if k.startswith("processing:")},
+                "process_ms": _percentiles(snap.process_ms),
             },
         )
     )
-    status_counts = snap["sync_status"]
+    status_counts = snap.sync_status
     not_ok = sum(v for k, v in status_counts.items() if k != "ok")
     sync_level = DiagnosticStatus.OK if not not_ok else DiagnosticStatus.WARN
     released = sum(status_counts.values())
     if released and status_counts.get("missing", 0) == released:
         sync_level = DiagnosticStatus.ERROR
-    residual = snap["residual_ms"]
+    residual = snap.residual_ms
+    sync_values: dict[str, object] = {"status_counts": status_counts, "residual_ms": _percentiles(residual)}
+    if snap.sync_counters is not None:
+        sync_values["sync_counters"] = snap.sync_counters.as_dict()
     statuses.append(
         _status(
             "sync",
             sync_level,
-            f"residual p50 {_fmt(residual and residual['p50'])} ms; {not_ok} frames not ok since start",
-            {"status_counts": status_counts, "residual_ms": residual},
+            f"residual p50 {_fmt(None if residual is None else residual.p50)} ms; {not_ok} frames not ok since start",
+            sync_values,
         )
     )
-    for arm_id, arm in snap["arms"].items():
-        flagged = {k.split(":", 1)[1]: v for k, v in snap["flags"].items() if k.startswith(arm_id + ":")}
-        valid = arm["projection_valid_ratio"]
+    for arm_id, arm in snap.arms.items():
+        flagged = {k.split(":", 1)[1]: v for k, v in snap.flags.items() if k.startswith(arm_id + ":")}
+        valid = arm.projection_valid_ratio
         level = DiagnosticStatus.OK if valid in (None, 1.0) else DiagnosticStatus.WARN
         statuses.append(
             _status(
                 f"arm {arm_id}",
                 level,
-                f"valid {_fmt(valid)}, in-frame {_fmt(arm['in_frame_ratio_mean'])}",
-                {**arm, "flags_since_start": flagged},
+                f"valid {_fmt(valid)}, in-frame {_fmt(arm.in_frame_ratio_mean)}",
+                {**arm.as_dict(), "flags_since_start": flagged},
             )
         )
     if lineage is not None:

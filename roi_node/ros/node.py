@@ -31,6 +31,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import cv2
@@ -69,6 +70,7 @@ from ..core.pipeline import FrameResult
 from ..core.short_repr import short_text
 from ..core.stamps import NS_PER_MS, NS_PER_S
 from ..core.status_line import StatusWindow
+from ..core.stream_snapshot import SyncCounters
 from ..core.stream_stats import StreamStats
 from ..process_memory import prefault_heap
 from .conversions import stamp_ns
@@ -431,7 +433,7 @@ class StreamNode(Node):
             waiting = self.engine.waiting_for()
             sync = self.engine.synchronizer
             if sync is not None:
-                snap["sync_counters"] = {"epochs": sync.counters.epochs, "pending": sync.pending}
+                snap = replace(snap, sync_counters=SyncCounters(sync.counters.epochs, sync.pending))
         silence = self.health.silence(now_ns, self.resolve_topic_name(self._image_topic), self.params.joint_state_topics)
         self._diagnostics_pub.publish(diagnostics_msg(self.get_clock().now().nanoseconds, snap, lineage, waiting, silence))
 
