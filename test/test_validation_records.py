@@ -2,7 +2,8 @@
 
 Two simulated bimanual sessions are replayed with their inputs and validated
 the way users do (`validate --report` against a baseline, with the rig, so
-the calibration check and both drift parts are filled). The file is the
+the calibration check and both drift parts are filled; a rollout recording
+fills the rollout part). The file is the
 oracle: every bag entry read with `BagValidation.from_dict` and written again
 must give the file's exact text, and the in-memory records validation built
 must survive `from_dict(as_dict())` unchanged.
@@ -25,6 +26,7 @@ from roi_node.report.validation_records import BagResult
 from roi_node.sim.bag_sink import write_sim_bag
 
 from .conftest import CONFIG
+from .test_rollout_validate import COMMANDS, rollout  # noqa: F401 (the rollout bag fixture)
 
 GATES = CONFIG / "gates.yaml"
 
@@ -61,6 +63,19 @@ def test_validation_json_reads_back_byte_for_byte(roi_bags: tuple[Path, Path], t
     assert set(read.result.arms) == {"left", "right"}
     assert read.result.drift.baseline is not None and read.result.drift.baseline.path == str(baseline)
     assert [g.status == "fail" for g in read.gates] == [g["status"] == "fail" for g in entries[0]["gates"]]
+
+
+def test_a_rollout_entry_reads_back_byte_for_byte(rollout: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # noqa: F811
+    report = tmp_path / "report"
+    assert main(["validate", str(rollout), "--gates", str(GATES), "--command-topic", COMMANDS, "--report", str(report)]) in (0, 1)
+    capsys.readouterr()
+    text = (report / "validation.json").read_text()
+    doc = json.loads(text)
+    (entry,) = doc["bags"]
+    read = BagValidation.from_dict(entry)
+    assert read.result.rollout is not None and read.result.rollout.excursions and len(read.result.rollout.spans) == 2
+    assert read.result.rollout.policy_driven_frames == entry["rollout"]["policy_driven_frames"]
+    assert json.dumps({**doc, "bags": [read.as_dict()]}, indent=2, allow_nan=False) + "\n" == text
 
 
 def test_the_records_validation_builds_survive_as_dict_and_from_dict(roi_bags: tuple[Path, Path]) -> None:

@@ -18,6 +18,7 @@ from .. import __version__
 from ..core import topics
 from ..core.errors import BagError
 from ..core.metadata import METADATA_SCHEMA
+from ..core.stamps import NS_PER_S
 from . import figures
 from .contact_sheet import contact_row, contact_sheet, unresize_global
 from .gates import GateSet, format_value
@@ -27,6 +28,7 @@ if TYPE_CHECKING:
     from .drift import ArmDrift
     from .results import BagScan, BagValidation, ValidationRun
     from .samples import Sample
+    from .validation_records import RolloutPart
 
 REPORT_NAME = "REPORT.md"
 JSON_NAME = "validation.json"
@@ -282,25 +284,25 @@ def _calibration_section(check: Mapping[str, Any] | None) -> list[str]:
     return lines
 
 
-def _rollout_section(rollout: Mapping[str, Any] | None) -> list[str]:
-    """A recorded rollout's policy-driven spans (its JSON view, RolloutSummary.as_dict), and per arm the jitter and excursions there."""
-    if not rollout:
+def _rollout_section(rollout: RolloutPart | None) -> list[str]:
+    """A recorded rollout's policy-driven spans, and per arm the jitter and excursions there."""
+    if rollout is None:
         return []
-    ratio = rollout["policy_driven_ratio"]
     lines = [
         "### Rollout",
         "",
-        f"{rollout['commands']} commands on `{rollout['command_topic']}` (median period {_v(rollout['command_period_ms'])} ms); "
-        f"the policy drove {rollout['policy_driven_frames']} frames ({_v(ratio)} of the bag) in {len(rollout['spans'])} span(s):",
+        f"{rollout.commands} commands on `{rollout.command_topic}` (median period {_v(rollout.command_period_ms)} ms); "
+        f"the policy drove {rollout.policy_driven_frames} frames ({_v(rollout.policy_driven_ratio)} of the bag) "
+        f"in {len(rollout.spans)} span(s):",
         "",
     ]
     lines += _table(["span start ns", "end ns", "duration s", "commands", "frames"],
-                    [[s["start_ns"], s["end_ns"], s["duration_s"], s["commands"], s["frames"]] for s in rollout["spans"]])
+                    [[s.start_ns, s.end_ns, (s.end_ns - s.start_ns) / NS_PER_S, s.commands, s.frames] for s in rollout.spans])
     keys = ("rollout_jitter_rms", "rollout_jitter_px_rms", "rollout_excursions", "rollout_recovery_s_max", "rollout_unrecovered_excursions")
-    rows = [[arm, *(a["metrics"][k] for k in keys)] for arm, a in rollout["arms"].items()]
+    rows = [[arm, *(metrics[k] for k in keys)] for arm, metrics in rollout.arm_metrics.items()]
     lines += _table(["arm", "jitter RMS / ROI side", "jitter RMS px", "excursions", "longest recovery s", "unrecovered"], rows)
-    excursions = [[arm, e["left_ns"], e["back_ns"], e["recovery_s"], e["min_in_frame"], "yes" if e["policy_driven"] else "no"]
-                  for arm, a in rollout["arms"].items() for e in a["excursions"]]
+    excursions = [[arm, e.left_ns, e.back_ns, e.recovery_s, e.min_in_frame, "yes" if e.policy_driven else "no"]
+                  for arm in rollout.arm_metrics for e in rollout.arm_excursions(arm)]
     if excursions:
         lines += _table(["arm", "left frame ns", "back ns", "recovery s", "lowest in-frame", "policy-driven"], excursions)
     return lines

@@ -7,11 +7,11 @@ export hashes files that carry gate verdicts), and `from_dict()` reads such an
 entry back (the manifest reads a validation.json written earlier), so
 `from_dict(x.as_dict()) == x`.
 
-Three parts stay JSON mappings here: `details` (BagStats' summary of the
-records), `calibration` (CalibrationCheck.as_dict) and `rollout`
-(RolloutSummary.as_dict). Each is the derived view of a typed object that
-lives only in memory during validation, and readers of a file cannot rebuild
-those objects.
+The rollout part is `RolloutPart`, what a file keeps of a RolloutSummary
+(the bag's frame count behind its ratio is not kept). Two parts stay JSON
+mappings: `details` (BagStats' summary of the records) and `calibration`
+(CalibrationCheck.as_dict), derived views of objects that live only in memory
+during validation, which readers of a file cannot rebuild.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from typing import Any
 from ..core.errors import ConfigError
 from .drift import ArmDrift
 from .gates import GateResult
+from .rollout import Excursion, PolicySpan
 from .stats import Metric
 
 
@@ -133,6 +134,55 @@ class TopicCount:
 
 
 @dataclass(frozen=True)
+class RolloutPart:
+    """A rollout recording's policy-driven spans, and per arm its gateable metrics and excursions (RolloutSummary.as_dict)."""
+
+    command_topic: str
+    commands: int
+    command_period_ms: float | None
+    policy_driven_ratio: float | None  # of the bag's frames; None for a bag without frames
+    spans: tuple[PolicySpan, ...]
+    arm_metrics: dict[str, dict[str, Metric]]
+    excursions: tuple[Excursion, ...]
+
+    @property
+    def policy_driven_frames(self) -> int:
+        return sum(s.frames for s in self.spans)
+
+    def arm_excursions(self, arm_id: str) -> tuple[Excursion, ...]:
+        return tuple(e for e in self.excursions if e.arm_id == arm_id)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "command_topic": self.command_topic,
+            "commands": self.commands,
+            "command_period_ms": self.command_period_ms,
+            "policy_driven_frames": self.policy_driven_frames,
+            "policy_driven_ratio": self.policy_driven_ratio,
+            "spans": [s.as_dict() for s in self.spans],
+            "arms": {
+                arm: {"metrics": metrics, "excursions": [e.as_dict() for e in self.arm_excursions(arm)]}
+                for arm, metrics in self.arm_metrics.items()
+            },
+        }
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> RolloutPart:
+        return cls(
+            command_topic=doc["command_topic"],
+            commands=doc["commands"],
+            command_period_ms=doc["command_period_ms"],
+            policy_driven_ratio=doc["policy_driven_ratio"],
+            spans=tuple(PolicySpan(s["start_ns"], s["end_ns"], s["commands"], s["frames"]) for s in doc["spans"]),
+            arm_metrics={arm: dict(a["metrics"]) for arm, a in doc["arms"].items()},
+            excursions=tuple(
+                Excursion(arm, e["left_ns"], e["back_ns"], e["min_in_frame"], e["policy_driven"])
+                for arm, a in doc["arms"].items() for e in a["excursions"]
+            ),
+        )
+
+
+@dataclass(frozen=True)
 class BagResult:
     """What validation found in one bag, before the gates' verdict (BagValidation adds that)."""
 
@@ -147,7 +197,7 @@ class BagResult:
     details: dict[str, Any]
     drift: DriftResult
     calibration: dict[str, Any] | None
-    rollout: dict[str, Any] | None
+    rollout: RolloutPart | None
 
     @property
     def frames(self) -> Metric:
@@ -166,7 +216,7 @@ class BagResult:
             "details": self.details,
             "drift": self.drift.as_dict(),
             "calibration": self.calibration,
-            "rollout": self.rollout,
+            "rollout": None if self.rollout is None else self.rollout.as_dict(),
         }
 
     @classmethod
@@ -187,7 +237,7 @@ class BagResult:
                 details=doc["details"],
                 drift=DriftResult.from_dict(doc["drift"]),
                 calibration=doc["calibration"],
-                rollout=doc["rollout"],
+                rollout=None if doc["rollout"] is None else RolloutPart.from_dict(doc["rollout"]),
             )
         except KeyError as exc:
             raise ValidationFormatError(str(exc.args[0]), "missing") from exc

@@ -6,10 +6,11 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from ..core.config import RigConfig
+    from .validation_records import RolloutPart
 
 EXIT_GATE_FAILED = 1
 
@@ -46,15 +47,15 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     return 0 if run.passed else EXIT_GATE_FAILED
 
 
-def rollout_line(rollout: dict[str, Any]) -> str:
+def rollout_line(rollout: RolloutPart) -> str:
     """One line: how much of the bag the policy drove, in which spans, and each arm's excursions."""
-    spans = rollout["spans"]
-    where = ", ".join(f"{s['start_ns']}..{s['end_ns']} ns ({s['frames']} frames)" for s in spans[:3]) + (" ..." if len(spans) > 3 else "")
+    spans = rollout.spans
+    where = ", ".join(f"{s.start_ns}..{s.end_ns} ns ({s.frames} frames)" for s in spans[:3]) + (" ..." if len(spans) > 3 else "")
     arms = "; ".join(
-        f"{arm} {a['metrics']['rollout_excursions']} excursion(s), longest recovery {a['metrics']['rollout_recovery_s_max']:.3g} s"
-        for arm, a in rollout["arms"].items()
+        f"{arm} {metrics['rollout_excursions']} excursion(s), longest recovery {metrics['rollout_recovery_s_max']:.3g} s"
+        for arm, metrics in rollout.arm_metrics.items()
     )
-    return (f"{rollout['commands']} commands on {rollout['command_topic']}; policy-driven {rollout['policy_driven_frames']} frames "
+    return (f"{rollout.commands} commands on {rollout.command_topic}; policy-driven {rollout.policy_driven_frames} frames "
             f"in {len(spans)} span(s){': ' + where if spans else ''}; {arms}")
 
 
