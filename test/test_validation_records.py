@@ -61,6 +61,9 @@ def test_validation_json_reads_back_byte_for_byte(roi_bags: tuple[Path, Path], t
     read = BagValidation.from_dict(entries[0])
     assert read.name == "roi1" and read.result.path == str(bag.resolve())
     assert set(read.result.arms) == {"left", "right"}
+    calibration = read.result.calibration
+    assert calibration is not None and set(calibration.arms) == {"left", "right"}
+    assert calibration.verdict == entries[0]["calibration"]["verdict"] and calibration.bag == entries[0]["calibration"]["bag"]
     assert read.result.drift.baseline is not None and read.result.drift.baseline.path == str(baseline)
     assert [g.status == "fail" for g in read.gates] == [g["status"] == "fail" for g in entries[0]["gates"]]
 

@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from .drift import ArmDrift
     from .results import BagScan, BagValidation, ValidationRun
     from .samples import Sample
-    from .validation_records import RolloutPart
+    from .validation_records import CalibrationPart, RolloutPart
 
 REPORT_NAME = "REPORT.md"
 JSON_NAME = "validation.json"
@@ -260,28 +260,33 @@ def _drift_rows(arms: Mapping[str, ArmDrift]) -> list[list[Any]]:
     return rows
 
 
-def _calibration_section(check: Mapping[str, Any] | None) -> list[str]:
-    """check-calibration's findings (its JSON view, CalibrationCheck.as_dict), when validate ran it (--config, on a bag with its inputs)."""
-    if not check:
+def _calibration_section(check: CalibrationPart | None) -> list[str]:
+    """check-calibration's findings, when validate ran it (--config, on a bag with its inputs)."""
+    if check is None:
         return []
-    if check["delay_ms"] is None:  # not measured: the reason says why
+    if check.delay_ms is None:  # not measured: the reason says why
         delay = "Camera delay not measured"
     else:
-        low, high = check["delay_ci_ms"]
-        delay = f"Camera delay {check['delay_ms']:g} ms (95% interval {low:g} .. {high:g}, confidence {check['delay_confidence']:g})"
-    reason = check["cannot_tell"] or check["delay_cannot_tell"]
-    cannot = "" if reason is None else f" (cannot tell: {reason['reason']}: {reason['detail']})"
+        low, high = check.delay_ci_ms or (None, None)
+        delay = f"Camera delay {check.delay_ms:g} ms (95% interval {low:g} .. {high:g}, confidence {check.delay_confidence:g})"
+    reason = check.cannot_tell or check.delay_cannot_tell
+    cannot = "" if reason is None else f" (cannot tell: {reason.reason}: {reason.detail})"
     lines = [
         "### Calibration from the images",
         "",
-        f"{delay}; configured {check['configured_delay_ms']:g} ms: {check['delay_verdict']}"
-        f"{cannot}. Verdict: {check['verdict']}.",
+        f"{delay}; configured {check.configured_delay_ms:g} ms: {check.delay_verdict}"
+        f"{cannot}. Verdict: {check.verdict}.",
         "",
     ]
-    rows = [[arm, a["offset_px"], a["spread_px"], a["frames"], a["verdict"]] for arm, a in check["arms"].items()]
+    rows = [[arm, _list_or_none(a.offset_px), _list_or_none(a.spread_px), a.frames, a.verdict] for arm, a in check.arms.items()]
     lines += _table(["arm", "reprojection offset px (dx, dy)", "per-frame spread px", "frames", "verdict"], rows)
-    lines += [f"- hint: {hint}" for hint in check["hints"]] + ([""] if check["hints"] else [])
+    lines += [f"- hint: {hint}" for hint in check.hints] + ([""] if check.hints else [])
     return lines
+
+
+def _list_or_none(pair: tuple[float, float] | None) -> list[float] | None:
+    """A pair as the table always showed it: the JSON list's text, [dx, dy]."""
+    return None if pair is None else list(pair)
 
 
 def _rollout_section(rollout: RolloutPart | None) -> list[str]:

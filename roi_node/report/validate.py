@@ -26,7 +26,7 @@ from .rollout import RolloutSummary, analyse_rollout
 from .rollout_commands import CommandTopic, command_log_times
 from .samples import SampleChooser
 from .stats import BagStats
-from .validation_records import ArmValidation, BagResult, BaselineDrift, DriftResult, RolloutPart, TopicCount, WindowDrift
+from .validation_records import ArmValidation, BagResult, BaselineDrift, CalibrationPart, DriftResult, RolloutPart, TopicCount, WindowDrift
 
 
 def scan_bag(path: Path, params: GateParams, *, with_samples: bool = False, progress: bool = False) -> BagScan:
@@ -100,7 +100,7 @@ def judge(
         arms={arm: ArmValidation(metrics, drift_metrics.get(arm, {})) for arm, metrics in summary.arm_metrics.items()},
         details=summary.details,
         drift=DriftResult(baseline_part, WindowDrift(gates.params.window_fraction, windows)),
-        calibration=None if calibration is None else calibration.as_dict(),
+        calibration=None if calibration is None else CalibrationPart.from_dict(calibration.as_dict()),
         rollout=None if rollout is None else RolloutPart.from_dict(rollout.as_dict()),
     )
     return BagValidation(scan.path, name, results, result)

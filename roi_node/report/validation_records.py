@@ -8,10 +8,10 @@ entry back (the manifest reads a validation.json written earlier), so
 `from_dict(x.as_dict()) == x`.
 
 The rollout part is `RolloutPart`, what a file keeps of a RolloutSummary
-(the bag's frame count behind its ratio is not kept). Two parts stay JSON
-mappings: `details` (BagStats' summary of the records) and `calibration`
-(CalibrationCheck.as_dict), derived views of objects that live only in memory
-during validation, which readers of a file cannot rebuild.
+(the bag's frame count behind its ratio is not kept), and the calibration part
+is `CalibrationPart`, CalibrationCheck's findings as check-calibration --json
+prints them. One part stays a JSON mapping: `details`, BagStats' summary of
+the records, which the report and manifest pass through section by section.
 """
 
 from __future__ import annotations
@@ -134,6 +134,133 @@ class TopicCount:
 
 
 @dataclass(frozen=True)
+class CannotTell:
+    """Why a calibration quantity was not judged: a reason kind and its detail."""
+
+    reason: str
+    detail: str
+
+    def as_dict(self) -> dict[str, str]:
+        return {"reason": self.reason, "detail": self.detail}
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any] | None) -> CannotTell | None:
+        return None if doc is None else cls(doc["reason"], doc["detail"])
+
+
+def _maybe(value: CannotTell | None) -> dict[str, str] | None:
+    return None if value is None else value.as_dict()
+
+
+def _pair(values: list[float] | None) -> tuple[float, float] | None:
+    return None if values is None else (values[0], values[1])
+
+
+def _list(values: tuple[float, float] | None) -> list[float] | None:
+    return None if values is None else list(values)
+
+
+@dataclass(frozen=True)
+class CalibrationArm:
+    """One arm's reprojection offset (px, rounded as printed) and its verdict."""
+
+    offset_px: tuple[float, float] | None
+    offset_norm_px: float | None
+    offset_ci_radius_px: float | None
+    spread_px: tuple[float, float] | None
+    frames: int | None
+    verdict: str
+    cannot_tell: CannotTell | None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"offset_px": _list(self.offset_px), "offset_norm_px": self.offset_norm_px, "offset_ci_radius_px": self.offset_ci_radius_px,
+                "spread_px": _list(self.spread_px), "frames": self.frames, "verdict": self.verdict, "cannot_tell": _maybe(self.cannot_tell)}
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> CalibrationArm:
+        return cls(_pair(doc["offset_px"]), doc["offset_norm_px"], doc["offset_ci_radius_px"], _pair(doc["spread_px"]), doc["frames"],
+                   doc["verdict"], CannotTell.from_dict(doc["cannot_tell"]))
+
+
+@dataclass(frozen=True)
+class CalibrationPart:
+    """The camera delay and per-arm reprojection offsets validate measured from the images (CalibrationCheck.as_dict)."""
+
+    schema: str
+    bag: str
+    image_topic: str | None
+    frames: int | None
+    cannot_tell: CannotTell | None
+    skeleton_moving_frames: int | None
+    moving_frames: int | None
+    delay_ms: float | None
+    delay_ci_ms: tuple[float, float] | None
+    delay_std_ms: float | None
+    delay_confidence: float | None
+    configured_delay_ms: float
+    delay_error_ms: float | None
+    delay_verdict: str
+    delay_cannot_tell: CannotTell | None
+    arms: dict[str, CalibrationArm]
+    tolerance_delay_ms: float
+    tolerance_reprojection_px: float
+    verdict: str
+    reasons: tuple[str, ...]
+    hints: tuple[str, ...]
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "schema": self.schema,
+            "bag": self.bag,
+            "image_topic": self.image_topic,
+            "frames": self.frames,
+            "cannot_tell": _maybe(self.cannot_tell),
+            "skeleton_moving_frames": self.skeleton_moving_frames,
+            "moving_frames": self.moving_frames,
+            "delay_ms": self.delay_ms,
+            "delay_ci_ms": _list(self.delay_ci_ms),
+            "delay_std_ms": self.delay_std_ms,
+            "delay_confidence": self.delay_confidence,
+            "configured_delay_ms": self.configured_delay_ms,
+            "delay_error_ms": self.delay_error_ms,
+            "delay_verdict": self.delay_verdict,
+            "delay_cannot_tell": _maybe(self.delay_cannot_tell),
+            "reprojection_offset_px": {arm: _list(a.offset_px) for arm, a in self.arms.items()},
+            "arms": {arm: a.as_dict() for arm, a in self.arms.items()},
+            "tolerances": {"delay_ms": self.tolerance_delay_ms, "reprojection_px": self.tolerance_reprojection_px},
+            "verdict": self.verdict,
+            "reasons": list(self.reasons),
+            "hints": list(self.hints),
+        }
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> CalibrationPart:
+        return cls(
+            schema=doc["schema"],
+            bag=doc["bag"],
+            image_topic=doc["image_topic"],
+            frames=doc["frames"],
+            cannot_tell=CannotTell.from_dict(doc["cannot_tell"]),
+            skeleton_moving_frames=doc["skeleton_moving_frames"],
+            moving_frames=doc["moving_frames"],
+            delay_ms=doc["delay_ms"],
+            delay_ci_ms=_pair(doc["delay_ci_ms"]),
+            delay_std_ms=doc["delay_std_ms"],
+            delay_confidence=doc["delay_confidence"],
+            configured_delay_ms=doc["configured_delay_ms"],
+            delay_error_ms=doc["delay_error_ms"],
+            delay_verdict=doc["delay_verdict"],
+            delay_cannot_tell=CannotTell.from_dict(doc["delay_cannot_tell"]),
+            arms={arm: CalibrationArm.from_dict(a) for arm, a in doc["arms"].items()},
+            tolerance_delay_ms=doc["tolerances"]["delay_ms"],
+            tolerance_reprojection_px=doc["tolerances"]["reprojection_px"],
+            verdict=doc["verdict"],
+            reasons=tuple(doc["reasons"]),
+            hints=tuple(doc["hints"]),
+        )
+
+
+@dataclass(frozen=True)
 class RolloutPart:
     """A rollout recording's policy-driven spans, and per arm its gateable metrics and excursions (RolloutSummary.as_dict)."""
 
@@ -196,7 +323,7 @@ class BagResult:
     arms: dict[str, ArmValidation]
     details: dict[str, Any]
     drift: DriftResult
-    calibration: dict[str, Any] | None
+    calibration: CalibrationPart | None
     rollout: RolloutPart | None
 
     @property
@@ -215,7 +342,7 @@ class BagResult:
             "arms": {arm: a.as_dict() for arm, a in self.arms.items()},
             "details": self.details,
             "drift": self.drift.as_dict(),
-            "calibration": self.calibration,
+            "calibration": None if self.calibration is None else self.calibration.as_dict(),
             "rollout": None if self.rollout is None else self.rollout.as_dict(),
         }
 
@@ -236,7 +363,7 @@ class BagResult:
                 arms={arm: ArmValidation.from_dict(a) for arm, a in doc["arms"].items()},
                 details=doc["details"],
                 drift=DriftResult.from_dict(doc["drift"]),
-                calibration=doc["calibration"],
+                calibration=None if doc["calibration"] is None else CalibrationPart.from_dict(doc["calibration"]),
                 rollout=None if doc["rollout"] is None else RolloutPart.from_dict(doc["rollout"]),
             )
         except KeyError as exc:
