@@ -8,6 +8,10 @@ holds where it stood when following began (the scripted pose at the start).
 `positions(t_ns)`, built from the commands received so far: a command
 received at t_c starts a new segment at t_c from wherever the joints are at
 t_c, so the state is continuous and no joint is ever faster than the limit.
+A command never rewrites a time already answered: it starts at the latest of
+its receive time and every time `positions` was asked for, so a joint state
+computed (or published late, under load) for a time after the command's
+receipt and before the command was seen stays true of the trajectory.
 The segments of the last `HISTORY_NS` are kept, because a frame is rendered
 for its capture time after that time has passed, while newer commands may
 already have arrived.
@@ -77,6 +81,7 @@ class CommandFollower:
         self._starts = [self._segments[0].start_ns]
         self._on_first = on_first
         self._lock = threading.Lock()
+        self._answered_ns = self._starts[0]  # the latest time positions() was asked for
         self.commands = 0  # commands that moved at least one joint's target
         self.issues: Counter[tuple[CommandIssue, str]] = Counter()
 
@@ -86,7 +91,7 @@ class CommandFollower:
             self._note(CommandIssue.MALFORMED, "")
             return
         with self._lock:
-            start_ns = max(received_ns, self._starts[-1])
+            start_ns = max(received_ns, self._starts[-1], self._answered_ns)
             target = self._segments[-1].target.copy()
             known = 0
             for name, value in zip(names, positions, strict=True):
@@ -108,6 +113,7 @@ class CommandFollower:
     def positions(self, t_ns: int) -> Float64Array:
         """Positions of `names` at sim time t_ns as the commands received so far make them."""
         with self._lock:
+            self._answered_ns = max(self._answered_ns, t_ns)
             return self._positions_locked(t_ns)
 
     def issue_summary(self) -> str:
