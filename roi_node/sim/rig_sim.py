@@ -198,10 +198,11 @@ class SimRig:
         return JointStateEvent(stamp_ns, self.state_joints, tuple(float(v) for v in state))
 
     def _scripted_state(self, t_ns: int) -> Float64Array:
-        """Positions of `state_joints` at sim time t_ns by the script: the arms' trajectory, then the fingers."""
+        """Positions of `state_joints` at sim time t_ns by the script: the arms' `positions` (which a subclass may
+        override, and the frames use too), then the fingers."""
         t_s = (t_ns - self.start_ns) / NS_PER_S
         fingers = [v for arm in self.arms for v in arm.gripper_positions(t_s)]
-        return np.concatenate([self.trajectory.positions(t_s), np.asarray(fingers, dtype=np.float64)])
+        return np.concatenate([self.positions(t_ns), np.asarray(fingers, dtype=np.float64)])
 
     def ground_truth(self, capture_ns: int) -> FrameTruth:
         """What the camera sees at capture time (header stamp - delay), without rendering."""
