@@ -10,7 +10,7 @@ DEMO_OUT ?= demo_out
 
 # Everything that starts DDS keeps it on this machine, on its own domain.
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
-# glibc settings that cut page faults for large image messages (roi_node/process_memory.py says why)
+# glibc settings that cut page faults for large image messages (roi_node/util/process_memory.py says why)
 export MALLOC_MMAP_THRESHOLD_ := 33554432
 export MALLOC_TRIM_THRESHOLD_ := 4000000000
 
@@ -26,14 +26,14 @@ $(STAMP): setup.py setup.cfg package.xml
 
 test: $(STAMP)
 	$(PY) -m compileall -q roi_node test examples  # a cold first import must not slow the first live test
-	$(PY) -c "from roi_node.core.area_resample import warm_up; warm_up()"  # nor the resampling kernels' first JIT compile
+	$(PY) -c "from roi_node.engine.area_resample import warm_up; warm_up()"  # nor the resampling kernels' first JIT compile
 	# two workers, each test module whole on one (its fixtures built once, test/conftest.py); DDS tests take domains
-	# from their worker's own block of ROS_DOMAIN_ID.. (test/live/harness.py), so two of them never hear each other
+	# from their worker's own block of ROS_DOMAIN_ID.. (test/dds/harness.py), so two of them never hear each other
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-71} $(PY) -m pytest -q -n 2 --dist loadgroup test
 
 # The edit loop: everything but the DDS, Ray, colcon and demo tests (markers dds and ray; see pyproject.toml).
 test-fast: $(STAMP)
-	$(PY) -c "from roi_node.core.area_resample import warm_up; warm_up()"
+	$(PY) -c "from roi_node.engine.area_resample import warm_up; warm_up()"
 	$(PY) -m pytest -q -n 2 --dist loadgroup -m "not dds and not ray" test
 
 # Opt-in, not part of `make test`: the real LeRobot reader (lerobot pulls torch, several GB) in its own
@@ -45,7 +45,7 @@ LEROBOT_VERSION ?= 0.4.4
 $(LEROBOT_STAMP): setup.py setup.cfg package.xml
 	$(PYTHON) -m venv $(LEROBOT_VENV)
 	$(LEROBOT_VENV)/bin/python -m pip install --quiet --upgrade pip
-	# ros: the live parity test (test/lerobot/test_policy_parity.py) and a LeRobot policy fed by a running node need rclpy
+	# ros: the live parity test (test/datasets/lerobot/test_policy_parity.py) and a LeRobot policy fed by a running node need rclpy
 	$(LEROBOT_VENV)/bin/python -m pip install --quiet "lerobot==$(LEROBOT_VERSION)" -e ".[ros,bag,robots,export]" pytest pytest-timeout
 	# the placo that resolves next to lerobot's pins links urdfdom 4 and tinyxml2 10, which its metadata does not enforce
 	$(LEROBOT_VENV)/bin/python -m pip install --quiet "cmeel-urdfdom<5" "cmeel-tinyxml2<11"
@@ -54,11 +54,11 @@ $(LEROBOT_STAMP): setup.py setup.cfg package.xml
 test-lerobot: $(LEROBOT_STAMP)
 	hf_home=$$(mktemp -d) && trap 'rm -rf "$$hf_home"' EXIT && \
 		HF_HUB_OFFLINE=1 HF_DATASETS_OFFLINE=1 HF_HOME=$$hf_home ROI_NODE_LEROBOT_TESTS=1 ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-74} \
-		$(LEROBOT_VENV)/bin/python -m pytest -q -p no:cacheprovider test/lerobot
+		$(LEROBOT_VENV)/bin/python -m pytest -q -p no:cacheprovider test/datasets/lerobot
 
 demo: $(STAMP)
 	$(PY) -m compileall -q roi_node
-	$(PY) -c "from roi_node.core.area_resample import warm_up; warm_up()"
+	$(PY) -c "from roi_node.engine.area_resample import warm_up; warm_up()"
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-72} $(VENV)/bin/roi-node demo --out $(DEMO_OUT)
 
 bench: $(STAMP)
@@ -79,9 +79,9 @@ bench: $(STAMP)
 	$(PY) bench/live_overload.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 2 ))
 	$(PY) bench/policy.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 6 )) --policies callable  # ACT: run it with .venv-lerobot/bin/python
 
-# docs/rig-config.md's key table from config/rig.schema.json (test/test_rig_doc.py fails when it is stale)
+# docs/rig-config.md's key table from config/rig.schema.json (test/rig/test_rig_doc.py fails when it is stale)
 docs: $(STAMP)
-	$(PY) -m roi_node.app.rig_doc docs/rig-config.md
+	$(PY) -m roi_node.rig.rig_doc docs/rig-config.md
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check roi_node test bench examples

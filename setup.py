@@ -27,7 +27,7 @@ setup(
     # install on a real rig runs.
     install_requires=[
         "numpy>=1.26",
-        # the exact area resampling kernel (roi_node/core/area_kernels.py); wheels, no compiler needed
+        # the exact area resampling kernel (roi_node/engine/area_kernels.py); wheels, no compiler needed
         "numba>=0.59",
         "opencv-python-headless>=4.8,<5",
         "placo>=0.9",
@@ -36,8 +36,8 @@ setup(
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]>=7.1", "ros-jazzy-common-interfaces>=5.3"],
-        # lz4 and zstandard: the chunk compressions roi_node's MCAP writer offers; zlib-ng: fast chunk CRCs (bag/crc.py);
-        # backports.zstd: multi-frame zstd chunks, as rosbags reads them (bag/indexed_mcap.py)
+        # lz4 and zstandard: the chunk compressions roi_node's MCAP writer offers; zlib-ng: fast chunk CRCs (bagio/crc.py);
+        # backports.zstd: multi-frame zstd chunks, as rosbags reads them (bagio/indexed_mcap.py)
         "bag": ["rosbags>=0.10,<0.12", "mcap>=1.2", "mcap-ros2-support>=0.5", "lz4>=4", "zstandard>=0.22", "zlib-ng>=0.5",
                 "backports.zstd>=1.0; python_version<'3.14'"],
         "robots": ["example-robot-data>=4.1"],

@@ -26,13 +26,13 @@ import cv2
 import numpy as np
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from roi_node.bag.mcap_file import Compression
-from roi_node.bag.messages import MessageFactory
-from roi_node.bag.transcode import IMAGE_TYPE, ImageTranscoder, ImageTransport
-from roi_node.bag.writer import BagWriter, typestore
-from roi_node.core.resources import default_rig_path
-from roi_node.process_memory import tune_malloc_for_large_frames
+from roi_node.bagio.mcap_file import Compression
+from roi_node.bagio.writer import BagWriter, typestore
+from roi_node.engine.resources import default_rig_path
+from roi_node.rostools.transcode import IMAGE_TYPE, ImageTranscoder, ImageTransport
 from roi_node.sim.rig_sim import ImageEvent, SimRig
+from roi_node.util.process_memory import tune_malloc_for_large_frames
+from roi_node.wire.messages import MessageFactory
 
 CASES: list[tuple[str, ImageTransport, int, Compression]] = [
     ("raw", ImageTransport.RAW, 0, Compression.NONE),

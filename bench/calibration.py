@@ -13,7 +13,7 @@ overall: false alarms (an arm judged `off`: no bag has a bad extrinsic; or
 the delay judged `off` on a clean bag), delays judged `off` with a hint more
 than 3 ms from the truth, delayed bags not judged `off` (and why), and the
 largest and rms delay error of the bags whose delay was estimated. The test
-suite runs a subset (test/test_calibration.py). The machine may be shared:
+suite runs a subset (test/quality/calibration/test_calibration.py). The machine may be shared:
 compare the ratio, not the seconds.
 Run: `.venv/bin/python bench/calibration.py [--seconds 60] [--skip-speed] [--skip-matrix] [--seeds 0,1,2] [--rigs single,tiago]`.
 """
@@ -33,13 +33,13 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from roi_node.bag.inputs import decode_frame, select_inputs  # noqa: E402
-from roi_node.bag.reader import deserialize, open_bag, read_messages, topic_stats  # noqa: E402
-from roi_node.core.config import load_rig_config  # noqa: E402
-from roi_node.report.calibration import check_calibration  # noqa: E402
-from roi_node.report.calibration_verdict import Tolerances, Verdict  # noqa: E402
+from roi_node.bagio.reader import deserialize, open_bag, read_messages, topic_stats  # noqa: E402
+from roi_node.engine.config import load_rig_config  # noqa: E402
+from roi_node.offline.inputs import decode_frame, select_inputs  # noqa: E402
+from roi_node.quality.calibration.check import check_calibration  # noqa: E402
+from roi_node.quality.calibration.verdict import Tolerances, Verdict  # noqa: E402
 from roi_node.sim.bag_sink import write_sim_bag  # noqa: E402
-from test.simrig import scaled_camera_rig  # noqa: E402
+from test.support.simrig import scaled_camera_rig  # noqa: E402
 
 CONFIG = REPO / "config"
 

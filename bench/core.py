@@ -10,7 +10,7 @@
    the cv2 path measured in the same run; targets marked met / not met. These
    run as the live node runs them, the global view resampled on a thread of
    its own beside the ROIs; the exact kernel also inline, as offline work runs
-   it (core/pipeline.py, GlobalViewThread).
+   it (engine/pipeline.py, GlobalViewThread).
 CPU is the process's (time.process_time), so it includes the global view's thread.
 Run: `.venv/bin/python bench/core.py [--frames N]`. The machine may be shared:
 read the ratios, not the absolute times.
@@ -31,12 +31,12 @@ import cv2
 import numpy as np
 import yaml
 
-from roi_node.core import resample
-from roi_node.core.area_resample import resample_window, warm_up
-from roi_node.core.camera import calibration_yaml_text, camera_from_info
-from roi_node.core.config import load_rig_config
-from roi_node.core.pipeline import GlobalViewThread, RoiPipeline
-from roi_node.core.sync import SyncResult
+from roi_node.engine import resample
+from roi_node.engine.area_resample import resample_window, warm_up
+from roi_node.engine.camera import calibration_yaml_text, camera_from_info
+from roi_node.engine.config import load_rig_config
+from roi_node.engine.pipeline import GlobalViewThread, RoiPipeline
+from roi_node.engine.sync import SyncResult
 from roi_node.sim.rig_sim import SimRig
 
 REPO = Path(__file__).resolve().parents[1]

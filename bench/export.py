@@ -23,11 +23,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from roi_node.bag.replay import replay_bag
-from roi_node.core.sync import NS_PER_MS, NS_PER_S
-from roi_node.export.exporter import ExportOptions, export_lerobot
-from roi_node.export.grid import GridPlan
-from roi_node.export.video import Codec
+from roi_node.datasets.exporter import ExportOptions, export_lerobot
+from roi_node.datasets.grid import GridPlan
+from roi_node.datasets.video import Codec
+from roi_node.engine.sync import NS_PER_MS, NS_PER_S
+from roi_node.offline.replay import replay_bag
 from roi_node.sim.bag_sink import write_sim_bag
 
 REPO = Path(__file__).resolve().parents[1]

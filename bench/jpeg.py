@@ -24,12 +24,12 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
-from roi_node.core.config import load_rig_config
-from roi_node.core.image_codec import image_from_compressed
-from roi_node.core.pipeline import RoiPipeline
-from roi_node.core.resources import default_rig_path
-from roi_node.core.sync import SyncResult
+from roi_node.engine.config import load_rig_config
+from roi_node.engine.pipeline import RoiPipeline
+from roi_node.engine.resources import default_rig_path
+from roi_node.engine.sync import SyncResult
 from roi_node.sim.rig_sim import SimRig
+from roi_node.wire.image_codec import image_from_compressed
 
 NOISE_SIGMA = 3.0
 PER_ROUND = 50  # encodes of one image per round

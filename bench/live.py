@@ -2,7 +2,7 @@
 
 For each resolution (1280x720 and 1920x1080 at 30 Hz, two arms, the
 shared-memory FastDDS profile and the malloc settings in every process), the
-test publisher (test/live/publisher.py) is the camera and the robot driver,
+test publisher (test/dds/publisher.py) is the camera and the robot driver,
 one fresh run per block, and its blocks go in ABBA order to
   (a) a subscriber process of image_raw (ROS domain --domain), its 200 Hz
       joint states to a reader of their own, as they go to the node in (b);
@@ -62,8 +62,8 @@ from independent.added_latency import (
 )
 from independent.procs import BlockCpu, ChildNotReadyError, LineProcess, wait_for_stamp, wait_node_up
 
-from roi_node.core.camera import calibration_yaml_text, camera_from_info
-from roi_node.core.config import load_rig_config
+from roi_node.engine.camera import calibration_yaml_text, camera_from_info
+from roi_node.engine.config import load_rig_config
 
 REPO = Path(__file__).resolve().parents[1]
 RIG = REPO / "config" / "rig_demo_bimanual.yaml"
@@ -123,7 +123,7 @@ def publish(spec: dict[str, object], tmp: Path, name: str, env: dict[str, str]) 
     """One test publisher run; the frames it sent, in order."""
     spec_path, truth_path = tmp / f"spec_{name}.json", tmp / f"truth_{name}.json"
     spec_path.write_text(json.dumps(spec))
-    subprocess.run([sys.executable, "-m", "test.live.publisher", str(spec_path), str(truth_path)], cwd=REPO, env=env, check=True)
+    subprocess.run([sys.executable, "-m", "test.dds.publisher", str(spec_path), str(truth_path)], cwd=REPO, env=env, check=True)
     truth: dict[str, Any] = json.loads(truth_path.read_text())
     return [SentFrame(int(f["stamp_ns"]), int(f["sent_ns"])) for f in truth["frames"]]
 

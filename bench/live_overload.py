@@ -1,11 +1,11 @@
 """The live node offered frames faster than it can process: what it drops, and whether its memory stays put.
 
-The test publisher (test/live/publisher.py) sends 1500 frames at 500 Hz (20 distinct images, joint states at
+The test publisher (test/dds/publisher.py) sends 1500 frames at 500 Hz (20 distinct images, joint states at
 500 Hz) to `roi-node run` with a pending queue of 3 frames, on loopback DDS with the shared-memory profile. The
 node's RSS is sampled every 0.5 s while frames come. Printed: frames offered, taken, published and dropped by
 reason (from the node's own /diagnostics once it counts every record received), and the RSS range over the
 last two thirds of the run against RSS_GROWTH_LIMIT_MB. How much a node drops, and how fast, is this machine's
-figure: the tests (test/test_live_node.py) check only what holds on any machine, that the queue is bounded and
+figure: the tests (test/live/test_live_node.py) check only what holds on any machine, that the queue is bounded and
 every frame is published or counted.
 
 Run: `.venv/bin/python bench/live_overload.py [--domain 121]`
@@ -24,7 +24,7 @@ import psutil
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))  # the test harness and publisher are the tests' own
 
-from test.live.harness import (  # noqa: E402
+from test.dds.harness import (  # noqa: E402
     BIMANUAL,
     Collector,
     diagnostics_values,

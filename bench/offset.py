@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from roi_node.app.stress_run import FrameArm, Perturbation, run
-from roi_node.core.config import RigConfig, load_rig_config
+from roi_node.engine.config import RigConfig, load_rig_config
 from roi_node.sim.rig_sim import SimRig
 from roi_node.sim.truth import FrameTruth
+from roi_node.tools.stress_run import FrameArm, Perturbation, run
 
 REPO = Path(__file__).resolve().parents[1]
 PX_VALUES = (0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0)

@@ -3,7 +3,7 @@
 For frames of the bundled bimanual rig (simulated 720p, two arms), measures
 per frame, in thread CPU time:
   processing   `RoiPipeline.process` (FK, crops, global view, record)
-  overlay      what the node adds: core/overlay_cdr.py packs the ImageMarker's
+  overlay      what the node adds: wire/overlay_cdr.py packs the ImageMarker's
                CDR bytes from the record (rclpy publishes bytes as they are)
   rclpy msg    the same marker built as rclpy Point/ColorRGBA/ImageMarker
                objects and serialized by rclpy (the way not taken), as a baseline
@@ -27,15 +27,15 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import ImageMarker
 
-from roi_node.core.config import load_rig_config
-from roi_node.core.overlay import LINE_WIDTH_PX, STATUS_RGBA, frame_overlay
-from roi_node.core.overlay_cdr import MARKER_NS, overlay_cdr
-from roi_node.core.pipeline import RoiPipeline
-from roi_node.core.records import FrameRecord
-from roi_node.core.resources import default_rig_path
-from roi_node.core.stamps import ns_to_stamp
-from roi_node.core.sync import SyncResult
+from roi_node.engine.config import load_rig_config
+from roi_node.engine.pipeline import RoiPipeline
+from roi_node.engine.records import FrameRecord
+from roi_node.engine.resources import default_rig_path
+from roi_node.engine.stamps import ns_to_stamp
+from roi_node.engine.sync import SyncResult
 from roi_node.sim.rig_sim import SimRig
+from roi_node.wire.overlay import LINE_WIDTH_PX, STATUS_RGBA, frame_overlay
+from roi_node.wire.overlay_cdr import MARKER_NS, overlay_cdr
 
 DISTINCT_IMAGES = 6
 FRAME_ID = "front_camera"

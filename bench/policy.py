@@ -181,7 +181,7 @@ def main() -> int:
         if "act" in args.policies:
             try:
                 sys.path.insert(0, str(REPO))
-                from test.lerobot.act_policy import save_random_act
+                from test.datasets.lerobot.act_policy import save_random_act
             except ImportError as exc:
                 print(f"act: skipped: {exc} (run with .venv-lerobot/bin/python)", file=sys.stderr)
             else:

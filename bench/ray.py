@@ -5,7 +5,7 @@ states) and hard-links it to 4 inputs, then times in one run:
   (a) the local path: `replay_bags` with --workers 1 and --workers 2;
   (b) `roi-node replay ... --ray=ADDRESS` (the CLI, a subprocess) on a Ray
       cluster of 1 and of 2 worker CPUs started by `ray start --head` on this
-      machine (test/raycluster.py: private HOME and RAY_TMPDIR, removed after);
+      machine (test/support/raycluster.py: private HOME and RAY_TMPDIR, removed after);
       the time is the CLI's wall time (joining the cluster, the tasks, the
       manifest), not the cluster's start.
 Prints frames/s and the ratios: Ray over local at the same parallelism, and
@@ -34,12 +34,12 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 sys.path.insert(0, str(REPO))
 
-from roi_node.bag.batch import replay_bags  # noqa: E402
-from roi_node.cluster.tasks import ReplayJob, replay_task  # noqa: E402
-from roi_node.process_memory import tune_malloc_for_large_frames  # noqa: E402
+from roi_node.fleet.tasks import ReplayJob, replay_task  # noqa: E402
+from roi_node.offline.batch import replay_bags  # noqa: E402
 from roi_node.sim.bag_sink import write_sim_bag  # noqa: E402
-from test.raycluster import ray_cluster  # noqa: E402
-from test.simrig import scaled_camera_rig  # noqa: E402
+from roi_node.util.process_memory import tune_malloc_for_large_frames  # noqa: E402
+from test.support.raycluster import ray_cluster  # noqa: E402
+from test.support.simrig import scaled_camera_rig  # noqa: E402
 
 RIG = REPO / "config" / "rig_demo_bimanual.yaml"
 BAGS = 4
@@ -48,7 +48,7 @@ MEMORY_FRAMES = 30
 
 def peak_rss_task(job: ReplayJob | None) -> int:
     """Peak RSS (bytes) of this worker process after replaying `job` (None: after importing roi_node's replay only)."""
-    import roi_node.bag.replay  # noqa: F401  (what every replay worker loads)
+    import roi_node.offline.replay  # noqa: F401  (what every replay worker loads)
 
     if job is not None:
         result = replay_task(job)

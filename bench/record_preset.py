@@ -24,14 +24,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from roi_node.bag.messages import MessageFactory
-from roi_node.bag.storage_preset import StoragePreset, preset_settings
-from roi_node.bag.transcode import IMAGE_TYPE
-from roi_node.bag.writer import BagWriter, typestore
-from roi_node.core import topics
-from roi_node.core.resources import default_rig_path
-from roi_node.process_memory import tune_malloc_for_large_frames
+from roi_node.bagio.storage_preset import StoragePreset, preset_settings
+from roi_node.bagio.writer import BagWriter, typestore
+from roi_node.engine.resources import default_rig_path
+from roi_node.rostools.transcode import IMAGE_TYPE
 from roi_node.sim.rig_sim import ImageEvent, SimRig
+from roi_node.util.process_memory import tune_malloc_for_large_frames
+from roi_node.wire import topics
+from roi_node.wire.messages import MessageFactory
 
 WIDTH, HEIGHT = 1280, 720
 NOISE_SIGMA = 3.0  # grey levels

@@ -51,16 +51,16 @@ import numpy as np
 import yaml
 from rosbags.highlevel import AnyReader
 
-from roi_node.bag.batch import replay_bags
-from roi_node.bag.replay import replay_bag
-from roi_node.bag.writer import typestore
-from roi_node.core.config import load_rig_config
-from roi_node.core.image_codec import image_from_msg
-from roi_node.core.pipeline import RoiPipeline
-from roi_node.core.sync import NS_PER_S, SyncResult
-from roi_node.process_memory import tune_malloc_for_large_frames
+from roi_node.bagio.writer import typestore
+from roi_node.engine.config import load_rig_config
+from roi_node.engine.pipeline import RoiPipeline
+from roi_node.engine.sync import NS_PER_S, SyncResult
+from roi_node.offline.batch import replay_bags
+from roi_node.offline.replay import replay_bag
 from roi_node.sim.bag_sink import write_sim_bag
 from roi_node.sim.rig_sim import SimRig
+from roi_node.util.process_memory import tune_malloc_for_large_frames
+from roi_node.wire.image_codec import image_from_msg
 
 REPO = Path(__file__).resolve().parents[1]
 RIG = REPO / "config" / "rig_demo_bimanual.yaml"

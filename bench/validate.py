@@ -23,13 +23,13 @@ from typing import Any
 
 from rosbags.highlevel import AnyReader
 
-from roi_node.bag.messages import MessageFactory
-from roi_node.bag.replay import replay_bag
-from roi_node.bag.writer import BagWriter, typestore
-from roi_node.core import topics
-from roi_node.report.gates import load_gates
-from roi_node.report.validate import validate_bags
+from roi_node.bagio.writer import BagWriter, typestore
+from roi_node.offline.replay import replay_bag
+from roi_node.quality.gates import load_gates
+from roi_node.quality.validate import validate_bags
 from roi_node.sim.bag_sink import write_sim_bag
+from roi_node.wire import topics
+from roi_node.wire.messages import MessageFactory
 
 REPO = Path(__file__).resolve().parents[1]
 RIG = REPO / "config" / "rig_demo_bimanual.yaml"

@@ -34,8 +34,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.utilities import remove_ros_args
 
-from roi_node.core.errors import RoiNodeError
-from roi_node.ros.consumer import Observation, ObservationClient
+from roi_node.engine.errors import RoiNodeError
+from roi_node.rostools.consumer import Observation, ObservationClient
 
 
 def describe(obs: Observation) -> str:

@@ -12,17 +12,17 @@ import sys
 import traceback
 from collections.abc import Sequence
 
-from . import __version__
-from .core.errors import EXIT_ERROR, RoiNodeError
-from .ray_options import ray_requested
+from roi_node import __version__
+from roi_node.engine.errors import EXIT_ERROR, RoiNodeError
+from roi_node.util.ray_options import ray_requested
 
 DEBUG_FLAG = "--debug"
 
 
 VERB_MODULES = (
-    "roi_node.ros.verbs", "roi_node.bag.verbs", "roi_node.report.verbs", "roi_node.app.verbs", "roi_node.export.verbs",
-    "roi_node.app.rig_verbs", "roi_node.ros.tool_verbs",
-    "roi_node.app.rig_setup_verbs", "roi_node.policy.verbs",
+    "roi_node.rostools.verbs", "roi_node.offline.verbs", "roi_node.quality.verbs", "roi_node.tools.verbs", "roi_node.datasets.verbs",
+    "roi_node.rig.rig_verbs", "roi_node.rostools.tool_verbs",
+    "roi_node.rig.rig_setup_verbs", "roi_node.policy.verbs",
 )
 
 
@@ -66,7 +66,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _run_on_ray(args: argparse.Namespace) -> int:
     """A verb given --ray (replay, export lerobot): only now is the cluster package, the only Ray code, imported."""
-    from .cluster.verbs import run_on_ray
+    from roi_node.fleet.verbs import run_on_ray
 
     return run_on_ray(args)
 

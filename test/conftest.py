@@ -25,7 +25,7 @@ def single_rig_path() -> Path:
 @pytest.fixture(scope="session", autouse=True)
 def no_orphaned_shm_segments() -> Iterator[None]:
     """The shared-memory segments that DDS processes killed during the run left in /dev/shm go with the run."""
-    from .live.harness import remove_orphaned_shm_segments
+    from test.dds.harness import remove_orphaned_shm_segments
 
     started = time.time()
     yield
@@ -45,7 +45,7 @@ def pytest_itemcollected(item: pytest.Item) -> None:
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """A test module that takes a DDS domain (`next_domain`) must mark its DDS tests dds, or `make test-fast` runs them."""
-    from .live import harness
+    from test.dds import harness
 
     takes_domain = {item.nodeid.split("::")[0] for item in items
                     if getattr(getattr(item, "module", None), "next_domain", None) is harness.next_domain}

@@ -27,12 +27,11 @@ import pytest
 import yaml
 
 from roi_node.cli import main
-from roi_node.core.camera import calibration_yaml_text, camera_from_info
-from roi_node.core.config import load_rig_config
+from roi_node.engine.camera import calibration_yaml_text, camera_from_info
+from roi_node.engine.config import load_rig_config
 from roi_node.sim.rig_sim import SimRig
-
-from .conftest import CONFIG
-from .roibags import read_records
+from test.conftest import CONFIG
+from test.support.roibags import read_records
 
 BUNDLED_RIGS = sorted(CONFIG.glob("rig_*.yaml"))
 IMAGE_SCALE = 0.25

@@ -13,9 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from roi_node.app import demo
-
-from .conftest import CONFIG
+from roi_node.tools import demo
+from test.conftest import CONFIG
 
 
 @pytest.fixture

@@ -11,8 +11,7 @@ from pathlib import Path
 import pytest
 
 from roi_node.cli import build_parser
-
-from .cli_run import run_cli
+from test.support.cli_run import run_cli
 
 
 def _roi_node(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
@@ -62,7 +61,7 @@ def test_every_verb_has_a_description_in_its_help(capsys: pytest.CaptureFixture[
 
 
 def test_record_sizes_and_bad_split_options(capsys: pytest.CaptureFixture[str]) -> None:
-    from roi_node.ros.verbs import size_bytes
+    from roi_node.rostools.verbs import size_bytes
 
     assert [size_bytes(t) for t in ("12345", "500MB", "1GiB", "1.5kb", "2 MiB")] == [12345, 500 * 10**6, 2**30, 1500, 2 * 2**20]
     for option, value, why in (("--max-size", "12XB", "expected bytes or a size like 500MB or 1GiB, got '12XB'"),

@@ -18,11 +18,11 @@ import yaml
 from rclpy.type_description_service import START_TYPE_DESCRIPTION_SERVICE_PARAM
 
 from roi_node.cli import build_parser
-from roi_node.core.config import load_rig_config
-from roi_node.core.records import ArmFlag
-from roi_node.core.robot_models import EXAMPLE_ROBOT_URDFS
-from roi_node.core.roi_policy import scale_px
-from roi_node.ros.params import DEFAULTS, RCLPY_PARAMETERS
+from roi_node.engine.config import load_rig_config
+from roi_node.engine.records import ArmFlag
+from roi_node.engine.robot_models import EXAMPLE_ROBOT_URDFS
+from roi_node.engine.roi_policy import scale_px
+from roi_node.live.params import DEFAULTS, RCLPY_PARAMETERS
 
 REPO = Path(__file__).resolve().parents[1]
 DOCS = REPO / "docs"
@@ -222,7 +222,7 @@ def test_the_listed_gates_are_the_bundled_gates() -> None:
 def test_design_sections_cited_by_the_code_exist() -> None:
     headings = [line.lstrip("#").strip() for line in _text(DOCS / "design.md").splitlines() if line.startswith("#")]
     cited = []
-    for path in (*REPO.glob("roi_node/**/*.py"), *REPO.glob("test/*.py")):
+    for path in (*REPO.glob("roi_node/**/*.py"), *REPO.glob("test/**/*.py")):
         cited += [(path.name, m) for m in re.findall(r'docs/design\.md,? "([^"]+)"', _text(path))]
     assert cited
     for where, section in cited:

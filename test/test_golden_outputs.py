@@ -1,10 +1,10 @@
-"""What replay and a lossless LeRobot export write for a seeded bag is byte for byte what it was (test/golden.py)."""
+"""What replay and a lossless LeRobot export write for a seeded bag is byte for byte what it was (test/support/golden.py)."""
 
 from __future__ import annotations
 
 import pytest
 
-from .golden import GOLDEN, GoldenOutputs, hash_outputs, make_outputs
+from test.support.golden import GOLDEN, GoldenOutputs, hash_outputs, make_outputs
 
 
 @pytest.fixture(scope="module")

@@ -25,14 +25,13 @@ import pytest
 import yaml
 from rosbags.highlevel import AnyReader
 
-from roi_node.bag.writer import BagWriter
-from roi_node.core.config import load_rig_config
-from roi_node.core.pipeline import RoiPipeline
-from roi_node.core.robot_models import resolve_robot_reference
-
-from .bagtools import INFO_TOPIC, JOINT_TOPIC, START_NS, small_rig, write_bag
-from .conftest import REPO
-from .roibags import read_records
+from roi_node.bagio.writer import BagWriter
+from roi_node.engine.config import load_rig_config
+from roi_node.engine.pipeline import RoiPipeline
+from roi_node.engine.robot_models import resolve_robot_reference
+from test.conftest import REPO
+from test.support.bagtools import INFO_TOPIC, JOINT_TOPIC, START_NS, small_rig, write_bag
+from test.support.roibags import read_records
 
 FAR_FUTURE_NS = (2**31 - 1) * 10**9  # the latest stamp there is: builtin_interfaces/Time seconds are int32
 Mutation = Callable[[str, int, Any], Any]  # (topic, index on that topic, message) -> message (None: drop)

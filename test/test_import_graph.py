@@ -2,8 +2,9 @@
 
 Every `import` and `from ... import` of every module counts, at module level
 or inside a function (a lazy import is still an edge: it only moves when the
-cycle bites). Packages are roi_node's subpackages (core, bag, ros, ...); a
-top-level module (cli, arg_types, ray_options, ...) is a node of its own.
+cycle bites). A folder is a top-level subpackage of roi_node (engine, wire,
+live, ...; quality/calibration counts as quality); a top-level module (cli) is
+a node of its own.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from .conftest import REPO
+from test.conftest import REPO
 
 PACKAGE = REPO / "roi_node"
 
@@ -89,7 +90,7 @@ def import_edges() -> list[ImportEdge]:
 
 
 def package_of(module: str) -> str:
-    """roi_node.bag.writer -> bag; roi_node.cli -> cli (a top-level module); roi_node -> roi_node (its __init__)."""
+    """roi_node.bagio.writer -> bagio; roi_node.quality.calibration.fit -> quality; roi_node.cli -> cli; roi_node -> roi_node."""
     parts = module.split(".")
     return parts[1] if len(parts) > 1 else parts[0]
 
@@ -138,24 +139,78 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return found
 
 
+# The floor of each folder: a folder imports only folders on lower floors, so imports run one way, from the
+# tools at the top down to the engine at the bottom. Folders on one floor do not import each other.
+FLOORS = {
+    "roi_node": -1,  # its __init__: the version, imports nothing
+    "engine": 0,
+    "wire": 1,
+    "util": 1,
+    "bagio": 2,
+    "offline": 3,
+    "live": 3,
+    "sim": 3,
+    "rig": 3,
+    "quality": 4,
+    "datasets": 5,
+    "rostools": 5,
+    "tools": 6,
+    "fleet": 6,
+    "policy": 6,
+    "cli": 7,
+}
+
+
 def test_the_cycle_finder_finds_a_cycle_and_accepts_a_layering() -> None:
     """The oracle itself: a three-package loop is one cycle, a diamond is none."""
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
-    assert cycles({"app": {"bag", "ros"}, "ros": {"bag", "core"}, "bag": {"core"}, "core": set()}) == []
+    assert cycles({"tools": {"bagio", "live"}, "live": {"bagio", "engine"}, "bagio": {"engine"}, "engine": set()}) == []
 
 
 def test_the_reader_sees_every_kind_of_import() -> None:
-    """Relative, absolute, `from . import module`, and lazy imports inside functions all become edges."""
+    """Absolute imports, `from package import module`, and lazy imports inside functions all become edges."""
     edges = {(e.module, e.target, e.lazy) for e in import_edges()}
-    assert ("roi_node.bag.writer", "roi_node.bag.storage_io", False) in edges  # from .storage_io import ...
-    assert ("roi_node.bag.writer", "roi_node.core.atomic_output", False) in edges  # from ..core.atomic_output import ...
-    assert ("roi_node.cli", "roi_node.cluster.verbs", True) in edges  # inside _run_on_ray
-    assert ("roi_node.core.pipeline", "roi_node.core.area_resample", False) in edges
+    assert ("roi_node.bagio.writer", "roi_node.bagio.storage_io", False) in edges
+    assert ("roi_node.bagio.writer", "roi_node.util.atomic_output", False) in edges
+    assert ("roi_node.cli", "roi_node.fleet.verbs", True) in edges  # inside _run_on_ray
+    assert ("roi_node.engine.pipeline", "roi_node.engine.area_resample", False) in edges
+
+
+def test_the_reader_resolves_relative_imports() -> None:
+    """A relative import, should one come back, is still an edge to the module it names."""
+    visitor = _ImportVisitor("roi_node.bagio.writer", is_package=False)
+    visitor.visit(ast.parse("from .storage_io import X\nfrom ..engine import errors\ndef f():\n    from ..util.atomic_output import Y\n"))
+    assert [(e.target, e.lazy) for e in visitor.edges] == [
+        ("roi_node.bagio.storage_io", False), ("roi_node.engine.errors", False), ("roi_node.util.atomic_output", True)]
+
+
+def test_roi_node_imports_itself_by_absolute_names() -> None:
+    """`from roi_node.engine.errors import ...`, never `from ..core...`: a module's imports say where they go."""
+    relative = [f"{module}:{node.lineno}" for module, path in MODULES.items() for node in ast.walk(ast.parse(path.read_text()))
+                if isinstance(node, ast.ImportFrom) and node.level]
+    assert relative == []
+
+
+def test_every_folder_has_a_floor() -> None:
+    """A new folder is placed on purpose: FLOORS above names its floor."""
+    assert sorted(set(package_graph(import_edges())) - set(FLOORS)) == []
+
+
+def test_folders_import_only_folders_below_them() -> None:
+    """The one-way rule: every import between folders goes down at least one floor."""
+    upward = sorted(
+        f"{e.module}:{e.line} imports {e.target} ({package_of(e.module)} on floor {FLOORS.get(package_of(e.module))},"
+        f" {package_of(e.target)} on floor {FLOORS.get(package_of(e.target))})"
+        for e in import_edges()
+        if package_of(e.module) != package_of(e.target)
+        and FLOORS.get(package_of(e.target), 99) >= FLOORS.get(package_of(e.module), -1)
+    )
+    assert upward == []
 
 
 def test_packages_import_each_other_without_cycles() -> None:
     graph = package_graph(import_edges())
-    assert {"core", "bag", "ros", "report", "export", "sim", "cluster", "app", "cli"} <= set(graph)
+    assert set(FLOORS) - {"roi_node"} <= set(graph)
     found = cycles(graph)
     detail = {
         " -> ".join(cycle): sorted(
@@ -168,21 +223,21 @@ def test_packages_import_each_other_without_cycles() -> None:
     assert found == [], json.dumps(detail, indent=1)
 
 
-def test_core_imports_nothing_from_the_other_packages() -> None:
-    """core is the pure engine: roi_node.core.* and the package's own __init__ (its version) only."""
+def test_the_engine_imports_nothing_from_the_other_folders() -> None:
+    """engine is the pure engine: roi_node.engine.* and the package's own __init__ (its version) only."""
     outside = [
         f"{e.module}:{e.line} imports {e.target}"
         for e in import_edges()
-        if package_of(e.module) == "core" and package_of(e.target) not in ("core", "roi_node")
+        if package_of(e.module) == "engine" and package_of(e.target) not in ("engine", "roi_node")
     ]
     assert outside == []
     assert [e for e in import_edges() if e.module == "roi_node"] == []  # and the package's __init__ imports none of it
 
 
-def test_only_the_cli_imports_the_cluster_package_and_only_when_a_verb_runs() -> None:
+def test_only_the_cli_imports_the_fleet_package_and_only_when_a_verb_runs() -> None:
     """The verbs declare --ray themselves; the fleet code is imported lazily, by cli.main, when --ray is given."""
-    into_cluster = [e for e in import_edges() if package_of(e.target) == "cluster" and package_of(e.module) != "cluster"]
-    assert [(e.module, e.lazy) for e in into_cluster] == [("roi_node.cli", True)]
+    into_fleet = [e for e in import_edges() if package_of(e.target) == "fleet" and package_of(e.module) != "fleet"]
+    assert [(e.module, e.lazy) for e in into_fleet] == [("roi_node.cli", True)]
 
 
 _PARSE_WITHOUT_RAY = """
@@ -196,13 +251,13 @@ print(json.dumps({
     "replay": [replay.ray, replay.ray_retries, str(replay.ray_job)],
     "export": [export.ray, export.ray_retries, str(export.ray_job)],
     "local": local.ray,
-    "cluster_loaded": sorted(m for m in sys.modules if m.startswith("roi_node.cluster")),
+    "fleet_loaded": sorted(m for m in sys.modules if m.startswith("roi_node.fleet")),
 }))
 """
 
 
-def test_replay_and_export_declare_ray_with_the_cluster_package_not_loaded() -> None:
-    """In a fresh process: the full CLI parser takes --ray on both verbs and roi_node.cluster is never imported."""
+def test_replay_and_export_declare_ray_with_the_fleet_package_not_loaded() -> None:
+    """In a fresh process: the full CLI parser takes --ray on both verbs and roi_node.fleet is never imported."""
     run = subprocess.run([sys.executable, "-c", _PARSE_WITHOUT_RAY], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
     parsed = json.loads(run.stdout)
@@ -210,11 +265,11 @@ def test_replay_and_export_declare_ray_with_the_cluster_package_not_loaded() -> 
         "replay": ["", 5, "replay"],
         "export": ["auto", 3, "export lerobot"],
         "local": None,
-        "cluster_loaded": [],
+        "fleet_loaded": [],
     }
 
 
-# Imports every module of roi_node.core with os.environ and os.getenv recording which keys roi_node code reads
+# Imports every module of roi_node.engine with os.environ and os.getenv recording which keys roi_node code reads
 # (the first caller outside os and collections.abc) and Thread.start recording every thread started, then reports
 # those, the threads alive, and what the code in argv[2] (run as if from a file under roi_node/) read.
 _IMPORT_CORE = """
@@ -256,8 +311,8 @@ def recording_start(self):
     return original_start(self)
 
 threading.Thread.start = recording_start
-import roi_node.core
-modules = sorted(m.name for m in pkgutil.walk_packages(roi_node.core.__path__, "roi_node.core."))
+import roi_node.engine
+modules = sorted(m.name for m in pkgutil.walk_packages(roi_node.engine.__path__, "roi_node.engine."))
 for name in modules:
     importlib.import_module(name)
 os.environ.get("PROBE_FROM_OUTSIDE")  # the harness's own read: must not be counted
@@ -267,12 +322,12 @@ print(json.dumps({"modules": len(modules), "started": started, "threads": thread
 """
 
 
-def test_importing_core_starts_no_thread_and_reads_no_environment_variable() -> None:
-    """In a fresh process (no test has imported anything yet): every module of roi_node.core, imported."""
+def test_importing_the_engine_starts_no_thread_and_reads_no_environment_variable() -> None:
+    """In a fresh process (no test has imported anything yet): every module of roi_node.engine, imported."""
     run = subprocess.run([sys.executable, "-c", _IMPORT_CORE, str(PACKAGE), ""], cwd=REPO, capture_output=True, text=True, timeout=240)
     assert run.returncode == 0, run.stderr
     result = json.loads(run.stdout)
-    assert result["modules"] == sum(1 for m in MODULES if package_of(m) == "core" and m != "roi_node.core")
+    assert result["modules"] == sum(1 for m in MODULES if package_of(m) == "engine" and m != "roi_node.engine")
     assert result["started"] == []  # not even one that has finished by now
     assert result["threads"] == ["MainThread"]
     assert result["reads"] == []

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from .conftest import REPO
-from .live.harness import next_domain, ros_env
+from test.conftest import REPO
+from test.dds.harness import next_domain, ros_env
 
 pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 
@@ -59,7 +59,7 @@ def test_colcon_build_installs_executables_index_marker_and_config(tmp_path: Pat
     )
     assert out.returncode == 0 and "usage: roi-node demo" in out.stdout
     probe = subprocess.run(
-        [sys.executable, "-c", "import roi_node, roi_node.core.resources as r; print(roi_node.__file__); print(r.config_dir())"],
+        [sys.executable, "-c", "import roi_node, roi_node.engine.resources as r; print(roi_node.__file__); print(r.config_dir())"],
         cwd=tmp_path, env=run_env, capture_output=True, text=True, timeout=60,
     )
     module_file, config_dir = probe.stdout.split()

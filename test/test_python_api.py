@@ -17,9 +17,8 @@ import numpy as np
 import yaml
 
 import roi_node
-from roi_node.core.records import FrameRecord
-
-from .conftest import CONFIG, REPO
+from roi_node.engine.records import FrameRecord
+from test.conftest import CONFIG, REPO
 
 EXAMPLE = REPO / "examples" / "python_api.py"
 

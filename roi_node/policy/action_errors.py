@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from roi_node.core.errors import ConfigError, InputDataError
+from roi_node.engine.errors import ConfigError, InputDataError
 
 
 class UnknownActionNameError(ConfigError):

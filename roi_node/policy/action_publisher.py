@@ -17,10 +17,10 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
+from roi_node.live.conversions import header
 from roi_node.policy.action_stats import ActionStats
 from roi_node.policy.actions import ActionClamp, ActionStep
 from roi_node.policy.policy_diagnostics import policy_diagnostics_msg
-from roi_node.ros.conversions import header
 
 
 class ActionPublisher:

@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from roi_node.core.config import RigConfig
-from roi_node.core.errors import KinematicsError
-from roi_node.core.kinematics import MOVABLE_JOINT_TYPES, UrdfJoint, parse_joints
+from roi_node.engine.config import RigConfig
+from roi_node.engine.errors import KinematicsError
+from roi_node.engine.kinematics import MOVABLE_JOINT_TYPES, UrdfJoint, parse_joints
 from roi_node.policy.action_errors import ActionNamesError, ActionShapeError, NonFiniteActionError, UnknownActionNameError
 
 

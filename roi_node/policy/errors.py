@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from roi_node.core.errors import ConfigError, RoiNodeError
+from roi_node.engine.errors import ConfigError, RoiNodeError
 
 
 class PolicyFeaturesError(ConfigError):

@@ -8,7 +8,7 @@ names of a checkpoint come from the dataset it trained on, which its
 `train_config.json` names (`dataset.root`) or the caller gives. The image and
 state shapes a checkpoint declares win over the dataset's, since the weights
 were built for them. Key strings come from the export's own naming
-(`roi_node.export.features`), so a dataset `roi-node export lerobot` wrote is
+(`roi_node.datasets.features`), so a dataset `roi-node export lerobot` wrote is
 read with the words that wrote it.
 """
 
@@ -20,7 +20,7 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
-from roi_node.export.features import (
+from roi_node.datasets.features import (
     ACTION_KEY,
     GLOBAL_KEY,
     ROI_IMAGE_PREFIX,

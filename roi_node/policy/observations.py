@@ -39,14 +39,14 @@ import numpy as np
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from roi_node.core.compressed_outputs import OutputTransport
-from roi_node.core.records import FrameRecord
-from roi_node.export.features import GLOBAL_KEY, STATE_KEY, FrameColumns, ImageSize
+from roi_node.datasets.features import GLOBAL_KEY, STATE_KEY, FrameColumns, ImageSize
+from roi_node.engine.records import FrameRecord
 from roi_node.policy.errors import NodeNotObservedError
 from roi_node.policy.features import LEROBOT_DEFAULT_KEYS, PolicyFeatures
 from roi_node.policy.preflight import NodePublication
-from roi_node.ros.consumer import Observation, ObservationClient
-from roi_node.ros.remote_node import client_node
+from roi_node.rostools.consumer import Observation, ObservationClient
+from roi_node.rostools.remote_node import client_node
+from roi_node.wire.compressed_outputs import OutputTransport
 
 TASK_KEY = "task"
 PIXEL_SCALE = np.float32(255.0)

@@ -1,4 +1,4 @@
-"""ActionStats -> the `roi_node: policy actions` status on /diagnostics (formatted as ros/diagnostics.py formats the node's).
+"""ActionStats -> the `roi_node: policy actions` status on /diagnostics (formatted as live/diagnostics.py formats the node's).
 
 Levels: ERROR when a policy output was refused in the last window (NaN,
 wrong shape: nothing of it reached the robot), WARN when the clamp changed a
@@ -12,9 +12,9 @@ import json
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
+from roi_node.live.conversions import header
+from roi_node.live.diagnostics import HARDWARE_ID
 from roi_node.policy.action_stats import ActionStats, LatencySummary
-from roi_node.ros.conversions import header
-from roi_node.ros.diagnostics import HARDWARE_ID
 
 STATUS_NAME = "roi_node: policy actions"
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from roi_node.core.errors import RoiNodeError
+from roi_node.engine.errors import RoiNodeError
 from roi_node.policy.action_errors import NonFiniteActionError
 from roi_node.policy.action_stats import ActionStats
 from roi_node.policy.actions import as_action_chunk

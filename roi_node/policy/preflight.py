@@ -26,9 +26,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 
-from roi_node.core.errors import RoiNodeError
-from roi_node.core.records import FrameRecord
-from roi_node.export.features import GLOBAL_KEY, SOURCE_FRAME_KEY, SOURCE_STAMP_KEY, ImageSize, RoiField, roi_image_key, roi_key
+from roi_node.datasets.features import GLOBAL_KEY, SOURCE_FRAME_KEY, SOURCE_STAMP_KEY, ImageSize, RoiField, roi_image_key, roi_key
+from roi_node.engine.errors import RoiNodeError
+from roi_node.engine.records import FrameRecord
 from roi_node.policy.features import PolicyFeatures
 
 FPS_TOLERANCE = 0.05  # the camera rate is measured from stamps; a nominal 30 Hz camera reads 29.9 or 30.1

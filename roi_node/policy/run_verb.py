@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from roi_node.arg_types import float_within, int_at_least
+from roi_node.util.arg_types import float_within, int_at_least
 
 DEFAULT_COMMAND_TOPIC = "joint_commands"
 DEFAULT_MAX_STEP_RAD = 0.05  # per tick: 1.5 rad/s at 30 fps

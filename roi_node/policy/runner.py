@@ -36,9 +36,10 @@ from types import FrameType
 import numpy as np
 from rclpy.node import Node
 
-from roi_node.core.config import load_rig_config
-from roi_node.core.errors import RoiNodeError
-from roi_node.core.sync import NS_PER_S
+from roi_node.engine.config import load_rig_config
+from roi_node.engine.errors import RoiNodeError
+from roi_node.engine.sync import NS_PER_S
+from roi_node.live.spin import ros_context
 from roi_node.policy.action_publisher import ActionPublisher
 from roi_node.policy.action_stats import ActionStats
 from roi_node.policy.actions import ActionChunkQueue, ActionClamp, ActionStep, action_joints
@@ -47,7 +48,6 @@ from roi_node.policy.loaders import LoadedPolicy, PolicyKind, check_lerobot_fold
 from roi_node.policy.observations import PolicyObservation, PolicyObservationStream
 from roi_node.policy.policy_worker import WAIT_SLICE_S, LatestObservation, PolicyWorker
 from roi_node.policy.preflight import require_fit
-from roi_node.ros.spin import ros_context
 
 DIAGNOSTICS_PERIOD_NS = NS_PER_S
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)

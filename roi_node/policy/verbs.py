@@ -15,8 +15,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from roi_node.arg_types import float_at_least, int_at_least
-from roi_node.core.errors import EXIT_ERROR
+from roi_node.engine.errors import EXIT_ERROR
+from roi_node.util.arg_types import float_at_least, int_at_least
 
 DEFAULT_TIMEOUT_S = 10.0
 

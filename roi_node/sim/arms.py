@@ -17,12 +17,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.config import ArmConfig, RigConfig
-from ..core.errors import KinematicsError
-from ..core.kinematics import MOVABLE_JOINT_TYPES, RobotKinematics, UrdfJoint, parse_joints, unique_in_order
-from ..core.transforms import Float64Array, Transform
-from .capsules import Capsule, Part
-from .gripper import gripper_capsules
+from roi_node.engine.config import ArmConfig, RigConfig
+from roi_node.engine.errors import KinematicsError
+from roi_node.engine.kinematics import MOVABLE_JOINT_TYPES, RobotKinematics, UrdfJoint, parse_joints, unique_in_order
+from roi_node.engine.transforms import Float64Array, Transform
+from roi_node.sim.capsules import Capsule, Part
+from roi_node.sim.gripper import gripper_capsules
 
 # Known home poses (URDF joint names); other robots start at zero, nudged inside their limits.
 HOME_POSES: dict[str, float] = {

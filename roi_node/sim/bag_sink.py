@@ -12,17 +12,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..bag.mcap_file import Compression
-from ..bag.messages import MessageFactory
-from ..bag.progress import Progress
-from ..bag.rig_attachments import rig_inputs
-from ..bag.writer import BagWriter
-from ..core import topics
-from ..core.config import RigConfig
-from ..core.errors import ConfigError
-from ..core.image_codec import encode_compressed
-from .look import Look
-from .rig_sim import CameraInfoEvent, ImageEvent, JointStateEvent, SimRig
+from roi_node.bagio.mcap_file import Compression
+from roi_node.bagio.rig_attachments import rig_inputs
+from roi_node.bagio.writer import BagWriter
+from roi_node.engine.config import RigConfig
+from roi_node.engine.errors import ConfigError
+from roi_node.sim.look import Look
+from roi_node.sim.rig_sim import CameraInfoEvent, ImageEvent, JointStateEvent, SimRig
+from roi_node.util.progress import Progress
+from roi_node.wire import topics
+from roi_node.wire.image_codec import encode_compressed
+from roi_node.wire.messages import MessageFactory
 
 COMPRESSED_FORMATS = ("png", "jpeg")
 JPEG_QUALITY = 90
@@ -60,7 +60,7 @@ def write_sim_bag(
     `compressed`: False for raw rgb8 images; True or "png" for lossless PNG,
     "jpeg" for JPEG (quality 90) on `/image_raw/compressed`. `chunk_compression`:
     none, lz4 or zstd chunks. The bag appears only once finalized (atomic).
-    `progress`: frames rendered, rate and ETA on stderr (bag/progress.py).
+    `progress`: frames rendered, rate and ETA on stderr (util/progress.py).
     """
     fmt = _compression(compressed)
     bag = BagWriter(Path(out_path), overwrite=overwrite, compression=chunk_compression)  # refuses an existing output before the slow setup
@@ -86,7 +86,7 @@ def _drain(sim: SimRig, bag: BagWriter, duration_s: float, fmt: str | None, prog
     width, height = sim.camera.width_px, sim.camera.height_px
     frames = joint_states = 0
     first = last = None
-    bag.rig = rig_inputs(sim.rig)  # the bag carries the rig it was simulated from (bag/rig_attachments.py)
+    bag.rig = rig_inputs(sim.rig)  # the bag carries the rig it was simulated from (bagio/rig_attachments.py)
     with bag:
         factory = MessageFactory(bag.typestore)
         bag.add_topic(image_topic, topics.COMPRESSED_IMAGE_TYPE if fmt else topics.IMAGE_TYPE)

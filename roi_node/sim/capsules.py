@@ -16,8 +16,8 @@ from enum import Enum
 
 import numpy as np
 
-from ..core.camera import CameraModel
-from ..core.transforms import Float64Array, Transform
+from roi_node.engine.camera import CameraModel
+from roi_node.engine.transforms import Float64Array, Transform
 
 SAMPLES_PER_CAPSULE = 8
 _FOLD_PROBE_MAX = 10.0  # normalised radius (tan of ~84 degrees) probed for a distortion fold

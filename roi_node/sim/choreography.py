@@ -19,11 +19,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.transforms import Float64Array
-from .arms import SimArm, required_joints
-from .capsules import CameraView
-from .trajectory import LIMIT_MARGIN, Keyframe, KeyframeTrajectory, RigTrajectory
-from .truth import GripperTruth, Visibility, gripper_truth
+from roi_node.engine.transforms import Float64Array
+from roi_node.sim.arms import SimArm, required_joints
+from roi_node.sim.capsules import CameraView
+from roi_node.sim.trajectory import LIMIT_MARGIN, Keyframe, KeyframeTrajectory, RigTrajectory
+from roi_node.sim.truth import GripperTruth, Visibility, gripper_truth
 
 # Mostly work in view, like a real task; one partial exit and one full exit per pass (~10-15% of the time).
 BEATS = ("work", "near", "work", "partial", "work", "far", "work", "work", "out")

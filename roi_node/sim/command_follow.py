@@ -34,9 +34,9 @@ from enum import StrEnum
 
 import numpy as np
 
-from roi_node.core.errors import ConfigError
-from roi_node.core.sync import NS_PER_S
-from roi_node.core.transforms import Float64Array
+from roi_node.engine.errors import ConfigError
+from roi_node.engine.sync import NS_PER_S
+from roi_node.engine.transforms import Float64Array
 
 HISTORY_NS = 60 * NS_PER_S  # segments kept behind the latest one: more than a frame lags its capture even in --late-frames send
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.transforms import Float64Array, Transform
-from .capsules import Capsule, Part
+from roi_node.engine.transforms import Float64Array, Transform
+from roi_node.sim.capsules import Capsule, Part
 
 # (start along, start across, end along, end across, radius), in units of L
 _PARTS: tuple[tuple[Part, tuple[float, float, float, float, float]], ...] = (

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.camera import CameraModel
-from ..core.transforms import Float64Array, Transform
+from roi_node.engine.camera import CameraModel
+from roi_node.engine.transforms import Float64Array, Transform
 
 TABLE_HEIGHT_M = 0.75
 LIGHT_DIR_WORLD = np.array([0.35, 0.25, 1.0]) / np.linalg.norm([0.35, 0.25, 1.0])  # toward the one light

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.errors import ConfigError
+from roi_node.engine.errors import ConfigError
 
 
 @dataclass(frozen=True)

@@ -16,8 +16,8 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from .capsules import Part, ProjectedCapsule
-from .scene import FIXED_POINT_SCALE, FIXED_POINT_SHIFT, Sprite, StaticScene, to_fixed_point
+from roi_node.sim.capsules import Part, ProjectedCapsule
+from roi_node.sim.scene import FIXED_POINT_SCALE, FIXED_POINT_SHIFT, Sprite, StaticScene, to_fixed_point
 
 PART_RGB: dict[Part, tuple[float, float, float]] = {
     Part.LINK: (226.0, 228.0, 233.0),

@@ -15,7 +15,7 @@ from enum import StrEnum
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # the CLI reads the default budget for its help without loading numpy
-    from ..core.camera import CameraModel
+    from roi_node.engine.camera import CameraModel
 
 DEFAULT_RENDER_BUDGET_MIB = 2048.0
 BYTES_PER_MIB = 1 << 20

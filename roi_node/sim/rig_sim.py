@@ -27,21 +27,21 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..core import topics
-from ..core.camera import CameraModel
-from ..core.config import RigConfig, load_rig_config
-from ..core.errors import ConfigError
-from ..core.sync import NS_PER_MS, NS_PER_S
-from ..core.transforms import Float64Array
-from .arms import load_arms, required_joints
-from .capsules import CameraView, ProjectedCapsule
-from .choreography import script_rig
-from .command_follow import CommandFollower, CommandIssue
-from .layout import plan_layout
-from .look import Look
-from .painter import RigPainter
-from .scene import render_static_scene
-from .truth import FrameTruth, gripper_truth
+from roi_node.engine.camera import CameraModel
+from roi_node.engine.config import RigConfig, load_rig_config
+from roi_node.engine.errors import ConfigError
+from roi_node.engine.sync import NS_PER_MS, NS_PER_S
+from roi_node.engine.transforms import Float64Array
+from roi_node.sim.arms import load_arms, required_joints
+from roi_node.sim.capsules import CameraView, ProjectedCapsule
+from roi_node.sim.choreography import script_rig
+from roi_node.sim.command_follow import CommandFollower, CommandIssue
+from roi_node.sim.layout import plan_layout
+from roi_node.sim.look import Look
+from roi_node.sim.painter import RigPainter
+from roi_node.sim.scene import render_static_scene
+from roi_node.sim.truth import FrameTruth, gripper_truth
+from roi_node.wire import topics
 
 _MASK64 = (1 << 64) - 1
 

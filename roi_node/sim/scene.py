@@ -13,11 +13,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..core.camera import CameraModel
-from ..core.transforms import Float64Array, Transform
-from .capsules import fold_radius
-from .layout import LIGHT_DIR_WORLD, Box, Layout, Shape
-from .surfaces import render_surfaces
+from roi_node.engine.camera import CameraModel
+from roi_node.engine.transforms import Float64Array, Transform
+from roi_node.sim.capsules import fold_radius
+from roi_node.sim.layout import LIGHT_DIR_WORLD, Box, Layout, Shape
+from roi_node.sim.surfaces import render_surfaces
 
 FIXED_POINT_SHIFT = 4
 FIXED_POINT_SCALE = 1 << FIXED_POINT_SHIFT

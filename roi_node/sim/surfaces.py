@@ -13,10 +13,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..core.camera import CameraModel
-from ..core.transforms import Float64Array, Transform
-from .capsules import fold_radius
-from .layout import LIGHT_DIR_WORLD, Layout
+from roi_node.engine.camera import CameraModel
+from roi_node.engine.transforms import Float64Array, Transform
+from roi_node.sim.capsules import fold_radius
+from roi_node.sim.layout import LIGHT_DIR_WORLD, Layout
 
 _ROUND_TRIP_TOLERANCE_PX = 0.5
 _NOISE_SIZE = 256

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.errors import ConfigError
-from ..core.transforms import Float64Array
-from .arms import JointRange
+from roi_node.engine.errors import ConfigError
+from roi_node.engine.transforms import Float64Array
+from roi_node.sim.arms import JointRange
 
 LIMIT_MARGIN = 0.05  # of each joint's range, kept free at keyframes
 _SWAY_MAX = 0.04  # rad (or m): the sway never exceeds this or 90% of the margin

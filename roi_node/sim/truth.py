@@ -14,8 +14,8 @@ from enum import Enum
 import cv2
 import numpy as np
 
-from ..core.transforms import Float64Array
-from .capsules import GRIPPER_PARTS, CameraView, ProjectedCapsule
+from roi_node.engine.transforms import Float64Array
+from roi_node.sim.capsules import GRIPPER_PARTS, CameraView, ProjectedCapsule
 
 _DIRECTIONS = 8
 # A disc's circumscribed octagon: the hull contains every drawn pixel of the round caps.

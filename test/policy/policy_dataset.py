@@ -10,8 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from roi_node.cli import main
-
-from ..conftest import CONFIG
+from test.conftest import CONFIG
 
 RIG = CONFIG / "rig_demo_bimanual.yaml"
 

@@ -8,11 +8,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from roi_node.bag.replay import replay_bag
 from roi_node.cli import main
+from roi_node.offline.replay import replay_bag
 from roi_node.sim.bag_sink import write_sim_bag
-
-from ..simrig import DEFAULT_RIG, scaled_camera_rig
+from test.support.simrig import DEFAULT_RIG, scaled_camera_rig
 
 RATE_HZ = 15  # the camera rate of the session and of the live sim; the export's --fps, so every frame is a grid frame
 DURATION_S = 1.0

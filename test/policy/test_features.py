@@ -14,8 +14,7 @@ import pytest
 from roi_node.cli import main
 from roi_node.policy.errors import PolicyFeaturesError
 from roi_node.policy.features import FeatureSource, PolicyFeatures
-
-from .policyrig import RATE_HZ, export_dataset, read_info, record_session, write_checkpoint
+from test.policy.policyrig import RATE_HZ, export_dataset, read_info, record_session, write_checkpoint
 
 
 @pytest.fixture(scope="module")

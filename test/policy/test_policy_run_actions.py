@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from roi_node.core.config import load_rig_config
-from roi_node.core.robot_models import resolve_robot_reference
+from roi_node.engine.config import load_rig_config
+from roi_node.engine.robot_models import resolve_robot_reference
 from roi_node.policy.action_errors import ActionNamesError, ActionShapeError, NonFiniteActionError, UnknownActionNameError
 from roi_node.policy.action_stats import ActionStats
 from roi_node.policy.actions import ActionChunkQueue, ActionClamp, ClampKind, action_joints, as_action_chunk

@@ -25,7 +25,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from roi_node.core.config import load_rig_config
+from roi_node.engine.config import load_rig_config
 from roi_node.policy.action_errors import ActionShapeError
 from roi_node.policy.action_publisher import ActionPublisher
 from roi_node.policy.action_stats import ActionStats
@@ -36,8 +36,7 @@ from roi_node.policy.observations import PolicyObservation
 from roi_node.policy.policy_diagnostics import STATUS_NAME
 from roi_node.policy.policy_worker import LatestObservation, PolicyCallError
 from roi_node.policy.runner import _loop
-
-from ..live.harness import next_domain
+from test.dds.harness import next_domain
 
 NAMES = ("left_panda_joint1", "left_panda_joint2", "left_panda_joint4")
 START = np.array([0.0, -0.3, -2.2])

@@ -24,10 +24,9 @@ from typing import Any
 import pytest
 
 from roi_node.policy.observations import LIVE_ABSENT_KEYS, TASK_KEY
-
-from ..conftest import REPO
-from ..live.harness import next_domain, node_args, process, ros_env
-from .policyrig import RATE_HZ, TASK, export_dataset, read_info, record_session, write_checkpoint
+from test.conftest import REPO
+from test.dds.harness import next_domain, node_args, process, ros_env
+from test.policy.policyrig import RATE_HZ, TASK, export_dataset, read_info, record_session, write_checkpoint
 
 pytestmark = pytest.mark.dds
 WEIGHTS = "model.safetensors"

@@ -1,1 +1,0 @@
-"""Orchestration that spans layers: the demo, the simulated rig published live, the stress sweeps (Route B)."""

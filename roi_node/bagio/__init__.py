@@ -1,0 +1,1 @@
+"""rosbag2 MCAP storage: the writer, the indexed reader, integrity checks, recover, CRCs, inspect."""

@@ -1,0 +1,271 @@
+"""The rig's inputs carried inside a bag, so a bag can be replayed and audited without the files that made it.
+
+What a rig's output depends on is the rig YAML as written, every URDF it
+loads (FK reads the kinematic tree only, so meshes are not carried) and the
+camera calibration file it names. Each is stored as an MCAP attachment (the
+original bytes) in every storage file a BagWriter writes, beside one
+metadata record `roi_node.rig` that names the roi_node version and, for
+each reference in the rig YAML, the attachment holding its file. The mcap
+readers list both; rosbag2 and rosbags ignore them.
+
+A replay from the bag's own rig extracts the attachments into a temporary
+folder and rewrites only those references in a copy of the YAML to the
+extracted files. Lineage versions are content hashes of the same bytes, so
+its records equal those of a replay with the original files; and the output
+carries the original attachments, not the rewritten copy.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, BinaryIO
+
+import yaml
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+
+from roi_node import __version__
+from roi_node.bagio.crc import crc32
+from roi_node.bagio.mcap_records import RECORD_PREFIX
+from roi_node.bagio.mcap_records import attachment as attachment_record
+from roi_node.bagio.reader import bag_information
+from roi_node.engine.config import RigConfig
+from roi_node.engine.errors import BagError, ConfigError, UsageError
+
+if TYPE_CHECKING:
+    from roi_node.bagio.mcap_file import McapFileWriter
+
+RIG_METADATA_NAME = "roi_node.rig"
+VERSION_KEY = "roi_node_version"
+RIG_KEY = "rig"  # the metadata key naming the rig YAML's attachment
+RIG_ATTACHMENT = "rig/rig.yaml"
+URDF_FOLDER = "rig/urdf"
+CALIBRATION_FOLDER = "rig/calibration"
+YAML_MEDIA_TYPE = "application/yaml"
+URDF_MEDIA_TYPE = "application/xml"
+INTRINSICS_REFERENCE = "camera.intrinsics"  # the metadata key of the calibration file, as the rig YAML's key path
+
+
+@dataclass(frozen=True)
+class BagAttachment:
+    """One file carried in a bag: its name inside the bag, media type and original bytes."""
+
+    name: str
+    media_type: str
+    data: bytes
+
+
+@dataclass(frozen=True)
+class RigInputs:
+    """A rig's YAML, URDFs and calibration as attachments, and the metadata record that ties them to the YAML.
+
+    `references` maps a rig YAML key path (`robots[0].urdf`, `camera.intrinsics`)
+    to the name of the attachment holding the file it named.
+    """
+
+    rig_id: str
+    version: str
+    attachments: tuple[BagAttachment, ...]
+    references: dict[str, str]
+
+    @property
+    def urdf_count(self) -> int:
+        return sum(a.name.startswith(URDF_FOLDER + "/") for a in self.attachments)
+
+    @property
+    def has_calibration(self) -> bool:
+        return any(a.name.startswith(CALIBRATION_FOLDER + "/") for a in self.attachments)
+
+    def metadata(self) -> dict[str, str]:
+        """The `roi_node.rig` metadata record's entries."""
+        return {VERSION_KEY: self.version, "rig_id": self.rig_id, RIG_KEY: RIG_ATTACHMENT, **self.references}
+
+    def write_to(self, file: McapFileWriter) -> None:
+        """Put the attachments and the metadata record into one storage file (BagWriter does, for each file it opens)."""
+        for attachment in self.attachments:
+            file.attach(attachment.name, attachment.media_type, attachment.data)
+        file.add_metadata(RIG_METADATA_NAME, self.metadata())
+
+    def described(self) -> str:
+        """e.g. `rig.yaml, 2 URDFs, 1 calibration`."""
+        urdfs = self.urdf_count
+        parts = ["rig.yaml", f"{urdfs} URDF{'s' if urdfs != 1 else ''}"]
+        if self.has_calibration:
+            parts.append("1 calibration")
+        return ", ".join(parts)
+
+
+class _Names:
+    """Attachment names under one folder: a file's base name, or `<owner>_<base name>` when another file took it."""
+
+    def __init__(self, folder: str) -> None:
+        self._folder = folder
+        self._by_name: dict[str, bytes] = {}
+
+    def name(self, file_name: str, owner: str, data: bytes) -> str:
+        for candidate in (f"{self._folder}/{file_name}", f"{self._folder}/{owner}_{file_name}"):
+            taken = self._by_name.get(candidate)
+            if taken is None or taken == data:
+                self._by_name[candidate] = data
+                return candidate
+        raise ConfigError(f"{file_name}: two different files of the rig both need the attachment name of {owner!r}")
+
+
+def _read(path: Path, what: str) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the rig's {what} to store it in the bag ({exc.strerror or exc})") from exc
+
+
+def _intrinsics_file(rig: RigConfig) -> Path | None:
+    """The calibration file the rig YAML names (resolved as the rig loader resolves it), or None (`topic`, absent)."""
+    camera = rig.raw.get("camera")
+    value = camera.get("intrinsics") if isinstance(camera, dict) else None
+    if not isinstance(value, str) or value == "topic":
+        return None
+    path = Path(value).expanduser()
+    return path if path.is_absolute() else rig.path.parent / path
+
+
+def rig_inputs(rig: RigConfig) -> RigInputs:
+    """The loaded rig's files as attachments: the YAML as written, each distinct URDF once, the calibration."""
+    attachments = [BagAttachment(RIG_ATTACHMENT, YAML_MEDIA_TYPE, _read(rig.path, "config"))]
+    references: dict[str, str] = {}
+    urdf_names = _Names(URDF_FOLDER)
+    stored: set[str] = {RIG_ATTACHMENT}
+    for index, robot in enumerate(rig.robots):
+        data = _read(robot.urdf_path, "URDF")
+        name = urdf_names.name(robot.urdf_path.name, robot.id, data)
+        references[f"robots[{index}].urdf"] = name
+        if name not in stored:
+            stored.add(name)
+            attachments.append(BagAttachment(name, URDF_MEDIA_TYPE, data))
+    calibration = _intrinsics_file(rig)
+    if calibration is not None:
+        name = f"{CALIBRATION_FOLDER}/{calibration.name}"
+        attachments.append(BagAttachment(name, YAML_MEDIA_TYPE, _read(calibration, "calibration")))
+        references[INTRINSICS_REFERENCE] = name
+    return RigInputs(rig.rig_id, __version__, tuple(attachments), references)
+
+
+def storage_files(bag: Path) -> list[Path]:
+    """A bag's MCAP storage files in order (a bare .mcap is its own); a sqlite3 bag has none."""
+    if bag.is_dir():
+        names = bag_information(bag).get("relative_file_paths") or []
+        return [bag / str(name) for name in names if str(name).endswith(".mcap")]
+    return [bag] if bag.suffix == ".mcap" else []
+
+
+@dataclass(frozen=True)
+class StoredRecords:
+    """What a storage file holds beside its messages: attachments (name, media type, bytes) and metadata records."""
+
+    attachments: tuple[tuple[str, str, int], ...]
+    metadata: dict[str, dict[str, str]]  # record name -> entries; rosbag2's own bag information is left out
+
+
+def stored_records(bag: Path) -> StoredRecords | None:
+    """The attachments and metadata records of a bag's first storage file (every file of a split bag carries the same)."""
+    files = storage_files(bag)
+    if not files:
+        return None
+    try:
+        with files[0].open("rb") as stream:
+            reader = make_reader(stream)
+            summary = reader.get_summary()
+            indexes = [] if summary is None else list(summary.attachment_indexes)
+            metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata() if m.name != "rosbag2"}
+    except (OSError, McapError, ValueError) as exc:
+        raise BagError(f"{files[0]}: cannot read its attachments and metadata records ({exc})") from exc
+    return StoredRecords(tuple((i.name, i.media_type, i.data_size) for i in indexes), metadata)
+
+
+def _read_attachment(stream: BinaryIO, offset: int, length: int, where: Path) -> BagAttachment:
+    """One attachment record, its CRC checked: a damaged rig file is refused, never extracted."""
+    stream.seek(offset)
+    record = stream.read(length)
+    body = record[RECORD_PREFIX.size:]
+    parsed = attachment_record(body)
+    if parsed.crc and crc32(body[: parsed.crc_covered_bytes]) != parsed.crc:
+        raise BagError(f"{where}: cannot read the rig stored in the bag (attachment {parsed.name!r} at byte {offset}: CRC mismatch)")
+    data = body[parsed.crc_covered_bytes - parsed.data_size: parsed.crc_covered_bytes]
+    return BagAttachment(parsed.name, parsed.media_type, bytes(data))
+
+
+def read_rig_inputs(bag: Path) -> RigInputs | None:
+    """The rig a bag carries (from its first storage file), or None for a bag that carries none."""
+    files = storage_files(bag)
+    if not files:
+        return None
+    try:
+        with files[0].open("rb") as stream:
+            reader = make_reader(stream)
+            records = [m for m in reader.iter_metadata() if m.name == RIG_METADATA_NAME]
+            if not records:
+                return None
+            summary = reader.get_summary()
+            indexes = [] if summary is None else list(summary.attachment_indexes)
+            attachments = tuple(_read_attachment(stream, i.offset, i.length, files[0]) for i in indexes)
+    except (OSError, McapError, ValueError) as exc:  # ValueError: also a MalformedRecordError
+        raise BagError(f"{files[0]}: cannot read the rig stored in the bag ({exc})") from exc
+    entries = dict(records[0].metadata)
+    names = {a.name for a in attachments}
+    references = {k: v for k, v in entries.items() if k not in (VERSION_KEY, "rig_id", RIG_KEY)}
+    missing = sorted({entries.get(RIG_KEY, RIG_ATTACHMENT), *references.values()} - names)
+    if missing:
+        raise BagError(f"{files[0]}: the {RIG_METADATA_NAME} record names attachments the file does not hold: {', '.join(missing)}")
+    rig_files = tuple(a for a in attachments if a.name in {RIG_ATTACHMENT, *references.values()})
+    return RigInputs(entries.get("rig_id", ""), entries.get(VERSION_KEY, ""), rig_files, references)
+
+
+def _set_reference(doc: dict[str, Any], key_path: str, value: str, where: str) -> None:
+    """Set `robots[0].urdf` or `camera.intrinsics` in a loaded rig YAML."""
+    head, _, leaf = key_path.rpartition(".")
+    node: Any = doc
+    for part in head.split("."):
+        name, _, index = part.partition("[")
+        node = node.get(name) if isinstance(node, dict) else None
+        if index:
+            position = int(index.rstrip("]"))
+            node = node[position] if isinstance(node, list) and position < len(node) else None
+    if not isinstance(node, dict) or leaf not in node:
+        raise BagError(f"{where}: the stored rig has no {key_path} that the {RIG_METADATA_NAME} record names")
+    node[leaf] = value
+
+
+def extract_rig(inputs: RigInputs, folder: Path, where: str) -> Path:
+    """Write the carried files into `folder` and a copy of the rig YAML pointing at them; return that YAML's path."""
+    by_name = {a.name: a for a in inputs.attachments}
+    for attachment in inputs.attachments:
+        target = folder / attachment.name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(attachment.data)
+    try:
+        doc = yaml.safe_load(by_name[RIG_ATTACHMENT].data)
+    except yaml.YAMLError as exc:
+        raise BagError(f"{where}: the stored {RIG_ATTACHMENT} is not YAML ({' '.join(str(exc).split())})") from exc
+    if not isinstance(doc, dict):
+        raise BagError(f"{where}: the stored {RIG_ATTACHMENT} is not a rig config (expected a mapping)")
+    for key_path, name in inputs.references.items():
+        _set_reference(doc, key_path, name, where)
+    rig_yaml = folder / "rig.yaml"
+    rig_yaml.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return rig_yaml
+
+
+@contextmanager
+def stored_rig(bag: Path) -> Iterator[tuple[Path, RigInputs]]:
+    """The rig YAML extracted from `bag` (valid inside the block) and the inputs as stored.
+
+    A bag that carries no rig raises UsageError naming the bag and `--config`.
+    """
+    inputs = read_rig_inputs(bag)
+    if inputs is None:
+        raise UsageError(f"{bag}: the bag holds no rig (it was not written with one); pass --config RIG_YAML")
+    with tempfile.TemporaryDirectory(prefix="roi_node_rig_") as folder:
+        yield extract_rig(inputs, Path(folder), str(bag)), inputs

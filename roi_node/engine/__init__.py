@@ -1,0 +1,1 @@
+"""The pure stream engine: config, camera, kinematics, ROI policy, resampling, sync, stamps, records, errors. No ROS, no bags."""

@@ -1,0 +1,254 @@
+"""The per-frame metadata record as typed, frozen values, serialised in exactly one place.
+
+`FrameRecord.to_json()` is the only way a record becomes bytes (fixed key
+order, values rounded when the record is built, compact separators, no NaN),
+so the live node and offline replay publish the same bytes for the same
+inputs. `FrameRecord.from_json` / `from_dict` are the way back: values keep
+the JSON types they were read with (an int stays an int), so a record roi_node
+wrote reads back to the same bytes, and readers use attributes, not keys.
+Field meanings and units are in config/metadata.schema.json, which the tests
+validate every record against.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any
+
+from roi_node.engine.errors import InputDataError
+from roi_node.engine.metadata import METADATA_SCHEMA, Lineage
+from roi_node.engine.stamps import ns_to_stamp
+
+
+class RecordFormatError(InputDataError):
+    """A decoded metadata record lacks a field or holds one of the wrong shape (readers schema-check first)."""
+
+    def __init__(self, field: str, problem: str) -> None:
+        super().__init__(f"metadata record field {field}: {problem}")
+        self.field = field
+        self.problem = problem
+
+
+class ArmFlag(StrEnum):
+    """Why an arm's ROI is degraded; every flagged ROI is still published."""
+
+    SYNC_STALE = "sync_stale"
+    SYNC_EXTRAPOLATED = "sync_extrapolated"
+    SYNC_MISSING = "sync_missing"
+    SYNC_LATEST = "sync_latest_not_reproducible"
+    NO_JOINT_STATE = "no_joint_state"
+    JOINT_OUT_OF_LIMITS = "joint_out_of_limits"
+    BEHIND_CAMERA = "behind_camera"
+    FULLY_OUT_OF_FRAME = "fully_out_of_frame"
+    PARTIALLY_OUT_OF_FRAME = "partially_out_of_frame"
+    CENTER_OUT_OF_FRAME = "center_out_of_frame"
+    DEGENERATE_DIRECTION = "degenerate_inward_dir"
+
+
+@dataclass(frozen=True)
+class PoseRecord:
+    xyz: tuple[float, float, float]
+    quat_xyzw: tuple[float, float, float, float]
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"xyz": list(self.xyz), "quat_xyzw": list(self.quat_xyzw)}
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> PoseRecord:
+        return cls(tuple(doc["xyz"]), tuple(doc["quat_xyzw"]))
+
+
+@dataclass(frozen=True)
+class ArmRecord:
+    """One arm's ROI on one frame; pixel values in original-image pixels, lengths in metres."""
+
+    arm_id: str
+    projected_center: tuple[float, float] | None
+    offset_center: tuple[float, float] | None
+    inward_dir: tuple[float, float]
+    crop_box: tuple[int, int, int, int]  # x0, y0, x1, y1 (exclusive), may extend past the image
+    crop_size: tuple[int, int]
+    scale_px: float
+    scale_factor: float
+    interpolation: str
+    depth_m: float | None
+    ee_pose_base: PoseRecord | None
+    ee_point_camera: tuple[float, float, float] | None
+    projection_valid: bool
+    confidence: float
+    in_frame_ratio: float
+    padding_ratio: float
+    roi_to_image: tuple[float, ...] | None  # 2x3 row-major: output pixel -> original-image pixel
+    flags: tuple[str, ...]
+    gripper_joints: tuple[str, ...]  # JointState names of this arm's gripper (keys of joint_positions)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "arm_id": self.arm_id,
+            "projected_center": _list(self.projected_center),
+            "offset_center": _list(self.offset_center),
+            "inward_dir": list(self.inward_dir),
+            "crop_box": list(self.crop_box),
+            "crop_size": list(self.crop_size),
+            "scale_px": self.scale_px,
+            "scale_factor": self.scale_factor,
+            "interpolation": self.interpolation,
+            "depth_m": self.depth_m,
+            "ee_pose_base": None if self.ee_pose_base is None else self.ee_pose_base.as_dict(),
+            "ee_point_camera": _list(self.ee_point_camera),
+            "projection_valid": self.projection_valid,
+            "confidence": self.confidence,
+            "in_frame_ratio": self.in_frame_ratio,
+            "padding_ratio": self.padding_ratio,
+            "roi_to_image": _list(self.roi_to_image),
+            "flags": list(self.flags),
+            "gripper_joints": list(self.gripper_joints),
+        }
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> ArmRecord:
+        pose = doc["ee_pose_base"]
+        return cls(
+            arm_id=doc["arm_id"],
+            projected_center=_tuple(doc["projected_center"]),
+            offset_center=_tuple(doc["offset_center"]),
+            inward_dir=tuple(doc["inward_dir"]),
+            crop_box=tuple(doc["crop_box"]),
+            crop_size=tuple(doc["crop_size"]),
+            scale_px=doc["scale_px"],
+            scale_factor=doc["scale_factor"],
+            interpolation=doc["interpolation"],
+            depth_m=doc["depth_m"],
+            ee_pose_base=None if pose is None else PoseRecord.from_dict(pose),
+            ee_point_camera=_tuple(doc["ee_point_camera"]),
+            projection_valid=doc["projection_valid"],
+            confidence=doc["confidence"],
+            in_frame_ratio=doc["in_frame_ratio"],
+            padding_ratio=doc["padding_ratio"],
+            roi_to_image=_tuple(doc["roi_to_image"]),
+            flags=tuple(doc["flags"]),
+            gripper_joints=tuple(doc["gripper_joints"]),
+        )
+
+
+@dataclass(frozen=True)
+class SyncRecord:
+    policy: str
+    joint_stamp_ns: int | None
+    residual_ms: float | None
+    status: str
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"policy": self.policy, "joint_stamp_ns": self.joint_stamp_ns, "residual_ms": self.residual_ms, "status": self.status}
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> SyncRecord:
+        return cls(doc["policy"], doc["joint_stamp_ns"], doc["residual_ms"], doc["status"])
+
+
+@dataclass(frozen=True)
+class TeleopRecord:
+    """(L_t, f_t, r_t): camera-to-processing latency (live only), joint rate, command residual."""
+
+    latency_ms: float | None = None
+    control_hz: float | None = None
+    command_residual: float | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"latency_ms": self.latency_ms, "control_hz": self.control_hz, "command_residual": self.command_residual}
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> TeleopRecord:
+        return cls(doc["latency_ms"], doc["control_hz"], doc["command_residual"])
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    stamp_ns: int
+    frame_index: int
+    camera_id: str
+    robot_id: str
+    image_size: tuple[int, int]
+    sync: SyncRecord
+    joint_positions: tuple[tuple[str, float], ...]  # (JointState name, rad or m), arm and gripper joints
+    arms: tuple[ArmRecord, ...]
+    teleop: TeleopRecord
+    lineage: Lineage
+
+    def as_dict(self) -> dict[str, Any]:
+        sec, nanosec = ns_to_stamp(self.stamp_ns)
+        return {
+            "schema": METADATA_SCHEMA,
+            "stamp_ns": self.stamp_ns,
+            "stamp": {"sec": sec, "nanosec": nanosec},
+            "frame_index": self.frame_index,
+            "camera_id": self.camera_id,
+            "robot_id": self.robot_id,
+            "image_size": list(self.image_size),
+            "sync": self.sync.as_dict(),
+            "joint_positions": dict(self.joint_positions),
+            "arms": [arm.as_dict() for arm in self.arms],
+            "teleop": self.teleop.as_dict(),
+            "lineage": self.lineage.as_dict(),
+        }
+
+    def to_json(self) -> str:
+        """The one serialisation of a record: key order as built, compact, ASCII, no NaN."""
+        return json.dumps(self.as_dict(), separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+
+    @classmethod
+    def from_json(cls, text: str | bytes) -> FrameRecord:
+        """A record from its JSON text; `from_json(r.to_json()).to_json() == r.to_json()`."""
+        try:
+            doc = json.loads(text, parse_constant=_no_constant)
+        except ValueError as exc:
+            raise RecordFormatError("(whole record)", f"not JSON ({exc})") from exc
+        return cls.from_dict(doc)
+
+    @classmethod
+    def from_dict(cls, doc: Any) -> FrameRecord:
+        """A record from its decoded JSON (a reader that schema-checks the dict first converts it here).
+
+        `schema` must be this version. `stamp` is not read: it is derived from
+        `stamp_ns` on output, and readers have always taken `stamp_ns`, so a
+        record whose pair disagrees is read as it was before (and writes the
+        pair its `stamp_ns` gives).
+        """
+        if not isinstance(doc, dict):
+            raise RecordFormatError("(whole record)", f"expected a JSON object, got {type(doc).__name__}")
+        if doc.get("schema") != METADATA_SCHEMA:
+            raise RecordFormatError("schema", f"expected {METADATA_SCHEMA!r}, got {doc.get('schema')!r}")
+        try:
+            return cls(
+                stamp_ns=doc["stamp_ns"],
+                frame_index=doc["frame_index"],
+                camera_id=doc["camera_id"],
+                robot_id=doc["robot_id"],
+                image_size=tuple(doc["image_size"]),
+                sync=SyncRecord.from_dict(doc["sync"]),
+                joint_positions=tuple(doc["joint_positions"].items()),
+                arms=tuple(ArmRecord.from_dict(arm) for arm in doc["arms"]),
+                teleop=TeleopRecord.from_dict(doc["teleop"]),
+                lineage=Lineage(**doc["lineage"]),
+            )
+        except KeyError as exc:
+            raise RecordFormatError(str(exc.args[0]), "missing") from exc
+        except (TypeError, AttributeError) as exc:
+            raise RecordFormatError("(a nested field)", f"of the wrong shape ({exc})") from exc
+
+    def arm(self, arm_id: str) -> ArmRecord:
+        return next(a for a in self.arms if a.arm_id == arm_id)
+
+
+def _list(values: tuple[Any, ...] | None) -> list[Any] | None:
+    return None if values is None else list(values)
+
+
+def _tuple(values: list[Any] | None) -> tuple[Any, ...] | None:
+    return None if values is None else tuple(values)
+
+
+def _no_constant(name: str) -> float:
+    raise ValueError(f"non-finite number {name}")

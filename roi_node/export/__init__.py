@@ -1,1 +1,0 @@
-"""Export of ROI bags to LeRobot v3.0 datasets (`roi-node export lerobot`); imports bag, report and core only."""

@@ -1,0 +1,1 @@
+"""Quality of ROI bags without ROS: validate, gates, statistics, the report and checksummed manifests."""

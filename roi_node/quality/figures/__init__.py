@@ -1,0 +1,1 @@
+"""Figures of ROI bags: plots, contact sheets and the side-by-side strip video."""

@@ -1,0 +1,1 @@
+"""Setting up a rig before anything runs: its config as resolved, URDF frames, camera pose, Foxglove layout."""

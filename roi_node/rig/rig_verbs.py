@@ -1,0 +1,83 @@
+"""`roi-node check-config` and `roi-node frames`: what a rig config and a URDF resolve to, before anything runs.
+
+check-config loads the rig as the node does (engine/config.py, then each URDF:
+structure checked by engine/urdf_check.py before placo sees it, frames looked
+up), and prints the config with every default filled in and each arm's joints
+as JointState names. frames prints a URDF's link tree, the names `ee_frame`
+and `tip.frame` can take. Bad input is one line naming the file and key (exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import yaml
+
+
+def _cmd_check_config(args: argparse.Namespace) -> int:
+    from roi_node.engine.arm_joints import arm_joints, check_joint_names_distinct
+    from roi_node.engine.config import load_rig_config
+    from roi_node.engine.kinematics import RobotKinematics
+    from roi_node.rig.rig_view import resolved_rig
+
+    rig = load_rig_config(args.rig)
+    kinematics = {robot.id: RobotKinematics(robot.id, robot.urdf_path) for robot in rig.robots}
+    check_joint_names_distinct(rig, kinematics)
+    arms: dict[str, Any] = {}
+    for arm in rig.arms:
+        robot = rig.robot(arm.robot)
+        joints = arm_joints(kinematics[robot.id], arm, rig.arm_location(arm.id))
+        arms[arm.id] = {
+            "robot": robot.id,
+            "chain": [robot.joint_prefix + j for j in joints.chain],
+            "gripper": [robot.joint_prefix + j for j in joints.gripper],
+        }
+    camera = rig.camera.intrinsics
+    report: dict[str, Any] = {
+        "rig": str(rig.path),
+        "valid": True,
+        "config": resolved_rig(rig),
+        "intrinsics": "from the camera_info topic at run time" if camera is None else {
+            "width_px": camera.width_px, "height_px": camera.height_px, "fx_px": camera.fx_px,
+            "distortion_model": camera.distortion_model,
+        },
+        "arm_joints": arms,
+    }
+    print(f"# {rig.path}: valid. Defaults filled in; arm_joints are JointState names (chain: required; gripper: recorded)")
+    print(yaml.safe_dump(report, sort_keys=False, default_flow_style=None, width=120), end="")
+    return 0
+
+
+def _cmd_frames(args: argparse.Namespace) -> int:
+    from roi_node.rig.urdf_frames import read_frame_tree, urdf_source
+
+    tree = read_frame_tree(urdf_source(args.urdf))
+    for line in tree.lines():
+        print(line)
+    return 0
+
+
+def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    check = verbs.add_parser(
+        "check-config",
+        help="validate a rig config; print it with defaults filled in and each arm's joint chain and gripper joints",
+        description="Load a rig config as the node does: every key and range (see config/rig.schema.json), the "
+        "calibration file, each URDF (structure first, then placo) and the arms' frames. Prints the resolved config as "
+        "YAML with every default filled in, the intrinsics, and per arm the JointState names of its joint chain "
+        "(required by the node) and of its gripper joints. A broken rig: one line naming the file and key, exit 2.",
+    )
+    check.add_argument("rig", metavar="RIG", help="rig config YAML (a path, or the name of a bundled one: rig_demo_bimanual.yaml)")
+    check.set_defaults(func=_cmd_check_config)
+
+    frames = verbs.add_parser(
+        "frames",
+        help="print the frame tree of a URDF: links, the joints between them and their types",
+        description="Print a URDF's link tree: the root link, then every link indented under its parent with the joint "
+        "that connects them and the joint's type. These are the names arms[].ee_frame and arms[].tip.frame can take. "
+        "URDF is a path or example-robot-data:NAME. A missing or malformed URDF or an unknown name: one line, exit 2.",
+    )
+    frames.add_argument("urdf", metavar="URDF", help="a URDF file or example-robot-data:NAME (panda, so101, ur5, ...)")
+    frames.set_defaults(func=_cmd_frames)
+
+

@@ -1,4 +1,0 @@
-"""rclpy adapters: the live node, conversions, QoS, diagnostics, recorder, player, consumer.
-
-The only place in roi_node that imports rclpy.
-"""

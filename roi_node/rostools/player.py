@@ -1,0 +1,102 @@
+"""`roi-node play`: publish a bag's messages live at their recorded timing.
+
+Reads with rosbags (any rosbag2 bag, MCAP or sqlite3, or a bare .mcap) and
+publishes the serialized bytes as they are, with the QoS the recording
+publisher offered. Pacing follows the bag's log times scaled by `--rate`;
+`--clock` also publishes /clock with the bag time, for nodes with
+use_sim_time; `--loop` starts over at the end (stamps then jump back, which
+the live node treats as a bag loop).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import rclpy
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+
+from roi_node.bagio.reader import open_bag, read_messages
+from roi_node.engine.errors import BagError
+from roi_node.live.conversions import time_msg
+from roi_node.live.msg_types import from_bag_qos, message_class
+from roi_node.util.progress import Progress
+
+CLOCK_PERIOD_NS = 10_000_000  # /clock at 100 Hz of bag time at most
+DISCOVERY_WAIT_S = 3.0
+
+
+def play(bag: Path, *, rate: float, loop: bool, clock: bool, topics: Sequence[str], ros_args: Sequence[str]) -> int:
+    if rate <= 0:
+        raise BagError(f"play: --rate must be > 0, got {rate}")
+    from roi_node.live.spin import ros_context
+
+    wanted = {t if t.startswith("/") else "/" + t for t in topics}
+    with ros_context(ros_args):
+        node = Node("roi_node_player")
+        try:
+            return _play(node, bag, rate, loop, clock, wanted)
+        except KeyboardInterrupt:
+            print("roi-node play: interrupted")
+            return 130
+        finally:
+            node.destroy_node()
+
+
+def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: set[str]) -> int:
+    with open_bag(bag) as reader:
+        connections = [c for c in reader.connections if not wanted or c.topic in wanted]
+        if not connections:
+            available = ", ".join(sorted({c.topic for c in reader.connections}))
+            raise BagError(f"{bag}: none of {', '.join(sorted(wanted))} in the bag; it has {available}")
+        publishers = {}
+        for c in connections:
+            qos = from_bag_qos(list(getattr(c.ext, "offered_qos_profiles", []) or []))
+            publishers[c.id] = node.create_publisher(message_class(c.msgtype), c.topic, qos)
+        clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)) if clock else None
+        _wait_for_subscribers(list(publishers.values()))
+        sent = 0
+        total = sum(int(c.msgcount) for c in connections)
+        passes = 0
+        while True:
+            passes += 1
+            start_wall = time.monotonic_ns()
+            first: int | None = None
+            last_clock = -CLOCK_PERIOD_NS
+            progress = Progress(f"play {bag.name}" + (f" (pass {passes})" if loop else ""), total, True, unit="messages")
+            for count, (connection, log_ns, raw) in enumerate(read_messages(reader, connections, bag), 1):
+                if not rclpy.ok(context=node.context):  # SIGINT/SIGTERM: rclpy shut the context down
+                    raise KeyboardInterrupt
+                first = log_ns if first is None else first
+                due = start_wall + int((log_ns - first) / rate)
+                while (wait := due - time.monotonic_ns()) > 0:
+                    time.sleep(min(wait / 1e9, 0.01))
+                if clock_pub is not None and log_ns - last_clock >= CLOCK_PERIOD_NS:
+                    clock_pub.publish(Clock(clock=time_msg(log_ns)))
+                    last_clock = log_ns
+                try:
+                    publishers[connection.id].publish(bytes(raw))
+                except RuntimeError:  # rclpy's RCLError ("publisher's context is invalid") is a RuntimeError
+                    if rclpy.ok(context=node.context):
+                        raise
+                    raise KeyboardInterrupt from None  # the signal arrived while publishing
+                sent += 1
+                progress.update(count)
+            progress.finish()
+            if not loop or not rclpy.ok(context=node.context):
+                break
+        time.sleep(0.5)  # reliable subscribers fetch the tail
+    print(f"roi-node play: published {sent} messages from {bag}")
+    return 0
+
+
+def _wait_for_subscribers(publishers: list[Publisher], timeout_s: float = DISCOVERY_WAIT_S) -> None:
+    """Give subscribers that already run time to discover the new publishers (discovery takes ~1-3 s here)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not all(p.get_subscription_count() > 0 for p in publishers):
+        time.sleep(0.05)
+    time.sleep(0.3)

@@ -1,0 +1,1 @@
+"""Verbs that span the layers: the demo, the stress sweeps, the simulated rig's verbs."""

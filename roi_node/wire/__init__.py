@@ -1,0 +1,1 @@
+"""The ROS message contract: topic names, image codec, compressed outputs, overlay CDR, rosbags messages."""

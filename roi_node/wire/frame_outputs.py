@@ -1,0 +1,115 @@
+"""One way out for a frame: a FrameResult as the ordered list of messages both drivers send.
+
+The live node publishes this list and replay writes it, each building its own
+message objects (rclpy, rosbags) from the same typed records, so the topics,
+the order and every payload (pixels, JPEG bytes, CameraInfo, record JSON,
+overlay) are decided once. The order is one frame at a time: per arm its ROI
+image (raw, then `/compressed`) and its ROI camera_info, then the global view
+(raw, then `/compressed`), the metadata record, the overlay. That is the order
+replay has always written (its recorded golden hashes depend on it), so a
+recorded live session and its replay hold the same sequence.
+
+Topic names are relative (wire/topics.py): the live node resolves them in its
+namespace, a bag stores them with `topics.absolute`. Pure: no message classes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from roi_node.engine.camera import CameraModel
+from roi_node.engine.pipeline import FrameResult
+from roi_node.engine.records import FrameRecord
+from roi_node.wire import topics
+from roi_node.wire.compressed_outputs import DEFAULT_JPEG_QUALITY, OutputTransport, compressed_format, compressed_topic, encode_jpeg
+
+
+@dataclass(frozen=True)
+class OutputOptions:
+    """What a driver sends of a frame: image transports, the raw encoding, JPEG quality, the overlay."""
+
+    transport: OutputTransport = OutputTransport.RAW
+    encoding: str = "rgb8"  # of raw colour images (rgb8 or bgr8); mono stays mono8
+    jpeg_quality: int = DEFAULT_JPEG_QUALITY
+    overlay: bool = False
+
+
+@dataclass(frozen=True)
+class OutgoingImage:
+    """A sensor_msgs/Image of `pixels` (RGB or mono) in `encoding`."""
+
+    topic: str
+    stamp_ns: int
+    frame_id: str
+    pixels: np.ndarray
+    encoding: str
+
+
+@dataclass(frozen=True)
+class OutgoingCompressed:
+    """A sensor_msgs/CompressedImage: JPEG bytes encoded once, with image_transport's format string."""
+
+    topic: str
+    stamp_ns: int
+    frame_id: str
+    format: str
+    data: bytes
+
+
+@dataclass(frozen=True)
+class OutgoingCameraInfo:
+    """An ROI's CameraInfo (all zeros when the ROI has no valid camera), sent as wire/messages.py serializes it."""
+
+    topic: str
+    stamp_ns: int
+    frame_id: str
+    camera: CameraModel | None
+    width_px: int
+    height_px: int
+
+
+@dataclass(frozen=True)
+class OutgoingText:
+    """A std_msgs/String: the frame's metadata record as JSON."""
+
+    topic: str
+    text: str
+
+
+@dataclass(frozen=True)
+class OutgoingOverlay:
+    """The visualization_msgs/ImageMarker drawn from the record (wire/overlay_cdr.py packs it)."""
+
+    topic: str
+    frame_id: str
+    record: FrameRecord
+
+
+Outgoing = OutgoingImage | OutgoingCompressed | OutgoingCameraInfo | OutgoingText | OutgoingOverlay
+
+
+def frame_outputs(result: FrameResult, frame_id: str, size_px: tuple[int, int], options: OutputOptions) -> list[Outgoing]:
+    """Every message of one frame, in the order it is sent (see the module docstring); `size_px` is the rig's
+    ROI output size (width, height), which each ROI CameraInfo states."""
+    stamp = result.stamp_ns
+    out_w, out_h = size_px
+    out: list[Outgoing] = []
+
+    def image(topic: str, pixels: np.ndarray) -> None:
+        if options.transport.raw:
+            out.append(OutgoingImage(topic, stamp, frame_id, pixels, options.encoding))
+        if options.transport.compressed:
+            fmt = compressed_format(pixels, options.encoding)
+            out.append(OutgoingCompressed(compressed_topic(topic), stamp, frame_id, fmt, encode_jpeg(pixels, options.jpeg_quality)))
+
+    for roi in result.rois:
+        image(topics.roi_image(roi.arm_id), roi.image)
+        out.append(OutgoingCameraInfo(topics.roi_camera_info(roi.arm_id), stamp, frame_id, roi.camera, out_w, out_h))
+    if result.global_view is not None:
+        image(topics.GLOBAL_IMAGE, result.global_view)
+    out.append(OutgoingText(topics.METADATA, result.record_json))
+    if options.overlay:
+        out.append(OutgoingOverlay(topics.OVERLAY, frame_id, result.record))
+    return out

@@ -1,0 +1,63 @@
+"""A second SIGINT/SIGTERM while a node is closing is ignored: the close finishes and the process exits 0.
+
+docs/live-node.md, "Status line, shutdown and summary". The child process runs
+`spin_node` (what `roi-node run` runs) on a real rclpy node whose `close` takes
+a second signal itself, at the moment the node's summary would be logged; with
+rclpy's or Python's default handlers back in place that signal would end the
+process (KeyboardInterrupt, exit 130) before the close is done.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from test.conftest import REPO
+from test.dds.harness import next_domain, ros_env
+
+TIMEOUT_S = 120.0
+CHILD = textwrap.dedent(
+    """
+    import signal
+    import sys
+
+    from rclpy.node import Node
+
+    from roi_node.live.spin import spin_node
+
+
+    class SlowToClose(Node):
+        def __init__(self) -> None:
+            super().__init__("slow_to_close")
+            print("up", flush=True)
+
+        def close(self) -> None:
+            print("closing", flush=True)
+            signal.raise_signal(signal.SIGINT)  # its Python handler runs before the next line
+            print("closed", flush=True)
+
+
+    sys.exit(spin_node(SlowToClose))
+    """
+)
+
+
+@pytest.mark.dds
+def test_a_second_signal_while_closing_is_ignored() -> None:
+    child = subprocess.Popen([sys.executable, "-c", CHILD], cwd=REPO, env=ros_env(next_domain()),
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout is not None
+        assert child.stdout.readline() == "up\n", "the node came up"
+        child.send_signal(signal.SIGTERM)
+        out, err = child.communicate(timeout=TIMEOUT_S)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    assert child.returncode == 0, err
+    assert out == "closing\nclosed\n" and "Traceback" not in err, (out, err)

@@ -1,0 +1,1 @@
+"""Tests of roi_node/rostools/."""

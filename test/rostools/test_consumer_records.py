@@ -1,0 +1,98 @@
+"""ObservationClient reads each /roi/metadata message as a FrameRecord, and a malformed one is counted, not raised.
+
+The records are the ones a real replay of a simulated bimanual session writes;
+they go over loopback DDS to a client in this process, beside the arm images of
+the same stamp. A message that is not a record must not stop the executor (the
+client's callbacks run there): it is counted and `waiting_for()` names it.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image
+from std_msgs.msg import String
+
+from roi_node.engine.records import FrameRecord
+from roi_node.engine.stamps import ns_to_stamp
+from roi_node.offline.replay import replay_bag
+from roi_node.rostools.consumer import ObservationClient
+from roi_node.sim.bag_sink import write_sim_bag
+from roi_node.wire import topics
+from test.dds.harness import graph_probe, next_domain, wait_until
+from test.engine.test_records_roundtrip import metadata_texts
+
+RELIABLE = QoSProfile(depth=30, reliability=ReliabilityPolicy.RELIABLE)
+
+
+@pytest.fixture
+def spun_node() -> Iterator[Node]:
+    """A node on a domain of this test's own, spun by an executor thread until the test ends."""
+    with graph_probe(next_domain()) as node:
+        executor = SingleThreadedExecutor(context=node.context)
+        executor.add_node(node)
+        stop = threading.Event()
+
+        def spin() -> None:
+            while not stop.is_set():
+                executor.spin_once(timeout_sec=0.05)
+
+        spinner = threading.Thread(target=spin)
+        spinner.start()
+        try:
+            yield node
+        finally:
+            stop.set()
+            spinner.join()
+            executor.shutdown()
+            node.destroy_node()
+
+
+def arm_image(stamp_ns: int, value: int) -> Image:
+    msg = Image()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = ns_to_stamp(stamp_ns)
+    msg.height, msg.width, msg.encoding, msg.step = 2, 2, "rgb8", 6
+    msg.data = bytes([value]) * 12
+    return msg
+
+
+@pytest.mark.dds
+def test_a_record_arrives_as_a_frame_record_and_a_malformed_one_is_counted(
+    spun_node: Node, bimanual_rig_path: Path, tmp_path: Path
+) -> None:
+    replay_bag(write_sim_bag(bimanual_rig_path, tmp_path / "sim", duration_s=0.2, seed=3).path, tmp_path / "roi", bimanual_rig_path)
+    text = metadata_texts(tmp_path / "roi")[0]
+    arms = [arm["arm_id"] for arm in json.loads(text)["arms"]]
+    client = ObservationClient(spun_node, None, with_global=False, qos=RELIABLE)
+    metadata_pub = spun_node.create_publisher(String, topics.METADATA, RELIABLE)
+    assert wait_until(client.matched, 30.0), "the client's metadata subscription never matched its publisher"
+
+    metadata_pub.publish(String(data='{"schema": "not a record"}'))
+    assert wait_until(lambda: client.malformed_records == 1, 30.0), "the malformed record was never counted"
+    said = client.waiting_for()
+    assert said is not None and said.startswith("metadata on /roi/metadata is malformed (1 records after "), said
+    assert "metadata record field schema: expected" in said, said
+
+    metadata_pub.publish(String(data=text))
+    assert wait_until(lambda: client.listed_arms is not None, 30.0), "the valid record never arrived"
+    assert client.listed_arms == tuple(arms)
+    image_pubs = {arm: spun_node.create_publisher(Image, topics.roi_image(arm), RELIABLE) for arm in arms}
+    assert wait_until(client.matched, 30.0), "the client's image subscriptions never matched"
+    record = FrameRecord.from_json(text)
+    for value, pub in enumerate(image_pubs.values(), start=1):
+        pub.publish(arm_image(record.stamp_ns, value))
+    observation = client.get(timeout_s=30.0)
+
+    assert observation is not None, client.waiting_for()
+    assert observation.record == record and observation.stamp_ns == record.stamp_ns
+    assert observation.metadata == json.loads(text)  # the public mapping is the record's JSON, as before
+    assert observation.joint_positions == json.loads(text)["joint_positions"]
+    assert [int(observation.rois[arm][0, 0, 0]) for arm in arms] == list(range(1, len(arms) + 1))
+    assert client.malformed_records == 1

@@ -1,0 +1,1 @@
+"""Test helpers shared by the test folders: bags, rigs, simulated rigs, golden hashes, a Ray cluster."""

@@ -1,0 +1,50 @@
+"""`roi-node demo` end to end: sim, live node and recorder as processes, then validate, replay, compare."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import av
+import cv2
+import pytest
+import yaml
+
+from test.conftest import REPO
+from test.dds.harness import next_domain, ros_env
+
+pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
+
+
+def test_demo_runs_the_whole_job_and_live_equals_offline(tmp_path: Path) -> None:
+    out = tmp_path / "demo"
+    run = subprocess.run(
+        [sys.executable, "-m", "roi_node.cli", "demo", "--out", str(out), "--duration", "6"],
+        cwd=REPO, env=ros_env(next_domain()), capture_output=True, text=True, timeout=400,
+    )
+    summary = json.loads((out / "summary.json").read_text())
+    assert run.returncode == (0 if summary["gates_passed"] else 1), run.stdout + run.stderr
+    assert summary["frames_published_by_sim"] == 180
+    assert summary["dropped_frames"] == 0 and summary["roi_frames_out"] == 180
+    compared, exempt = summary["live_offline_frames_compared"], summary["live_offline_frames_exempt"]
+    assert summary["live_equals_offline"] and compared + exempt == 180 and compared >= 170
+    assert f"live == offline: yes ({compared} frames compared" in run.stdout
+    meta = yaml.safe_load((out / "session" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["custom_data"]["roi_node.status"] == "complete"
+    assert (out / "report" / "REPORT.md").read_text().startswith("#")
+    sheet = cv2.imread(str(out / "contact_sheet.png"))
+    assert sheet is not None and sheet.shape[0] > 256
+    with av.open(str(out / "strip.mp4")) as video:  # H.264; the 1280x720 global view at 16:9 (456 px), then two ROIs
+        stream = video.streams.video[0]
+        frame = next(video.decode(stream)).to_ndarray(format="rgb24")
+        assert stream.codec_context.name == "h264" and frame.shape == (256, 456 + 2 * 256, 3)
+
+
+def test_demo_refuses_a_folder_it_did_not_write(tmp_path: Path) -> None:
+    (tmp_path / "precious.txt").write_text("keep me")
+    run = subprocess.run([sys.executable, "-m", "roi_node.cli", "demo", "--out", str(tmp_path)], cwd=REPO,
+                         env=ros_env(next_domain()), capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "is not a previous demo output" in run.stderr
+    assert (tmp_path / "precious.txt").read_text() == "keep me"
