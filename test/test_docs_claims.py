@@ -254,3 +254,12 @@ def test_the_python_api_page_runs_and_its_table_is_the_packages_exports() -> Non
     table = page.split("| name | what |")[1].split("\n\n")[0]
     named = set(re.findall(r"`([A-Za-z_]+)", table))
     assert set(roi_node.__all__) - {"__version__"} <= named, set(roi_node.__all__) - named
+
+
+def test_the_layering_section_gives_each_folder_the_floor_the_import_test_holds() -> None:
+    from test.test_import_graph import FLOORS
+
+    section = _text(DOCS / "design.md").split("## Layering")[1].split("\n## ")[0]
+    documented = {name.rstrip("/").removesuffix(".py"): int(floor)
+                  for name, floor in re.findall(r"^  ([a-z_]+/|cli\.py)\s+floor (\d+)", section, re.MULTILINE)}
+    assert documented == {name: floor for name, floor in FLOORS.items() if name != "roi_node"}

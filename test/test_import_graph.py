@@ -408,3 +408,19 @@ def test_ros_code_uses_public_rclpy_only() -> None:
                 if name.split(".")[0] == "rclpy" and any(part.startswith("_") for part in name.split(".")[1:])
             ]
     assert private == []
+
+
+ROS_FOLDERS = {"live", "rostools", "policy"}  # the node, the tools around it, the policy side of a running node
+
+
+def test_only_the_ros_folders_import_rclpy() -> None:
+    """Replay, validation, export and the engine run without a ROS runtime: rclpy is imported in ROS_FOLDERS only."""
+    importers = set()
+    for module, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            if isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                names = [node.module]
+            if any(name.split(".")[0] in ("rclpy", "rosidl_runtime_py") for name in names):
+                importers.add(package_of(module))
+    assert importers == ROS_FOLDERS
