@@ -1,8 +1,8 @@
 """What the `roi/overlay` marker draws for one frame, built from its metadata record alone.
 
-Pure geometry and colour, no message type: ros/overlay.py turns it into a
-visualization_msgs/ImageMarker, wire/messages.py into the same message for a
-bag. Everything is drawn as one LINE_LIST (point pairs, one colour per point)
+Pure geometry and colour, no message type: wire/overlay_cdr.py packs it as a
+visualization_msgs/ImageMarker's CDR bytes, which the live node publishes and
+replay writes as they are. Everything is drawn as one LINE_LIST (point pairs, one colour per point)
 because Foxglove's Image panel keeps only the newest message per annotation
 topic: one marker per arm on one topic would show only the last arm.
 
