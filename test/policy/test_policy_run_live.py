@@ -17,8 +17,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -33,7 +31,7 @@ from sensor_msgs.msg import JointState
 from examples.hold_pose_policy import HOLD_POSE
 from roi_node.policy.policy_diagnostics import STATUS_NAME
 from test.conftest import CONFIG, REPO
-from test.dds.harness import diagnostics_values, next_domain, node_args, process, ros_env
+from test.dds.harness import diagnostics_values, next_domain, node_args, process, ros_env, wait_until
 from test.policy.policy_dataset import RIG, export_dataset
 
 COMMAND_TOPIC = "joint_commands"
@@ -85,14 +83,6 @@ class RobotListener:
         self.executor.shutdown()
 
 
-def wait_for(predicate: Callable[[], object], timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.1)
-    return True
-
 
 @pytest.mark.dds
 def test_hold_pose_callable_drives_the_sim_to_its_pose(dataset: Path, tmp_path: Path) -> None:
@@ -106,11 +96,11 @@ def test_hold_pose_callable_drives_the_sim_to_its_pose(dataset: Path, tmp_path: 
     try:
         with process(sim, env, tmp_path / "sim.log"), process(node_args(RIG), env, tmp_path / "node.log"), \
                 process(policy, env, tmp_path / "policy.log") as runner:
-            converged = wait_for(lambda: max(listener.errors_from(HOLD_POSE).values()) <= TOLERANCE_RAD, CONVERGE_TIMEOUT_S)
+            converged = wait_until(lambda: max(listener.errors_from(HOLD_POSE).values()) <= TOLERANCE_RAD, CONVERGE_TIMEOUT_S)
             errors = listener.errors_from(HOLD_POSE)
             log = (tmp_path / "policy.log").read_text()
             assert converged, f"joints not within {TOLERANCE_RAD} of the pose: {errors}; policy log: {log}"
-            assert wait_for(lambda: diagnostics_values(listener.diagnostics, STATUS_NAME).get("frame_to_first_action_ms"), 10.0)
+            assert wait_until(lambda: diagnostics_values(listener.diagnostics, STATUS_NAME).get("frame_to_first_action_ms"), 10.0)
             status = diagnostics_values(listener.diagnostics, STATUS_NAME)
             assert status["command_topic"] == "/" + COMMAND_TOPIC and status["actions_published"] > 0
             assert status["refused_by_kind"] == {} and status["frame_to_first_action_ms"]["p50"] > 0

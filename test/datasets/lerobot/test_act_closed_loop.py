@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import signal
 import threading
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +35,7 @@ from roi_node.bagio.reader import stamp_ns
 from roi_node.cli import main
 from roi_node.policy.policy_diagnostics import STATUS_NAME
 from roi_node.wire import topics
-from test.dds.harness import RELIABLE_INPUT, diagnostics_values, next_domain, node_args, process, ros_env
+from test.dds.harness import RELIABLE_INPUT, diagnostics_values, next_domain, node_args, process, ros_env, wait_until
 from test.policy.policy_dataset import RIG, export_dataset
 
 pytest.importorskip("lerobot.policies.act.modeling_act")
@@ -77,14 +75,6 @@ class DiagnosticsListener:
         self.executor.shutdown()
 
 
-def wait_for(predicate: Callable[[], bool], timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.1)
-    return True
-
 
 def joint_series(bag: Path, topic: str) -> list[tuple[int, dict[str, float]]]:
     with AnyReader([bag]) as reader:
@@ -114,7 +104,7 @@ def test_act_drives_the_sim_and_the_rollout_passes_the_gates(tmp_path: Path) -> 
                 process(sim, env, tmp_path / "sim.log") as simulator, process(policy, env, tmp_path / "policy.log") as runner:
             published = lambda: int(listener.policy_status().get("actions_published", 0) or 0)  # noqa: E731
             ended = lambda: runner.poll() is not None or simulator.poll() is not None  # noqa: E731
-            assert wait_for(lambda: published() >= ROLLOUT_COMMANDS or ended(), 600.0), (tmp_path / "policy.log").read_text()
+            assert wait_until(lambda: published() >= ROLLOUT_COMMANDS or ended(), 600.0), (tmp_path / "policy.log").read_text()
             assert not ended(), (tmp_path / "policy.log").read_text() + (tmp_path / "sim.log").read_text()
             runner.send_signal(signal.SIGINT)
             assert runner.wait(timeout=60) == 0
