@@ -32,6 +32,19 @@ def no_orphaned_shm_segments() -> Iterator[None]:
     remove_orphaned_shm_segments(started)
 
 
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    """A failure is named the moment it happens, not only in the closing summary.
+
+    A run cut short (a CI time limit, a hung worker killed by pytest-timeout's thread method) never prints that summary;
+    this line is then the only record of what failed and why. Under xdist it runs in the controller, once per report.
+    """
+    if report.failed:
+        where = "" if report.when == "call" else f" (in {report.when})"
+        crash = getattr(report.longrepr, "reprcrash", None)
+        reason = f"{crash.path}:{crash.lineno}: {crash.message}" if crash else (report.longreprtext.strip().splitlines() or [""])[-1]
+        print(f"\nFAILED {report.nodeid}{where}: {' | '.join(reason.splitlines())[:400]}", flush=True)
+
+
 def pytest_itemcollected(item: pytest.Item) -> None:
     """Under pytest-xdist (`--dist loadgroup`) each test module is one group, run whole on one worker.
 
