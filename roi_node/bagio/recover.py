@@ -6,7 +6,9 @@ The data before the cut is intact: the mcap package's StreamReader reads
 records front to back without the index. Every whole chunk is checked (CRC)
 and its messages are copied, with their topics, message definitions and
 QoS, into a new bag written like every other (BagWriter: atomic, summary,
-metadata.yaml, status `recovered`). A whole chunk whose CRC or compression
+metadata.yaml, status `recovered`). The rig the recording carried (its
+attachments and `roi_node.rig` record, at the front of every storage file)
+is carried into the recovered bag, so it replays without `--config` too. A whole chunk whose CRC or compression
 fails is skipped and reported; reading a file stops at a torn or unparseable
 record, since nothing after it can be trusted to be aligned. The input is
 only read.
@@ -36,6 +38,7 @@ from roi_node.bagio.bag_metadata import BagMetadataError
 from roi_node.bagio.bag_status import BagStatus
 from roi_node.bagio.integrity import storage_files
 from roi_node.bagio.mcap_file import Compression, TopicSpec
+from roi_node.bagio.rig_attachments import RigInputs, leading_rig_inputs
 from roi_node.bagio.writer import BagWriter, qos_profile
 from roi_node.engine.errors import BagError
 from roi_node.util.progress import Progress
@@ -88,6 +91,7 @@ class RecoverySummary:
     input_path: Path
     output_path: Path
     files: tuple[FileRecovery, ...]
+    rig_line: str  # what became of the rig the recording carried
 
     def counts(self) -> Counter[str]:
         out: Counter[str] = Counter()
@@ -104,6 +108,7 @@ class RecoverySummary:
         out = [f"recovered {total} messages, {span:.3f} s, from {self.input_path} into {self.output_path} (status {RECOVERED})"]
         out += [f"  {topic}: {n} messages" for topic, n in sorted(counts.items())]
         out += [f"  {f.line()}" for f in self.files]
+        out.append(f"  {self.rig_line}")
         return out
 
 
@@ -268,6 +273,21 @@ def _size(stream: BinaryIO) -> int:
     return end
 
 
+def _carried_rig(first_file: Path) -> tuple[RigInputs | None, str]:
+    """The rig at the front of the first storage file, and a line saying what became of it.
+
+    A damaged rig record does not stop the recovery of the messages: the
+    bag is recovered without it, and the line says why.
+    """
+    try:
+        rig = leading_rig_inputs(first_file)
+    except BagError as exc:
+        return None, f"rig: not carried over ({exc})"
+    if rig is None:
+        return None, "rig: none (the recording carried no rig; replay it with --config)"
+    return rig, f"rig: {rig.described()} carried over"
+
+
 def recover_bag(source: Path, output: Path | None = None, *, overwrite: bool = False,
                 compression: Compression | str = Compression.NONE, progress: bool = False) -> RecoverySummary:
     """Copy everything readable of `source` into a new finalized bag at `output` (default `<name>_recovered`).
@@ -279,7 +299,8 @@ def recover_bag(source: Path, output: Path | None = None, *, overwrite: bool = F
     if target.resolve() == source.resolve() or source.resolve() in target.resolve().parents:
         raise BagError(f"{target}: the output would overwrite the input {source}; choose another path")
     results: list[FileRecovery] = []
-    with BagWriter(target, overwrite=overwrite, compression=compression, numbered=len(inputs) > 1) as writer:
+    rig, rig_line = _carried_rig(inputs[0])
+    with BagWriter(target, overwrite=overwrite, compression=compression, numbered=len(inputs) > 1, rig=rig) as writer:
         for i, path in enumerate(inputs):
             if i:
                 writer.split()
@@ -287,4 +308,4 @@ def recover_bag(source: Path, output: Path | None = None, *, overwrite: bool = F
         if not any(r.counts for r in results):
             raise BagError(f"{source}: no whole message could be read; nothing to recover")
         writer.close(RECOVERED)
-    return RecoverySummary(source, writer.final_path, tuple(results))
+    return RecoverySummary(source, writer.final_path, tuple(results), rig_line)

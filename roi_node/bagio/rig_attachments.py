@@ -30,8 +30,9 @@ from mcap.reader import make_reader
 
 from roi_node import __version__
 from roi_node.bagio.crc import crc32
-from roi_node.bagio.mcap_records import RECORD_PREFIX
+from roi_node.bagio.mcap_records import MAGIC, RECORD_PREFIX, Opcode
 from roi_node.bagio.mcap_records import attachment as attachment_record
+from roi_node.bagio.mcap_records import metadata as metadata_record
 from roi_node.bagio.reader import bag_information
 from roi_node.engine.config import RigConfig
 from roi_node.engine.errors import BagError, ConfigError, UsageError
@@ -185,16 +186,60 @@ def stored_records(bag: Path) -> StoredRecords | None:
     return StoredRecords(tuple((i.name, i.media_type, i.data_size) for i in indexes), metadata)
 
 
-def _read_attachment(stream: BinaryIO, offset: int, length: int, where: Path) -> BagAttachment:
-    """One attachment record, its CRC checked: a damaged rig file is refused, never extracted."""
-    stream.seek(offset)
-    record = stream.read(length)
-    body = record[RECORD_PREFIX.size:]
+def _attachment_from_body(body: bytes, offset: int, where: Path) -> BagAttachment:
+    """One attachment record's body, its CRC checked: a damaged rig file is refused, never extracted."""
     parsed = attachment_record(body)
     if parsed.crc and crc32(body[: parsed.crc_covered_bytes]) != parsed.crc:
         raise BagError(f"{where}: cannot read the rig stored in the bag (attachment {parsed.name!r} at byte {offset}: CRC mismatch)")
     data = body[parsed.crc_covered_bytes - parsed.data_size: parsed.crc_covered_bytes]
     return BagAttachment(parsed.name, parsed.media_type, bytes(data))
+
+
+def _read_attachment(stream: BinaryIO, offset: int, length: int, where: Path) -> BagAttachment:
+    stream.seek(offset)
+    return _attachment_from_body(stream.read(length)[RECORD_PREFIX.size:], offset, where)
+
+
+def _rig_inputs(entries: dict[str, str], attachments: tuple[BagAttachment, ...], where: Path) -> RigInputs:
+    """The `roi_node.rig` record's entries and the file's attachments as RigInputs, every named attachment present."""
+    names = {a.name for a in attachments}
+    references = {k: v for k, v in entries.items() if k not in (VERSION_KEY, "rig_id", RIG_KEY)}
+    missing = sorted({entries.get(RIG_KEY, RIG_ATTACHMENT), *references.values()} - names)
+    if missing:
+        raise BagError(f"{where}: the {RIG_METADATA_NAME} record names attachments the file does not hold: {', '.join(missing)}")
+    rig_files = tuple(a for a in attachments if a.name in {RIG_ATTACHMENT, *references.values()})
+    return RigInputs(entries.get("rig_id", ""), entries.get(VERSION_KEY, ""), rig_files, references)
+
+
+def leading_rig_inputs(path: Path) -> RigInputs | None:
+    """The rig a storage file carries, read from the records before its first chunk or message, not from its summary.
+
+    A writer puts the rig's attachments and metadata record at the front of
+    every file it opens (RigInputs.write_to), so a file cut short by a crash,
+    which has no summary to index them, still carries them: `recover` passes
+    them on. None when the front holds no `roi_node.rig` record.
+    """
+    attachments: list[BagAttachment] = []
+    entries: dict[str, str] | None = None
+    try:
+        with path.open("rb") as stream:
+            if stream.read(len(MAGIC)) != MAGIC:
+                return None
+            while len(prefix := stream.read(RECORD_PREFIX.size)) == RECORD_PREFIX.size:
+                offset = stream.tell() - RECORD_PREFIX.size
+                opcode, length = RECORD_PREFIX.unpack(prefix)
+                if opcode not in (Opcode.HEADER, Opcode.ATTACHMENT, Opcode.METADATA):
+                    break  # the first schema, channel, chunk or message: the front is over
+                body = stream.read(length)
+                if len(body) < length:
+                    break  # cut inside a record
+                if opcode == Opcode.ATTACHMENT:
+                    attachments.append(_attachment_from_body(body, offset, path))
+                elif opcode == Opcode.METADATA and (record := metadata_record(body)).name == RIG_METADATA_NAME:
+                    entries = dict(record.metadata)
+    except (OSError, ValueError) as exc:  # ValueError: also a MalformedRecordError
+        raise BagError(f"{path}: cannot read the rig stored in the bag ({exc})") from exc
+    return None if entries is None else _rig_inputs(entries, tuple(attachments), path)
 
 
 def read_rig_inputs(bag: Path) -> RigInputs | None:
@@ -213,14 +258,7 @@ def read_rig_inputs(bag: Path) -> RigInputs | None:
             attachments = tuple(_read_attachment(stream, i.offset, i.length, files[0]) for i in indexes)
     except (OSError, McapError, ValueError) as exc:  # ValueError: also a MalformedRecordError
         raise BagError(f"{files[0]}: cannot read the rig stored in the bag ({exc})") from exc
-    entries = dict(records[0].metadata)
-    names = {a.name for a in attachments}
-    references = {k: v for k, v in entries.items() if k not in (VERSION_KEY, "rig_id", RIG_KEY)}
-    missing = sorted({entries.get(RIG_KEY, RIG_ATTACHMENT), *references.values()} - names)
-    if missing:
-        raise BagError(f"{files[0]}: the {RIG_METADATA_NAME} record names attachments the file does not hold: {', '.join(missing)}")
-    rig_files = tuple(a for a in attachments if a.name in {RIG_ATTACHMENT, *references.values()})
-    return RigInputs(entries.get("rig_id", ""), entries.get(VERSION_KEY, ""), rig_files, references)
+    return _rig_inputs(dict(records[0].metadata), attachments, files[0])
 
 
 def _set_reference(doc: dict[str, Any], key_path: str, value: str, where: str) -> None:

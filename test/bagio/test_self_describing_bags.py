@@ -166,6 +166,47 @@ def test_a_damaged_attachment_is_refused_not_extracted(tmp_path: Path, sim_bag: 
     assert not (tmp_path / "out").exists()
 
 
+def cut_recording(sim_bag: Path, folder: Path, keep: float) -> Path:
+    """The sim bag's storage file as a recorder SIGKILLed mid-run leaves it: cut inside a record, no summary, no footer,
+    no metadata.yaml."""
+    folder.mkdir()
+    data = (sim_bag / "sim.mcap").read_bytes()
+    (folder / "sim_0.mcap").write_bytes(data[: int(len(data) * keep)])
+    return folder
+
+
+def test_a_recovered_recording_keeps_its_rig_and_replays_without_config(
+    tmp_path: Path, sim_bag: Path, two_urdf_rig: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cut = cut_recording(sim_bag, tmp_path / "cut", keep=0.8)
+    assert main(["recover", str(cut), "-o", str(tmp_path / "recovered")]) == 0
+    assert "  rig: rig.yaml, 2 URDFs, 1 calibration carried over" in capsys.readouterr().out.splitlines()
+    recovered = tmp_path / "recovered" / "recovered.mcap"
+    assert attachments(recovered) == attachments(sim_bag / "sim.mcap")  # read back by the mcap package, CRCs checked
+    assert rig_record(recovered) == rig_record(sim_bag / "sim.mcap")
+    assert main(["replay", str(tmp_path / "recovered"), "-o", str(tmp_path / "from_bag" / "roi")]) == 0
+    assert main(["replay", str(tmp_path / "recovered"), "-o", str(tmp_path / "with_config" / "roi"), "--config", str(two_urdf_rig)]) == 0
+    assert folder_bytes(tmp_path / "from_bag" / "roi") == folder_bytes(tmp_path / "with_config" / "roi")
+
+
+def test_a_recording_cut_inside_its_rig_is_recovered_without_it(tmp_path: Path, sim_bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    with (sim_bag / "sim.mcap").open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    rig_yaml = next(i for i in summary.attachment_indexes if i.name == "rig/rig.yaml")
+    source = (sim_bag / "sim.mcap").read_bytes()
+    data = bytearray(source)
+    data[rig_yaml.offset + rig_yaml.length - 40] ^= 0xFF  # inside the YAML text, before the CRC
+    (tmp_path / "damaged").mkdir()
+    (tmp_path / "damaged" / "sim_0.mcap").write_bytes(bytes(data[: int(len(data) * 0.8)]))
+    assert main(["recover", str(tmp_path / "damaged"), "-o", str(tmp_path / "recovered")]) == 0
+    out = capsys.readouterr().out
+    assert "  rig: not carried over (" in out and "attachment 'rig/rig.yaml'" in out and "CRC mismatch" in out
+    assert attachments(tmp_path / "recovered" / "recovered.mcap") == {}  # the messages are recovered all the same
+    with (tmp_path / "recovered" / "recovered.mcap").open("rb") as stream:
+        assert sum(1 for _ in make_reader(stream).iter_messages()) > 0
+
+
 def test_inspect_lists_the_attachments_and_metadata_records(sim_bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["inspect", str(sim_bag)]) == 0
     lines = capsys.readouterr().out.splitlines()
