@@ -29,7 +29,8 @@ test: $(STAMP)
 	$(PY) -c "from roi_node.engine.area_resample import warm_up; warm_up()"  # nor the resampling kernels' first JIT compile
 	# two workers, each test module whole on one (its fixtures built once, test/conftest.py); DDS tests take domains
 	# from their worker's own block of ROS_DOMAIN_ID.. (test/dds/harness.py), so two of them never hear each other
-	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-71} $(PY) -m pytest -q -n 2 --dist loadgroup test
+	# a run that hangs anyway is interrupted after 40 min (pytest then prints what failed) rather than at CI's limit
+	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-71} timeout -s INT -k 60 2400 $(PY) -m pytest -q -n 2 --dist loadgroup test
 
 # The edit loop: everything but the DDS, Ray, colcon and demo tests (markers dds and ray; see pyproject.toml).
 test-fast: $(STAMP)

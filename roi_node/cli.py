@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 from roi_node import __version__
 from roi_node.engine.errors import EXIT_ERROR, RoiNodeError
+from roi_node.util.blas_threads import use_one_blas_thread
 from roi_node.util.ray_options import ray_requested
 
 DEBUG_FLAG = "--debug"
@@ -38,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    use_one_blas_thread()  # before any verb loads numpy (util/blas_threads.py says why)
     argv = list(sys.argv[1:] if argv is None else argv)
     ros_args: list[str] = []
     if "--ros-args" in argv:  # everything from --ros-args on belongs to rclpy

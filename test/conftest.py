@@ -8,6 +8,10 @@ from pathlib import Path
 
 import pytest
 
+from roi_node.util.blas_threads import use_one_blas_thread
+
+use_one_blas_thread()  # the tests that simulate or replay in the worker itself run as a roi-node process does
+
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / "config"
 
