@@ -47,6 +47,7 @@ if TYPE_CHECKING:
 
 ROSBAG2_VERSION: Literal[9] = 9
 STATUS_KEY = "roi_node.status"
+RECORDED_BY_KEY = "roi_node.recorded_by"  # custom_data of a `record` bag: the roi_node version that recorded it
 RECORDING = BagStatus.RECORDING
 METADATA_NAME = "metadata.yaml"
 RESERVE_NAME = ".roi_node_space_reserve"

@@ -1,12 +1,12 @@
 """`roi-node play`: publish a bag's messages live at their recorded timing.
 
 Reads with rosbags (any rosbag2 bag, MCAP or sqlite3, or a bare .mcap) and
-publishes the serialized bytes as they are, with the reliability and
-durability the recording publisher offered. A reliable publisher keeps at
-least the last 2 s of its topic (at the rate played) for a subscriber that
-falls behind, as a loaded machine's node does, and the player exits only
-once every reliable subscriber acknowledged what it sent (5 s at most), so
-nothing a subscriber could still take is thrown away. Pacing follows the bag's log times scaled by `--rate`;
+publishes the serialized bytes as they are, with the QoS the recording
+publisher offered (its history depth too: a deeper history of large images
+would not fit the shared-memory segment of config/fastdds_shm.xml). The
+player exits only once every reliable subscriber acknowledged what it sent
+(5 s at most), so the tail a subscriber could still take is not thrown
+away. Pacing follows the bag's log times scaled by `--rate`;
 `--clock` also publishes /clock with the bag time, for nodes with
 use_sim_time; `--loop` starts over at the end (stamps then jump back, which
 the live node treats as a bag loop).
@@ -14,7 +14,6 @@ the live node treats as a bag loop).
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -34,14 +33,7 @@ from roi_node.util.progress import Progress
 
 CLOCK_PERIOD_NS = 10_000_000  # /clock at 100 Hz of bag time at most
 DISCOVERY_WAIT_S = 3.0
-BACKLOG_S = 2.0  # of each reliable topic, at the rate played, kept for a subscriber that falls behind
 ACKED_WAIT_S = 5.0  # the longest the player waits at the end for reliable subscribers to acknowledge
-
-
-def backlog_depth(message_count: int, duration_ns: int, rate: float) -> int:
-    """History depth that holds BACKLOG_S of a topic with `message_count` messages over `duration_ns`, played at `rate`."""
-    rate_hz = message_count / max(duration_ns / 1e9, 1e-3) * rate
-    return max(1, math.ceil(rate_hz * BACKLOG_S))
 
 
 def play(bag: Path, *, rate: float, loop: bool, clock: bool, topics: Sequence[str], ros_args: Sequence[str]) -> int:
@@ -70,8 +62,6 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
         publishers = {}
         for c in connections:
             qos = from_bag_qos(list(getattr(c.ext, "offered_qos_profiles", []) or []))
-            if qos.reliability == ReliabilityPolicy.RELIABLE:
-                qos.depth = max(qos.depth, backlog_depth(int(c.msgcount), int(reader.duration), rate))
             publishers[c.id] = node.create_publisher(message_class(c.msgtype), c.topic, qos)
         clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)) if clock else None
         _wait_for_subscribers(list(publishers.values()))

@@ -19,7 +19,8 @@ drain the queue and finalize; every join is bounded, so stopping never hangs.
 With `--image-transport jpeg|png` camera topics (sensor_msgs/Image) are
 stored re-encoded as `<topic>/compressed` CompressedImage. `--preset rosbag2`
 writes chunks as rosbag2's MCAP writer does (bagio/storage_preset.py); with
-`--config` every storage file carries the rig's files (bagio/rig_attachments.py).
+`--config` every storage file carries the rig's files (bagio/rig_attachments.py); with or without it,
+metadata.yaml's custom_data names the roi_node that recorded the bag (`roi_node.recorded_by`).
 """
 
 from __future__ import annotations
@@ -36,10 +37,11 @@ from pathlib import Path
 from rclpy.node import Node
 from rosbags.interfaces import Qos
 
+from roi_node import __version__
 from roi_node.bagio.bag_status import BagStatus
 from roi_node.bagio.mcap_file import Compression
 from roi_node.bagio.rig_attachments import RigInputs
-from roi_node.bagio.writer import BagWriteError, BagWriter, SplitPolicy
+from roi_node.bagio.writer import RECORDED_BY_KEY, BagWriteError, BagWriter, SplitPolicy
 from roi_node.engine.errors import BagError, ImageError, UsageError
 from roi_node.live.drain import draining_subscription
 from roi_node.live.msg_types import message_class, subscription_qos, to_bag_qos
@@ -90,7 +92,9 @@ class Recorder(Node):
         self.wanted = {t if t.startswith("/") else "/" + t for t in topics}
         self.record_all = record_all
         self.writer = BagWriter(out, overwrite=overwrite, on_error="finalize", compression=options.compression,
-                                split=options.split, in_place=True, rig=options.rig, chunk_bytes=options.chunk_bytes).__enter__()
+                                split=options.split, in_place=True, rig=options.rig, chunk_bytes=options.chunk_bytes)
+        self.writer.custom_data[RECORDED_BY_KEY] = f"roi_node {__version__}"  # with or without --config
+        self.writer.__enter__()
         self.transcoder = (None if options.image_transport is ImageTransport.RAW
                            else ImageTranscoder(self.writer.typestore, options.image_transport, options.jpeg_quality))
         self.written: Counter[str] = Counter()

@@ -94,10 +94,10 @@ def main(spec_path: str, truth_path: str) -> int:
 
     rclpy.init()
     node = rclpy.create_node("test_camera_publisher")
-    # reliable writers keep the last N samples for a reader that has not acknowledged them: 2 s of frames and
-    # 1000 joint states (5 s at 200 Hz), so a subscriber process stalled by a loaded machine does not lose a sample
-    # (10 frames, 333 ms, lost 2 of 30 to a recorder on a machine with both cores busy besides the test workers)
-    sensor = QoSProfile(depth=max(10, math.ceil(2 * NS / period_ns)), reliability=ReliabilityPolicy.RELIABLE)
+    # reliable writers keep the last N samples for a reader that has not acknowledged them: 10 frames (333 ms at
+    # 30 Hz; more 720p frames would not fit fastdds_shm.xml's 64 MiB segment), and 1000 joint states (5 s at 200 Hz),
+    # so a subscriber process stalled by a loaded machine does not lose a sample
+    sensor = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
     deep = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
     compressed = spec.get("transport", "raw") == "compressed"
     image_type, image_topic = (CompressedImage, "image_raw/compressed") if compressed else (Image, "image_raw")

@@ -16,6 +16,7 @@ import yaml
 from mcap_ros2.reader import read_ros2_messages
 from rosbags.highlevel import AnyReader
 
+from roi_node import __version__
 from roi_node.bagio.writer import typestore
 from roi_node.offline.replay import replay_bag
 from test.conftest import CONFIG, REPO
@@ -110,6 +111,7 @@ def test_recorded_live_session_equals_offline_replay_and_both_readers_agree(tmp_
     bag, truth = session
     meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert meta["version"] == 9 and meta["storage_identifier"] == "mcap"
+    assert meta["custom_data"]["roi_node.recorded_by"] == f"roi_node {__version__}"  # recorded without --config
     topics = {t["topic_metadata"]["name"]: t for t in meta["topics_with_message_count"]}
     assert set(topics) == set(INPUTS + OUTPUTS)
     assert topics["/image_raw"]["message_count"] == 30
