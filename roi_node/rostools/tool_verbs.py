@@ -18,7 +18,9 @@ from roi_node.util.arg_types import float_at_least
 if TYPE_CHECKING:
     from roi_node.rostools.remote_node import RemoteNode
 
-DEFAULT_TIMEOUT_S = 5.0
+# a new process finds a running node in 1-3 s on an idle machine, and took more than 5 s beside a busy one; the wait
+# ends as soon as the node (service, message) is there, so only a command that fails waits this long
+DEFAULT_TIMEOUT_S = 15.0
 DEFAULT_ANSWER_TIMEOUT_S = 30.0  # a lifecycle configure loads the rig (URDFs, calibration) before it answers
 REFUSED = 1  # the node answered no (a set it refused, a transition it did not make)
 

@@ -212,7 +212,7 @@ def test_unreachable_nodes_and_bad_input_are_one_line_and_exit_2(node_env: dict[
     assert_one_line(absent, 2, "roi-node param: error: node /no_such_node not found within 1 s",
                     f"on ROS domain {node_env['ROS_DOMAIN_ID']} (nodes seen: ")
     assert_one_line(unknown, 2, "parameter no_such_parameter: not a parameter of /roi_node")
-    assert_one_line(not_lifecycle, 2, "service /roi_node/get_state not available within 5 s", "lifecycle node")
+    assert_one_line(not_lifecycle, 2, "service /roi_node/get_state not available within 15 s", "lifecycle node")
     assert_one_line(too_big, 2, "'99999999999999999999'", "64-bit")
     assert_one_line(bad_name, 2, "node name '/bad name'")
 
