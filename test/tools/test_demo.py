@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from test.conftest import REPO
-from test.dds.harness import next_domain, ros_env
+from test.dds.harness import next_domain, ros_env, wait_until
 
 pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 
@@ -48,3 +48,42 @@ def test_demo_refuses_a_folder_it_did_not_write(tmp_path: Path) -> None:
                          env=ros_env(next_domain()), capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "is not a previous demo output" in run.stderr
     assert (tmp_path / "precious.txt").read_text() == "keep me"
+
+
+def children_of(pid: int) -> set[int]:
+    """The processes `pid` started, from /proc (every thread's children list)."""
+    found: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        found.update(int(c) for c in (task / "children").read_text().split())
+    return found
+
+
+def alive(pid: int) -> bool:
+    """Running and not a zombie awaiting its reaper."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the parent-death signal is Linux's")
+def test_a_demo_killed_outright_takes_its_node_and_recorder_with_it(tmp_path: Path) -> None:
+    """SIGKILL gives the demo no chance to stop its children: the kernel's parent-death signal does (util/parent_death.py)."""
+    out = tmp_path / "demo"
+    demo = subprocess.Popen([sys.executable, "-m", "roi_node.cli", "demo", "--out", str(out), "--duration", "60"], cwd=REPO,
+                            env=ros_env(next_domain()), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        recorder_log = out / "logs" / "record.log"
+        started = wait_until(lambda: recorder_log.is_file() and "recording " in recorder_log.read_text(), 60.0)
+        assert started, demo.stderr.read() if demo.poll() is not None else "the recorder never started"
+        children = children_of(demo.pid)
+        assert len(children) >= 2, children  # the node and the recorder (the sim may have started too)
+        demo.kill()
+        demo.wait(timeout=10)
+        assert wait_until(lambda: not any(alive(c) for c in children), 30.0), [c for c in children if alive(c)]
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.wait(timeout=10)
+    meta = yaml.safe_load((out / "session" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["custom_data"]["roi_node.status"] == "complete"  # the recorder finalized its bag, as on Ctrl-C
