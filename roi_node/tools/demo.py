@@ -30,6 +30,7 @@ from roi_node.engine.resources import config_dir
 from roi_node.offline.compare import compare_live_offline
 from roi_node.quality.figures.strip import write_strip
 from roi_node.rostools.metadata_watch import MetadataWatch
+from roi_node.util.parent_death import terminate_on_parent_death
 from roi_node.wire import topics
 
 MARKER = ".roi_node_demo"
@@ -68,7 +69,9 @@ def _start(args: list[str], env: dict[str, str], log: Path) -> subprocess.Popen[
     """A child in the logs folder: `python -m` puts the working folder first on sys.path, so a `roi_node/` checkout
     in the user's folder would shadow the installed package (the logs folder holds only logs; paths are absolute)."""
     with log.open("wb") as out:
-        return subprocess.Popen(args, env=env, stdout=out, stderr=subprocess.STDOUT, cwd=log.parent)
+        # a demo killed outright (SIGKILL) takes its node, recorder and sim with it (util/parent_death.py)
+        return subprocess.Popen(args, env=env, stdout=out, stderr=subprocess.STDOUT, cwd=log.parent,
+                                preexec_fn=terminate_on_parent_death())
 
 
 def _stop(proc: subprocess.Popen[bytes], name: str, log: Path) -> None:
