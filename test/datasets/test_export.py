@@ -53,7 +53,7 @@ STAT_NAMES = ["min", "max", "mean", "std", "count", "q01", "q10", "q50", "q90", 
 TASK = "fold the towel"
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def bags(tmp_path_factory: pytest.TempPathFactory) -> ExportBags:
     return ExportBags(tmp_path_factory.mktemp("exportbags"))
 

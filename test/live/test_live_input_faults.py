@@ -113,7 +113,10 @@ def test_a_png_bomb_is_refused_from_its_header_without_a_decode_and_good_frames_
     assert set(drops) <= {"declared_size", "bad_image", "decode_overflow"}, inputs
     published = {r["stamp_ns"] for r in collector.metadata}
     good_after = [f["stamp_ns"] for f in frames[bomb_at + 1:] if f["index"] not in damaged]
-    assert sum(stamp in published for stamp in good_after) >= len(good_after) - drops.get("decode_overflow", 0)
+    # every good frame after the bomb comes out, but those dropped undecoded and those a stalled reader lost to the
+    # publisher's 10-frame history (a loaded machine again): both are counted
+    not_out = drops.get("decode_overflow", 0) + inputs["lost_before_node"]
+    assert sum(stamp in published for stamp in good_after) >= len(good_after) - not_out, inputs
     assert frames[-1]["stamp_ns"] in published or drops.get("decode_overflow", 0), "frames flow to the end"
     assert frames[bomb_at]["stamp_ns"] not in published
     assert "declared_size" in log and not re.search(r"^libpng", log, re.M), "libpng's own lines are not printed"
@@ -166,8 +169,11 @@ def test_frames_withheld_before_the_node_are_counted_as_lost_in_transport(tmp_pa
     assert [f["index"] for f in truth["frames"] if f["withheld"]] == withheld
     inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
     lost = inputs["lost_before_node"]
-    assert abs(lost - len(withheld)) <= 1, inputs
-    assert inputs["totals"]["frames_in"] == len(truth["frames"]) - len(withheld), "reliable input: the rest arrived"
+    # the withheld frames never arrive; on a loaded machine a stalled reader can also lose a few more to the publisher's
+    # 10-frame history: the estimate must count both, from the stamps alone
+    never_arrived = len(truth["frames"]) - inputs["totals"]["frames_in"]
+    assert never_arrived >= len(withheld), inputs
+    assert abs(lost - never_arrived) <= 1, inputs
     messages = [s.message for a in collector.diagnostics for s in a.status if s.name == "roi_node: input"]
     assert any(f"lost before the node (transport) {lost} since start" in m for m in messages), messages
     log = (tmp_path / "node.log").read_text()
