@@ -222,6 +222,7 @@ def leading_rig_inputs(path: Path) -> RigInputs | None:
     attachments: list[BagAttachment] = []
     entries: dict[str, str] | None = None
     try:
+        size = path.stat().st_size
         with path.open("rb") as stream:
             if stream.read(len(MAGIC)) != MAGIC:
                 return None
@@ -230,9 +231,9 @@ def leading_rig_inputs(path: Path) -> RigInputs | None:
                 opcode, length = RECORD_PREFIX.unpack(prefix)
                 if opcode not in (Opcode.HEADER, Opcode.ATTACHMENT, Opcode.METADATA):
                     break  # the first schema, channel, chunk or message: the front is over
+                if length > size - stream.tell():
+                    break  # cut inside a record, or a damaged length: never read (or allocate) past the file's end
                 body = stream.read(length)
-                if len(body) < length:
-                    break  # cut inside a record
                 if opcode == Opcode.ATTACHMENT:
                     attachments.append(_attachment_from_body(body, offset, path))
                 elif opcode == Opcode.METADATA and (record := metadata_record(body)).name == RIG_METADATA_NAME:
