@@ -154,7 +154,7 @@ def test_killed_worker_is_retried(cluster: RayCluster, bags: Bags, tmp_path: Pat
 
 def test_interrupted_driver_then_resume(cluster: RayCluster, bags: Bags, tmp_path: Path) -> None:
     out = tmp_path / "out"
-    names = [VICTIM, "b0", "b1", "b2", "b3"]  # the victim and b0 start together; b0 ends long before the victim
+    names = [VICTIM, "b0", "b1", "b2", "b3"]  # the victim and b0 start together; b0 ends while the victim is held
     args = ["replay", *(str(bags.path(n)) for n in names), "-o", str(out), "--config", str(bags.rig), f"--ray={cluster.address}"]
     driver = cluster.start(*args)
 
@@ -164,8 +164,21 @@ def test_interrupted_driver_then_resume(cluster: RayCluster, bags: Bags, tmp_pat
         except (OSError, ValueError):
             return []
 
-    _wait_for(finished, driver, "a first bag was finished")
-    driver.send_signal(signal.SIGINT)
+    # the victim's worker is held (SIGSTOP) from its first output until the Ctrl-C, so the interrupt comes mid-bag
+    # on any machine: left running, a 600-frame bag could end before a loaded driver acted on the Ctrl-C
+    pattern = re.compile(rf"^\.{VICTIM}_roi\.partial-(\d+)$")
+
+    def victim_worker() -> int | None:
+        names_now = os.listdir(out) if out.is_dir() else []
+        return next((int(m.group(1)) for name in names_now if (m := pattern.match(name))), None)
+
+    pid: int = _wait_for(victim_worker, driver, "the victim's temporary output appeared")  # type: ignore[assignment]
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        _wait_for(finished, driver, "a first bag was finished")
+        driver.send_signal(signal.SIGINT)
+    finally:
+        os.kill(pid, signal.SIGCONT)
     stdout, stderr = driver.communicate(timeout=120)
     assert driver.returncode == 130, stderr
     kept = finished()
