@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import shutil
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -10,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from roi_node.util.blas_threads import use_one_blas_thread
+from test.support.scratch import module_scratch_goes_with_the_module  # noqa: F401 (an autouse fixture, for every module)
 
 use_one_blas_thread()  # the tests that simulate or replay in the worker itself run as a roi-node process does
 
@@ -35,30 +35,6 @@ def no_orphaned_shm_segments() -> Iterator[None]:
     started = time.time()
     yield
     remove_orphaned_shm_segments(started)
-
-
-SESSION_SHARED_SCRATCH = frozenset({"roibags"})  # test/support/roibags.py bag_set: one per worker, for the whole run
-
-
-@pytest.fixture(scope="module", autouse=True)
-def module_scratch_goes_with_the_module(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
-    """What a test module wrote under the worker's temp root is removed when the module ends, unless one of its tests failed.
-
-    pytest removes a passing test's own `tmp_path` at once (`tmp_path_retention_policy = "failed"`), but the folders of
-    module-scoped fixtures (`tmp_path_factory.mktemp`: sim bags, recorded sessions, exported datasets) stay until the
-    run ends. They add up to several GB over a run, more than a CI machine's disk may have free. Torn down after the
-    module's own fixtures (an autouse fixture is set up first), so nothing still uses them; a failing module keeps
-    them as evidence.
-    """
-    base = tmp_path_factory.getbasetemp()
-    before = set(base.iterdir())
-    failed_before = request.session.testsfailed
-    yield
-    if request.session.testsfailed > failed_before:
-        return
-    for entry in set(base.iterdir()) - before:
-        if entry.name not in SESSION_SHARED_SCRATCH:
-            shutil.rmtree(entry, ignore_errors=True)
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
