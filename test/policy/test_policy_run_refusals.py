@@ -71,8 +71,9 @@ class Bench:
         except Exception:  # shut down under us: the test is over
             pass
 
-    def run(self, act: Callable[[dict[str, Any]], Any], published: int) -> None:
-        """The loop until `published` commands went out (or it raises), a new observation offered each 10 ms."""
+    def run(self, act: Callable[[dict[str, Any]], Any], published: int, *, offer_more: bool = True) -> None:
+        """The loop until `published` commands went out (or it raises), a new observation offered each 10 ms after the
+        first (only the first, without `offer_more`)."""
         stop = threading.Event()
         latest = LatestObservation()
         self.publisher.start_from(START)
@@ -85,9 +86,10 @@ class Bench:
                 if self.stats.published >= published:
                     stop.set()
 
-        feeder = threading.Thread(target=feed, daemon=True)
-        feeder.start()
+        # the first observation is in before the feeder starts
         latest.put(PolicyObservation({"observation.state": START.astype(np.float32)}, 1_000_000_000, 0.001, None, None))  # type: ignore[arg-type]
+        feeder = threading.Thread(target=feed if offer_more else stop.wait, daemon=True)
+        feeder.start()
         try:
             _loop(LoadedPolicy("test:policy", PolicyKind.CALLABLE, act, lambda: None), self.features, self.publisher, latest, stop, 1)
         finally:
@@ -151,6 +153,7 @@ def test_a_raising_policy_stops_the_run_naming_it_and_the_frame(bench: Bench) ->
         raise ValueError("checkpoint expects 14 joints")
 
     with pytest.raises(PolicyCallError) as err:
-        bench.run(act, published=5)
+        bench.run(act, published=5, offer_more=False)  # the frame it names is the only one offered (a loaded machine
+        # once had the loop start on the feeder's second observation)
     assert str(err.value) == ("--policy test:policy: raised ValueError: checkpoint expects 14 joints on the observation of "
                               "frame 1000000000")
