@@ -114,7 +114,9 @@ class TaskRun:
         return False
 
     def _collect(self, ref: Any, result: TaskResult | None = None) -> None:
-        index = self.pending.pop(ref)
+        """Move a finished task from `pending` to `results`, only once its result is in hand: a Ctrl-C that lands
+        inside `ray.get` leaves the task pending, for `_cancel` to settle, instead of lost from both."""
+        index = self.pending[ref]
         job = self.jobs[index]
         if result is None:
             try:
@@ -123,6 +125,7 @@ class TaskRun:
                 result = TaskResult(job.source, job.target, BagStatus.FAILED, 0.0, error=f"{job.source}: {_ray_failure(exc)}")
         assert result is not None
         self.results[index] = result
+        del self.pending[ref]
         self._manifest_dirty = self._manifest_dirty or result.entry is not None
 
     def _cancel(self) -> None:
@@ -131,6 +134,9 @@ class TaskRun:
             self.ray.cancel(ref, force=True)
         ready, _ = self.ray.wait(list(self.pending), num_returns=len(self.pending), timeout=CANCEL_GRACE_S)
         for ref in list(self.pending):
+            if self.pending[ref] in self.results:  # interrupted between `_collect`'s two steps: it is collected
+                del self.pending[ref]
+                continue
             job = self.jobs[self.pending[ref]]
             finished = self._finished(ref) if ref in ready else None
             if finished is not None:

@@ -1,4 +1,5 @@
-"""The parts of --ray that need no cluster: which failures are retried, the progress line, the missing extra."""
+"""The parts of --ray that need no cluster: which failures are retried, the progress line, the missing extra, a Ctrl-C
+landing while the driver gathers a result (a stand-in for Ray)."""
 
 from __future__ import annotations
 
@@ -6,11 +7,15 @@ import errno
 import io
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
 from roi_node.engine.errors import BagError, BagWriteError
+from roi_node.fleet.fleet import TaskRun
 from roi_node.fleet.progress import FleetCounts, FleetProgress
-from roi_node.fleet.tasks import is_transient
+from roi_node.fleet.tasks import BagStatus, ReplayJob, TaskResult, is_transient
 
 CONFIG = Path(__file__).resolve().parents[2] / "config" / "rig_demo_bimanual.yaml"
 
@@ -54,3 +59,58 @@ def test_without_ray_installed_one_line(tmp_path: Path) -> None:
     assert done.stderr.strip().splitlines() == [
         "roi-node replay: error: --ray needs Ray, which is not installed (ray); install the cluster extra: pip install 'roi_node[cluster]'"
     ]
+
+
+class _InterruptedGetRay:
+    """Stands in for the `ray` module: every task is done at once, and the first `ray.get` without a timeout raises
+    KeyboardInterrupt, as a Ctrl-C landing while the driver gathers a result does."""
+
+    class exceptions:  # noqa: N801 (ray.exceptions)
+        RayError = RuntimeError
+
+    def __init__(self) -> None:
+        self.results: dict[int, TaskResult] = {}
+        self.interrupted = False
+
+    def remote(self, function: Callable[[ReplayJob], TaskResult]) -> Any:
+        ray = self
+
+        class Task:
+            def options(self, **_: Any) -> Task:
+                return self
+
+            def remote(self, job: ReplayJob) -> int:
+                ref = len(ray.results)
+                ray.results[ref] = function(job)
+                return ref
+
+        return Task()
+
+    def wait(self, refs: list[int], num_returns: int, timeout: float) -> tuple[list[int], list[int]]:
+        return list(refs), []
+
+    def get(self, ref: int, timeout: float | None = None) -> TaskResult:
+        if timeout is None and not self.interrupted:
+            self.interrupted = True
+            raise KeyboardInterrupt
+        return self.results[ref]
+
+    def cancel(self, ref: int, force: bool) -> None:
+        pass
+
+
+def test_a_ctrl_c_while_a_result_is_gathered_keeps_that_bag_and_settles_the_rest(tmp_path: Path) -> None:
+    """The Ctrl-C lands inside the driver's `ray.get` of the first finished bag: the run stops (interrupted), and
+    every bag still has a result. That bag is kept complete, as the cancel found it finished. It was an internal
+    KeyError when the bag had left `pending` before its result was in (seen on a loaded machine)."""
+    jobs = [ReplayJob(tmp_path / f"b{i}", tmp_path / f"b{i}_roi", CONFIG, tmp_path, ()) for i in range(3)]
+
+    def replay(job: ReplayJob) -> TaskResult:
+        return TaskResult(job.source, job.target, BagStatus.COMPLETE, 0.1)
+
+    session = SimpleNamespace(ray=_InterruptedGetRay(), cpu_slots=lambda: 2)
+    run = TaskRun(session, jobs, replay, 0, FleetProgress("x", True, io.StringIO()))  # type: ignore[arg-type]
+    assert run.wait() is True
+    assert session.ray.interrupted
+    assert [(r.source.name, r.status) for r in run.ordered()] == [(f"b{i}", BagStatus.COMPLETE) for i in range(3)]
+    assert run.pending == {}
