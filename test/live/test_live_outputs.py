@@ -15,7 +15,7 @@ from visualization_msgs.msg import ImageMarker
 
 from roi_node.rostools.consumer import Observation, ObservationClient
 from test.conftest import CONFIG, REPO
-from test.dds.harness import RELIABLE_INPUT, Collector, next_domain, node_args, process, ros_env
+from test.dds.harness import RELIABLE_INPUT, Collector, every_frame_accounted, next_domain, node_args, process, ros_env
 from test.live.test_live_node import observations
 from test.wire.test_overlay import box_edges, segments_by_colour
 
@@ -57,7 +57,7 @@ def test_overlay_boxes_equal_the_records_and_compressed_outputs_decode_close_to_
     log = tmp_path / "node.log"
     frames = round(DURATION_S * RATE_HZ)
     try:
-        # it counts every frame: reliable input and a deep pending queue, so a busy machine does not lose one
+        # reliable input and a deep pending queue: the node keeps every frame that reaches it
         params = ("output_transport:=both", f"jpeg_quality:={QUALITY}", *RELIABLE_INPUT)
         with process(node_args(BIMANUAL, *params), env, log) as node:
             collector.wait_for_node()
@@ -73,7 +73,10 @@ def test_overlay_boxes_equal_the_records_and_compressed_outputs_decode_close_to_
                 cwd=REPO, env=env, capture_output=True, text=True, timeout=120,
             )
             assert sim.returncode == 0, sim.stderr
-            collector.wait_until(lambda: len(collector.metadata) >= frames and len(markers) >= frames, 10.0)
+            # every record the node published has arrived, and its marker; a node stalled at the start by a loaded
+            # machine can miss the first frames (the sim keeps 10 for a late reader), which no stamp gap shows
+            accounted = collector.wait_until(lambda: every_frame_accounted(collector) and len(markers) >= len(collector.metadata), 20.0)
+            assert accounted, collector.diagnostics[-1:]
             assert node.poll() is None, f"node died:\n{log.read_text()}"
         text = log.read_text()
         assert node.returncode == 0, text
@@ -81,11 +84,11 @@ def test_overlay_boxes_equal_the_records_and_compressed_outputs_decode_close_to_
         collector.close()
     assert "/roi/overlay" in text and "/roi/left/image_raw/compressed" in text and "/roi/global/image_raw/compressed" in text
     records = {r["stamp_ns"]: r for r in collector.metadata}
-    assert len(records) == frames and set(records) <= set(sources)
+    assert 0 < len(records) <= frames and set(records) <= set(sources), (len(records), frames)
 
     # overlay: one marker per frame, stamped and framed like its source image, boxes = the records' crop_box
     by_stamp = {stamp_of(m.header): m for m in markers}
-    assert sorted(by_stamp) == sorted(records) and len(markers) == frames
+    assert sorted(by_stamp) == sorted(records) and len(markers) == len(records)
     for stamp, marker in by_stamp.items():
         assert marker.header.frame_id == sources[stamp] != ""
         record: dict[str, Any] = records[stamp]
