@@ -75,12 +75,15 @@ class RssSampler:
 
 
 def test_a_png_bomb_is_refused_from_its_header_without_a_decode_and_good_frames_keep_flowing(tmp_path: Path) -> None:
-    """A PNG declaring 16384x16384 (786 kB; 805 MB decoded) among good frames, and two frames whose IDAT
+    """PNGs declaring 16384x16384 (786 kB; 805 MB decoded) among good frames, and two frames whose IDAT
     data is damaged: libpng's own stderr line for those is counted with them, not printed."""
     bomb_path = tmp_path / "bomb.png"
     bomb_path.write_bytes(png_bomb(BOMB_SIDE_PX))
-    bomb_at, damaged = 45, (55, 65)
-    faults = {str(bomb_at): "png_bomb", **{str(k): "png_damaged" for k in damaged}}
+    # three bombs: a loaded machine may drop one undecoded (decode_overflow) or lose it before the node, so the
+    # refusal is shown by those that reach the decoder
+    bombs, damaged = (45, 50, 75), (55, 65)
+    bomb_at = bombs[0]
+    faults = {**{str(k): "png_bomb" for k in bombs}, **{str(k): "png_damaged" for k in damaged}}
     spec = {"frames": 90, "rate_hz": 30.0, "transport": "compressed", "frame_faults": faults, "png_bomb_path": str(bomb_path)}
     params = ("image_transport:=compressed", *RELIABLE_INPUT, *PATIENT_SYNC)
     domain = next_domain()
@@ -107,21 +110,21 @@ def test_a_png_bomb_is_refused_from_its_header_without_a_decode_and_good_frames_
     inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
     totals, drops, bad = inputs["totals"], inputs["dropped_by_reason"], inputs["bad_messages_by_kind"]
     assert totals["frames_in"] == totals["frames_out"] + sum(drops.values()), "every frame is published or counted"
-    assert drops["declared_size"] == 1 and bad["declared_size"] == 1, inputs
-    assert drops["bad_image"] == bad["image"] == len(damaged), inputs
+    assert 1 <= drops.get("declared_size", 0) == bad.get("declared_size", 0) <= len(bombs), inputs
+    assert 1 <= drops.get("bad_image", 0) == bad.get("image", 0) <= len(damaged), inputs
     assert "; the decoder said: libpng error: IDAT: " in inputs["last_errors"]["image"], inputs
     refusal = inputs["last_errors"]["declared_size"]
     assert f"png header declares {BOMB_SIDE_PX}x{BOMB_SIDE_PX} but the camera's calibration is for" in refusal, refusal
     # a loaded machine may decode slower than the frames come: those are dropped undecoded, and counted
     assert set(drops) <= {"declared_size", "bad_image", "decode_overflow"}, inputs
     published = {r["stamp_ns"] for r in collector.metadata}
-    good_after = [f["stamp_ns"] for f in frames[bomb_at + 1:] if f["index"] not in damaged]
+    good_after = [f["stamp_ns"] for f in frames[bomb_at + 1:] if f["index"] not in (*damaged, *bombs)]
     # every good frame after the bomb comes out, but those dropped undecoded and those a stalled reader lost to the
     # publisher's 10-frame history (a loaded machine again): both are counted
     not_out = drops.get("decode_overflow", 0) + inputs["lost_before_node"]
     assert sum(stamp in published for stamp in good_after) >= len(good_after) - not_out, inputs
     assert frames[-1]["stamp_ns"] in published or drops.get("decode_overflow", 0), "frames flow to the end"
-    assert frames[bomb_at]["stamp_ns"] not in published
+    assert not {frames[k]["stamp_ns"] for k in bombs} & published
     assert "declared_size" in log and not re.search(r"^libpng", log, re.M), "libpng's own lines are not printed"
 
 
