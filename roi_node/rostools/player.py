@@ -1,9 +1,14 @@
 """`roi-node play`: publish a bag's messages live at their recorded timing.
 
 Reads with rosbags (any rosbag2 bag, MCAP or sqlite3, or a bare .mcap) and
-publishes the serialized bytes as they are, with the QoS the recording
-publisher offered (its history depth too: a deeper history of large images
-would not fit the shared-memory segment of config/fastdds_shm.xml). The
+publishes the serialized bytes as they are, with the reliability and
+durability the recording publisher offered. Its history depth is not
+discoverable (a recorder stores 0), and a reliable writer repairs only what its
+history still holds: a reader stalled longer than the history covers loses
+messages for good (a 200 Hz joint state topic with a depth of 10 covers 50 ms).
+So each topic keeps the messages of its last HISTORY_S seconds of bag time,
+within HISTORY_BUDGET_BYTES (large images keep 10, which is what fits the
+shared-memory segment of config/fastdds_shm.xml). The
 player exits only once every reliable subscriber acknowledged what it sent
 (5 s at most), so the tail a subscriber could still take is not thrown
 away. Pacing follows the bag's log times scaled by `--rate`;
@@ -14,6 +19,7 @@ the live node treats as a bag loop).
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -23,6 +29,8 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosbags.highlevel import AnyReader
+from rosbags.interfaces import Connection
 from rosgraph_msgs.msg import Clock
 
 from roi_node.bagio.reader import open_bag, read_messages
@@ -34,6 +42,9 @@ from roi_node.util.progress import Progress
 CLOCK_PERIOD_NS = 10_000_000  # /clock at 100 Hz of bag time at most
 DISCOVERY_WAIT_S = 3.0
 ACKED_WAIT_S = 5.0  # the longest the player waits at the end for reliable subscribers to acknowledge
+HISTORY_S = 2.0  # each topic's history covers this much bag time: a reader stalled this long loses nothing
+HISTORY_BUDGET_BYTES = 8 * 2**20  # per topic: the history of large messages stays at MIN_HISTORY_DEPTH
+MIN_HISTORY_DEPTH = 10
 
 
 def play(bag: Path, *, rate: float, loop: bool, clock: bool, topics: Sequence[str], ros_args: Sequence[str]) -> int:
@@ -59,9 +70,12 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
         if not connections:
             available = ", ".join(sorted({c.topic for c in reader.connections}))
             raise BagError(f"{bag}: none of {', '.join(sorted(wanted))} in the bag; it has {available}")
+        sizes = _first_message_sizes(reader, connections, bag)
+        duration_ns = max(1, int(reader.duration))
         publishers = {}
         for c in connections:
             qos = from_bag_qos(list(getattr(c.ext, "offered_qos_profiles", []) or []))
+            qos.depth = max(qos.depth, history_depth(int(c.msgcount), duration_ns, sizes.get(c.id)))
             publishers[c.id] = node.create_publisher(message_class(c.msgtype), c.topic, qos)
         clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)) if clock else None
         _wait_for_subscribers(list(publishers.values()))
@@ -98,6 +112,29 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
         _wait_for_acknowledgements(list(publishers.values()))
     print(f"roi-node play: published {sent} messages from {bag}")
     return 0
+
+
+def history_depth(message_count: int, duration_ns: int, message_bytes: int | None) -> int:
+    """Messages a topic's writer keeps: its last HISTORY_S seconds of bag time, within HISTORY_BUDGET_BYTES.
+
+    A topic whose message size is unknown (none among the first messages read) keeps MIN_HISTORY_DEPTH.
+    """
+    if message_bytes is None or message_count < 2:
+        return MIN_HISTORY_DEPTH
+    rate_hz = (message_count - 1) * 1e9 / max(1, duration_ns)
+    wanted = math.ceil(rate_hz * HISTORY_S)
+    affordable = HISTORY_BUDGET_BYTES // max(1, message_bytes)
+    return max(MIN_HISTORY_DEPTH, min(wanted, affordable))
+
+
+def _first_message_sizes(reader: AnyReader, connections: list[Connection], bag: Path, scan: int = 10_000) -> dict[int, int]:
+    """Serialized size of each connection's first message, from the first `scan` messages of the bag."""
+    sizes: dict[int, int] = {}
+    for count, (connection, _, raw) in enumerate(read_messages(reader, connections, bag)):
+        sizes.setdefault(connection.id, len(raw))
+        if len(sizes) == len(connections) or count >= scan:
+            break
+    return sizes
 
 
 def _wait_for_subscribers(publishers: list[Publisher], timeout_s: float = DISCOVERY_WAIT_S) -> None:

@@ -87,6 +87,7 @@ def write_bag(
     bad_frames: dict[int, str] | None = None,
     command_offset: float | None = None,
     recalibrate_at: int | None = None,
+    reliable: bool = False,
 ) -> BagSpec:
     """Write a rosbag2 bag (storage "mcap" or "sqlite3").
 
@@ -98,6 +99,7 @@ def write_bag(
     /joint_commands, every joint `offset` rad from the measured path, at
     stamps half a joint period later. camera_info: a CameraInfo after every
     frame, stamped like it; from frame `recalibrate_at` on, with fx 1% larger.
+    reliable: the recorded publishers offered reliable QoS (else best effort, a camera driver's default).
     """
     ts = typestore()
     factory = MessageFactory(ts)
@@ -144,7 +146,7 @@ def write_bag(
     types.update(dict.fromkeys([*joint_topics, COMMAND_TOPIC], JOINT_TYPE))
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     with Writer(path, version=ROSBAG2_VERSION, storage_plugin=plugin) as writer:
-        sensor_qos = [qos_profile(reliable=False)]
+        sensor_qos = [qos_profile(reliable=reliable)]
         topics = dict.fromkeys(r[1] for r in records)  # in first-logged order
         connections = {t: writer.add_connection(t, types[t], typestore=ts, offered_qos_profiles=sensor_qos) for t in topics}
         for log, topic, msg in sorted(records, key=lambda r: r[0]):

@@ -1,0 +1,63 @@
+"""`roi-node play` keeps enough history per topic that a reader stalled for a while loses nothing."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from roi_node.engine.config import load_rig_config
+from roi_node.engine.pipeline import RoiPipeline
+from roi_node.rostools.player import HISTORY_BUDGET_BYTES, HISTORY_S, MIN_HISTORY_DEPTH, history_depth
+from test.conftest import REPO
+from test.dds.harness import next_domain, process, ros_env, wait_until
+from test.support.bagtools import JOINT_PERIOD_NS, read_raw, small_rig, write_bag
+
+STALL_S = 1.5  # the fault injected: the reader's process is stopped this long while the player publishes
+
+
+def test_history_covers_the_topic_rate_within_a_byte_budget() -> None:
+    second = 10**9
+    assert history_depth(2001, 10 * second, 700) == round(200 * HISTORY_S)  # joint states at 200 Hz
+    assert history_depth(301, 10 * second, 2_764_800) == MIN_HISTORY_DEPTH  # 720p rgb8 at 30 Hz: the budget holds 3
+    assert history_depth(301, 10 * second, HISTORY_BUDGET_BYTES // 40) == 40  # the budget binds before the rate
+    assert history_depth(5, 10 * second, 100) == MIN_HISTORY_DEPTH  # a slow topic keeps the floor
+    assert history_depth(1, 0, 100) == MIN_HISTORY_DEPTH  # one message: no rate
+    assert history_depth(2001, 10 * second, None) == MIN_HISTORY_DEPTH  # size unknown
+
+
+@pytest.mark.dds
+def test_a_reader_stalled_while_play_publishes_loses_no_joint_state(tmp_path: Path) -> None:
+    """The reader is stopped (SIGSTOP) for STALL_S mid-play; the writer's history repairs what it missed.
+
+    With a history of 10 (what `play` offered before, the discovered depth being 0), a 200 Hz topic covers 50 ms
+    and the stalled reader lost most of what was published while it was stopped.
+    """
+    bag = tmp_path / "bag"
+    spec = write_bag(bag, RoiPipeline(load_rig_config(small_rig(tmp_path))), frames=120, reliable=True)  # 4 s
+    sent = sum(1 for topic, _, _ in read_raw(bag) if topic == "/joint_states")
+    assert sent == len(spec.joint_stamps) and (spec.joint_stamps[1] - spec.joint_stamps[0]) == JOINT_PERIOD_NS
+    env = ros_env(next_domain())
+    log = tmp_path / "counter.log"
+    with process(["-m", "test.dds.joint_counter", "/joint_states"], env, log) as counter:
+        assert wait_until(lambda: "subscribed" in log.read_text(), 30.0), log.read_text()
+        player = subprocess.Popen([sys.executable, "-m", "roi_node.cli", "play", str(bag), "--topics", "/joint_states"],
+                                  cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            assert wait_until(lambda: "first message" in log.read_text() or player.poll() is not None, 30.0), log.read_text()
+            os.kill(counter.pid, signal.SIGSTOP)
+            try:
+                time.sleep(STALL_S)  # the injected stall's length, not a wait for anything
+            finally:
+                os.kill(counter.pid, signal.SIGCONT)
+            out, err = player.communicate(timeout=60)
+        finally:
+            player.kill()
+        assert player.returncode == 0, err
+        assert f"published {sent} messages" in out, out
+    assert f"received {sent}" in log.read_text(), log.read_text()
