@@ -32,7 +32,9 @@ class RigPublisher:
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.image_pub = self.node.create_publisher(Image, topics.IMAGE, qos)
         self.info_pub = self.node.create_publisher(CameraInfo, topics.CAMERA_INFO, qos)
-        joint_qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)  # small messages at 200 Hz
+        # small messages at 200 Hz: a reliable writer repairs only what its history holds, so it keeps 2 s of them
+        # (a reader stalled that long loses none; see rostools/player.py)
+        joint_qos = QoSProfile(depth=400, reliability=ReliabilityPolicy.RELIABLE)
         self.joint_pub = self.node.create_publisher(JointState, topics.JOINT_STATES, joint_qos)
 
     def wait_for_subscribers(self, count: int) -> None:
