@@ -11,6 +11,7 @@ import fcntl
 import itertools
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -71,10 +72,62 @@ def next_domain() -> int:
     base = int(os.environ.get("ROS_DOMAIN_ID", "71"))
     worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw"))
     block = 200 // int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-    return (base + worker * block + next(_domains) % block) % 200 + 1
+    domain = (base + worker * block + next(_domains) % block) % 200 + 1
+    purge_domain_ports(domain)
+    return domain
 
 
 SHM_DIR = Path("/dev/shm")
+PORTS_PER_DOMAIN = 250  # Fast DDS's default port parameters: a domain's ports are 7400 + 250 * domain + 0..249
+PORT_BASE = 7400
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+# Fast DDS's error when the shared-memory port it tries first is held by another live process (one stopped or
+# starved past the port's health check, whose port a writer then replaced): the participant takes the next port
+# and works on (docs/live-node.md); test_fastdds_profile.py makes it happen
+PORT_TAKEN = re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d+ \[RTPS_TRANSPORT_SHM Error\] Failed init_port fastrtps_port\d+: "
+                        r"open_and_lock_file failed -> Function open_port_internal$")
+
+
+def tool_lines(stderr: str) -> list[str]:
+    """A tool's stderr lines without Fast DDS's benign "Failed init_port" errors (PORT_TAKEN)."""
+    return [line for line in stderr.splitlines() if not PORT_TAKEN.match(_ANSI.sub("", line))]
+
+
+def purge_domain_ports(domain: int, shm_dir: Path = SHM_DIR) -> list[str]:
+    """Remove the shared-memory port files of `domain` that no live process holds; returns the ports removed.
+
+    A test run reuses domains (each worker cycles through its block, and every run starts from the same base), and a
+    process killed by SIGKILL leaves its port behind: a new participant of the domain takes the same port number and
+    opens the dead port, which Fast DDS does not time out when its creator died before initialising it. A port whose
+    lock file (`_el`, `_sl`) a live listener holds (flock) is kept; one without a lock file has no listener.
+    """
+    removed = []
+    first = PORT_BASE + PORTS_PER_DOMAIN * domain
+    for port in range(first, first + PORTS_PER_DOMAIN):
+        name = f"fastrtps_port{port}"
+        files = [shm_dir / name, shm_dir / f"{name}_el", shm_dir / f"{name}_sl", shm_dir / f"sem.{name}_mutex"]
+        present = [f for f in files if f.exists()]
+        if not present or any(_held(f) for f in files[1:3] if f in present):
+            continue
+        for f in present:
+            f.unlink(missing_ok=True)
+        removed.append(name)
+    return removed
+
+
+def _held(lock: Path) -> bool:
+    """Whether a live process holds a flock on `lock`."""
+    try:
+        fd = os.open(lock, os.O_RDWR)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return True
+    finally:
+        os.close(fd)  # closing releases the probe's own lock
+    return False
 
 
 def remove_orphaned_shm_segments(since_s: float) -> list[str]:

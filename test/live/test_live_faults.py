@@ -35,6 +35,7 @@ from test.dds.harness import (
     publish,
     ros_env,
     start_publisher,
+    tool_lines,
 )
 
 pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
@@ -209,7 +210,7 @@ def test_parameters_of_the_wrong_type_or_name_stop_the_start_with_one_line(tmp_p
         _, stderr = proc.communicate(timeout=60)
         result = subprocess.CompletedProcess(proc.args, proc.returncode, "", stderr)
         assert result.returncode == 2, (params, result.stderr)
-        lines = result.stderr.strip().splitlines()
+        lines = tool_lines(result.stderr.strip())
         assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr
         for name in names:
             assert name in lines[0], (name, lines[0])
@@ -246,7 +247,7 @@ def test_run_with_a_urdf_that_is_not_a_tree_exits_with_one_line_and_no_signal(tm
     result = subprocess.run([sys.executable, *run_args(config=rig)], cwd=REPO, env=ros_env(next_domain()), capture_output=True,
                             text=True, timeout=60)
     assert result.returncode == 2, result.stderr
-    lines = result.stderr.strip().splitlines()
+    lines = tool_lines(result.stderr.strip())
     assert len(lines) == 1 and "link 'panda_hand'" in lines[0] and str(urdf) in lines[0], result.stderr
 
 
@@ -264,7 +265,7 @@ def test_play_of_a_truncated_bag_and_play_interrupted_say_one_line(tmp_path: Pat
     truncated = subprocess.run([sys.executable, "-m", "roi_node.cli", "play", str(cut)], cwd=REPO, env=env, capture_output=True,
                                text=True, timeout=60)
     assert truncated.returncode == 2 and "Traceback" not in truncated.stderr, truncated.stderr
-    assert len(truncated.stderr.strip().splitlines()) == 1 and str(cut) in truncated.stderr
+    assert len(tool_lines(truncated.stderr.strip())) == 1 and str(cut) in truncated.stderr
     play_log = tmp_path / "play.log"
     with process(["-m", "roi_node.cli", "play", str(bag)], {**env, "ROI_NODE_PROGRESS_S": "1"}, play_log) as player:
         deadline = time.monotonic() + 30  # discovery wait, then playing a 10 s bag: interrupt it once it reported progress

@@ -22,6 +22,7 @@ from test.dds.harness import (
     process,
     ros_env,
     start_publisher,
+    tool_lines,
     wait_until,
 )
 
@@ -137,7 +138,7 @@ def test_observer_reaches_a_namespaced_node_discovers_its_outputs_and_names_a_mi
     for line in lines:
         assert "global=none" in line and "left=256x256" in line and "right=256x256" in line, line
     assert missing.returncode == 1
-    said = missing.stderr.strip().splitlines()
+    said = tool_lines(missing.stderr.strip())
     assert said[0].startswith("waiting: no image on /rig1/roi/lefty/image_raw after "), missing.stderr
     assert said[0].endswith(" s; metadata lists arms left, right"), missing.stderr
     assert said[-1].startswith("error: no image on /rig1/roi/lefty/image_raw after ") and len(said) == 2, missing.stderr

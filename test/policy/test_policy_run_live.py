@@ -31,7 +31,7 @@ from sensor_msgs.msg import JointState
 from examples.hold_pose_policy import HOLD_POSE
 from roi_node.policy.policy_diagnostics import STATUS_NAME
 from test.conftest import CONFIG, REPO
-from test.dds.harness import diagnostics_values, next_domain, node_args, process, ros_env, wait_until
+from test.dds.harness import diagnostics_values, next_domain, node_args, process, ros_env, tool_lines, wait_until
 from test.policy.policy_dataset import RIG, export_dataset
 
 COMMAND_TOPIC = "joint_commands"
@@ -127,7 +127,7 @@ def test_a_module_that_does_not_import_is_one_line_naming_it(dataset: Path) -> N
 
 def test_a_missing_function_is_one_line_naming_the_module(dataset: Path) -> None:
     done = policy_run("--policy", "examples.hold_pose_policy:no_such_function", "--features", str(dataset), "--config", str(RIG))
-    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
+    assert done.returncode == 2 and len(tool_lines(done.stderr.strip())) == 1
     assert "module 'examples.hold_pose_policy'" in done.stderr and "'no_such_function'" in done.stderr
 
 
@@ -135,7 +135,7 @@ def test_action_names_the_rig_lacks_are_one_line(dataset: Path) -> None:
     """The bimanual dataset's actions against the single-arm rig: `left_panda_joint1` is no joint of it."""
     done = policy_run("--policy", "examples.hold_pose_policy:hold_pose", "--features", str(dataset),
                       "--config", str(CONFIG / "rig_panda_single.yaml"))
-    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
+    assert done.returncode == 2 and len(tool_lines(done.stderr.strip())) == 1
     assert "action name 'left_panda_joint1' is no joint of the rig" in done.stderr
 
 
@@ -151,5 +151,5 @@ def test_a_lerobot_folder_without_lerobot_installed_is_refused_before_dds(datase
     for name in ("config.json", "model.safetensors"):
         (tmp_path / name).write_text("{}")
     done = policy_run("--policy", str(tmp_path), "--features", str(dataset), "--config", str(RIG))
-    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1
+    assert done.returncode == 2 and len(tool_lines(done.stderr.strip())) == 1
     assert "a LeRobot policy needs lerobot and torch" in done.stderr and ".venv-lerobot" in done.stderr

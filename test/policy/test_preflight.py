@@ -25,7 +25,7 @@ import pytest
 
 from roi_node.policy.observations import LIVE_ABSENT_KEYS, TASK_KEY
 from test.conftest import REPO
-from test.dds.harness import next_domain, node_args, process, ros_env
+from test.dds.harness import next_domain, node_args, process, ros_env, tool_lines
 from test.policy.policyrig import RATE_HZ, TASK, export_dataset, read_info, record_session, write_checkpoint
 
 pytestmark = pytest.mark.dds
@@ -99,7 +99,7 @@ def test_a_mismatch_is_one_line_naming_the_key_and_both_values_before_any_weight
     result = preflight(live_node, checkpoint)
 
     assert result.returncode == 2, result.stderr
-    lines = result.stderr.splitlines()
+    lines = tool_lines(result.stderr)
     assert len(lines) == 1, lines
     assert lines[0].startswith(f"roi-node policy preflight: error: {checkpoint}: {key}: the policy expects "), lines[0]
     for value in values:

@@ -41,7 +41,7 @@ from roi_node.rostools.diagnostics_table import DiagnosticsBoard, render
 from roi_node.rostools.diagnostics_view import CLEAR_SCREEN
 from roi_node.rostools.param_client import ParameterEntry, dump_document, parse_value
 from test.conftest import CONFIG, REPO
-from test.dds.harness import next_domain, node_args, process, ros_env
+from test.dds.harness import next_domain, node_args, process, ros_env, tool_lines
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 FIRST_CONTACT_S = 30.0  # the first verb against a starting node waits while it loads its rig and joins the graph
@@ -71,7 +71,7 @@ def roi_node_cli_together(env: dict[str, str], *commands: list[str],
 def assert_one_line(run: subprocess.CompletedProcess[str], code: int, *words: str) -> str:
     """Exit `code` with exactly one stderr line holding `words`, and no traceback."""
     assert run.returncode == code, (run.returncode, run.stdout, run.stderr)
-    lines = run.stderr.splitlines()
+    lines = tool_lines(run.stderr)
     assert len(lines) == 1 and "Traceback" not in run.stderr, run.stderr
     for word in words:
         assert word in lines[0], (word, lines[0])
