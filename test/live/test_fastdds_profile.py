@@ -15,7 +15,7 @@ import os
 import re
 import subprocess
 import sys
-import time
+from contextlib import suppress
 from pathlib import Path
 
 import pytest
@@ -93,9 +93,11 @@ def test_a_shared_memory_port_held_by_another_process_costs_one_benign_error_lin
                 node = Node("port_probe_talker", context=context)
                 publisher = node.create_publisher(String, "probe", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
                 assert wait_until(lambda: publisher.get_subscription_count() >= 1, 30.0)
-                while listener.poll() is None:  # until it took one (a reliable message sent before its reader matched is lost)
+                listener_done = False
+                while not listener_done:  # it exits once it took one (a reliable message sent before its reader matched is lost)
                     publisher.publish(String(data="hello"))
-                    time.sleep(0.1)
+                    with suppress(subprocess.TimeoutExpired):
+                        listener_done = listener.wait(timeout=0.1) is not None
             finally:
                 rclpy.shutdown(context=context)
             out, err = listener.communicate(timeout=30)
