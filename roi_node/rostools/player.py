@@ -42,7 +42,7 @@ from roi_node.util.progress import Progress
 CLOCK_PERIOD_NS = 10_000_000  # /clock at 100 Hz of bag time at most
 DISCOVERY_WAIT_S = 3.0
 ACKED_WAIT_S = 5.0  # the longest the player waits at the end for reliable subscribers to acknowledge
-HISTORY_S = 2.0  # each topic's history covers this much bag time: a reader stalled this long loses nothing
+HISTORY_S = 2.0  # each topic's history covers this much bag time, for a reliable reader that stalls
 HISTORY_BUDGET_BYTES = 8 * 2**20  # per topic: the history of large messages stays at MIN_HISTORY_DEPTH
 MIN_HISTORY_DEPTH = 10
 
