@@ -24,7 +24,7 @@ from roi_node.offline.replay import replay_bag
 from roi_node.sim.bag_sink import write_sim_bag
 from roi_node.sim.rig_sim import SimRig
 from test.conftest import CONFIG, REPO
-from test.dds.harness import PATIENT_SYNC, RELIABLE_INPUT, Collector, next_domain, node_args, process, ros_env
+from test.dds.harness import LOSSLESS_TRANSPORT, PATIENT_SYNC, Collector, next_domain, node_args, process, ros_env
 from test.support.rigs import base_rig, look_at_quat_xyzw, write_rig
 from test.support.roibags import read_records
 
@@ -92,7 +92,7 @@ def test_live_records_carry_the_baxter_fingers(tmp_path: Path) -> None:
     collector = Collector(domain, ["left", "right"])
     try:
         # it counts frames: the node takes every one and lets a frame wait for its joint sample (test/dds/harness.py)
-        with process(node_args(config, *RELIABLE_INPUT, *PATIENT_SYNC), env, tmp_path / "node.log"):
+        with process(node_args(config, *LOSSLESS_TRANSPORT, *PATIENT_SYNC), env, tmp_path / "node.log"):
             collector.wait_for_node()
             sim = subprocess.run(
                 [sys.executable, "-m", "roi_node.cli", "sim", "--config", str(config), "--duration", "1.0", "--seed", "3",

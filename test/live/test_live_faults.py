@@ -25,8 +25,8 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from roi_node.engine.robot_models import resolve_robot_reference
 from test.conftest import CONFIG, REPO
 from test.dds.harness import (
+    LOSSLESS_TRANSPORT,
     PATIENT_SYNC,
-    RELIABLE_INPUT,
     Collector,
     diagnostics_values,
     every_frame_accounted,
@@ -93,7 +93,7 @@ def test_node_keeps_publishing_through_injected_exceptions_absurd_camera_info_an
     }
     # on a loaded machine transport loss, overflow or a frame released before its camera info would hide what is
     # tested here
-    params = ("use_camera_info:=true", *RELIABLE_INPUT, *PATIENT_SYNC)
+    params = ("use_camera_info:=true", *LOSSLESS_TRANSPORT, *PATIENT_SYNC)
     collector, truth = run_session(tmp_path, run_args(*params, faulty_every=7), spec, records=50, diagnostics=3)
     log = (tmp_path / "node.log").read_text()
     records = {r["frame_index"]: r for r in collector.metadata}

@@ -20,8 +20,8 @@ from diagnostic_msgs.msg import DiagnosticStatus
 
 from test.conftest import CONFIG
 from test.dds.harness import (
+    LOSSLESS_TRANSPORT,
     PATIENT_SYNC,
-    RELIABLE_INPUT,
     Collector,
     diagnostics_values,
     every_frame_accounted,
@@ -39,7 +39,7 @@ BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 ARMS = ["left", "right"]
 BOMB_SIDE_PX = 16384
 # the bomb decoded is 805 MB; what a node stalled by a loaded machine legitimately holds meanwhile is up to 64
-# pending 720p frames (177 MB, RELIABLE_INPUT's max_pending_frames) and its queued PNGs: a growth beyond 400 MB is
+# pending 720p frames (177 MB, LOSSLESS_TRANSPORT's max_pending_frames) and its queued PNGs: a growth beyond 400 MB is
 # the bomb, one within it is the bounded queues (a 122 MB growth was seen beside three test workers on two cores)
 RSS_MARGIN_KB = 400 * 1024
 
@@ -85,7 +85,7 @@ def test_a_png_bomb_is_refused_from_its_header_without_a_decode_and_good_frames_
     bomb_at = bombs[0]
     faults = {**{str(k): "png_bomb" for k in bombs}, **{str(k): "png_damaged" for k in damaged}}
     spec = {"frames": 90, "rate_hz": 30.0, "transport": "compressed", "frame_faults": faults, "png_bomb_path": str(bomb_path)}
-    params = ("image_transport:=compressed", *RELIABLE_INPUT, *PATIENT_SYNC)
+    params = ("image_transport:=compressed", *LOSSLESS_TRANSPORT, *PATIENT_SYNC)
     domain = next_domain()
     env = ros_env(domain)
     collector = Collector(domain, ARMS)
@@ -159,7 +159,7 @@ def test_a_decoder_that_cannot_keep_up_turns_diagnostics_to_error(tmp_path: Path
 def test_frames_withheld_before_the_node_are_counted_as_lost_in_transport(tmp_path: Path) -> None:
     withheld = [20, 45, 46, 47, 70]
     spec = {"frames": 90, "rate_hz": 30.0, "withhold_frames": withheld}
-    params = (*RELIABLE_INPUT, *PATIENT_SYNC, "status_period_s:=1.0")
+    params = (*LOSSLESS_TRANSPORT, *PATIENT_SYNC, "status_period_s:=1.0")
     domain = next_domain()
     env = ros_env(domain)
     collector = Collector(domain, ARMS)

@@ -14,7 +14,7 @@ import pytest
 
 from test.conftest import CONFIG, REPO
 from test.dds.harness import (
-    RELIABLE_INPUT,
+    LOSSLESS_TRANSPORT,
     Collector,
     graph_probe,
     next_domain,
@@ -79,7 +79,7 @@ def test_vla_example_prints_observations_from_the_running_node(tmp_path: Path) -
     domain = next_domain()
     env = ros_env(domain)
     period_ns = 33_333_333  # the publisher's 30 Hz stamps
-    with graph_probe(domain) as probe, process(node_args(BIMANUAL, *RELIABLE_INPUT), env, tmp_path / "node.log"):
+    with graph_probe(domain) as probe, process(node_args(BIMANUAL, *LOSSLESS_TRANSPORT), env, tmp_path / "node.log"):
         # consecutive frames: none lost
         every = subprocess.Popen(
             [sys.executable, "examples/vla_observer.py", "--count", "5"], cwd=REPO, env=env, stdout=subprocess.PIPE, text=True

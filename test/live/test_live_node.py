@@ -17,8 +17,8 @@ from roi_node.engine.pipeline import RoiPipeline
 from roi_node.engine.robot_models import resolve_robot_reference
 from test.conftest import CONFIG
 from test.dds.harness import (
+    LOSSLESS_TRANSPORT,
     PATIENT_SYNC,
-    RELIABLE_INPUT,
     Collector,
     diagnostics_values,
     every_frame_accounted,
@@ -83,7 +83,7 @@ def assert_markers_where_metadata_says(obs: Any, frame: dict[str, Any], tol_px: 
 def test_bimanual_720p_every_frame_with_stamps_sizes_residual_and_markers(tmp_path: Path) -> None:
     offset_ms = 1.7
     spec = {"frames": 45, "rate_hz": 30.0, "joint_rate_hz": 200.0, "joint_offset_ms": offset_ms}
-    collector, truth, log = run_session(tmp_path, spec, *PATIENT_SYNC, *RELIABLE_INPUT)
+    collector, truth, log = run_session(tmp_path, spec, *PATIENT_SYNC, *LOSSLESS_TRANSPORT)
     sent = {f["stamp_ns"]: f for f in truth["frames"]}
     assert "rig demo_bimanual" in log and "/roi/left/image_raw" in log and "lineage" in log
     # every frame comes out, once, with its own stamp (reliable input: the exact residuals below need every sample)
@@ -135,7 +135,7 @@ def test_compressed_input_camera_info_intrinsics_and_robot_description_topic(tmp
     spec = {"frames": 20, "rate_hz": 10.0, "transport": "compressed", "camera_info": True, "robot_description": str(urdf),
             "render_rig": str(BIMANUAL)}
     collector, truth, log = run_session(
-        tmp_path, spec, "image_transport:=compressed", "robot_description_source:=topic", *PATIENT_SYNC, *RELIABLE_INPUT, config=config
+        tmp_path, spec, "image_transport:=compressed", "robot_description_source:=topic", *PATIENT_SYNC, *LOSSLESS_TRANSPORT, config=config
     )
     sent = {f["stamp_ns"]: f for f in truth["frames"]}
     assert "waiting for CameraInfo" in log and "URDF from /robot_description" in log and "intrinsics from /camera_info" in log
@@ -168,7 +168,7 @@ def test_bad_input_is_flagged_counted_and_the_node_keeps_publishing(tmp_path: Pa
         "joint_faults_at_frame": {"26": "joint_nan", "30": "joint_unknown", "34": "joint_empty_positions"},
         "loop_at_frame": 40,  # stamps jump back 3 s, as when a bag loops
     }
-    collector, truth, log = run_session(tmp_path, spec, *RELIABLE_INPUT, expect=56)  # it counts every frame
+    collector, truth, log = run_session(tmp_path, spec, *LOSSLESS_TRANSPORT, expect=56)  # it counts every frame
     bad_frames = {f["stamp_ns"] for f in truth["frames"] if f["fault"]}
     good = {f["stamp_ns"] for f in truth["frames"] if not f["fault"]}
     records = {r["stamp_ns"]: r for r in collector.metadata}
@@ -215,7 +215,7 @@ def test_arm_behind_the_camera_is_flagged_and_the_other_arm_still_cropped(tmp_pa
     eye, target = [0.5, 0.0, 0.45], [0.5, 1.0, 0.3]
     doc["camera"]["extrinsics"] = {"parent": "world", "child": "cam", "translation": eye, "rotation_xyzw": look_at_quat_xyzw(eye, target)}
     config = write_rig(tmp_path, doc)
-    collector, _, _ = run_session(tmp_path, {"frames": 15}, *RELIABLE_INPUT, config=config)
+    collector, _, _ = run_session(tmp_path, {"frames": 15}, *LOSSLESS_TRANSPORT, config=config)
     assert len(collector.metadata) == 15
     for record in collector.metadata:
         left, right = record["arms"]

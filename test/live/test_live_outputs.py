@@ -15,7 +15,7 @@ from visualization_msgs.msg import ImageMarker
 
 from roi_node.rostools.consumer import Observation, ObservationClient
 from test.conftest import CONFIG, REPO
-from test.dds.harness import RELIABLE_INPUT, Collector, every_frame_accounted, next_domain, node_args, process, ros_env
+from test.dds.harness import LOSSLESS_TRANSPORT, Collector, every_frame_accounted, next_domain, node_args, process, ros_env
 from test.live.test_live_node import observations
 from test.wire.test_overlay import box_edges, segments_by_colour
 
@@ -58,7 +58,7 @@ def test_overlay_boxes_equal_the_records_and_compressed_outputs_decode_close_to_
     frames = round(DURATION_S * RATE_HZ)
     try:
         # reliable input and a deep pending queue: the node keeps every frame that reaches it
-        params = ("output_transport:=both", f"jpeg_quality:={QUALITY}", *RELIABLE_INPUT)
+        params = ("output_transport:=both", f"jpeg_quality:={QUALITY}", *LOSSLESS_TRANSPORT)
         with process(node_args(BIMANUAL, *params), env, log) as node:
             collector.wait_for_node()
             # after wait_for_node (they have no publisher yet); the sim waits for two subscribers on both topics

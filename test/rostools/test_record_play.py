@@ -21,8 +21,8 @@ from roi_node.bagio.writer import typestore
 from roi_node.offline.replay import replay_bag
 from test.conftest import CONFIG, REPO
 from test.dds.harness import (
+    LOSSLESS_TRANSPORT,
     PATIENT_SYNC,
-    RELIABLE_INPUT,
     Collector,
     graph_probe,
     next_domain,
@@ -75,7 +75,7 @@ def wait_for_log(log: Path, needles: list[str], timeout_s: float = 30.0) -> None
 # live == offline is about determinism, not latency: a frame may wait 1 s for the joint sample after it, so a busy
 # moment (the other test worker, a loaded CI machine) does not release it unpaired, and the node takes and keeps every
 # frame (the best-effort default with a queue of 5 lost 3 of 30 on a busy machine); see test/dds/harness.py
-RECORDING = (*PATIENT_SYNC, *RELIABLE_INPUT)
+RECORDING = (*PATIENT_SYNC, *LOSSLESS_TRANSPORT)
 
 
 def record_session(

@@ -11,7 +11,7 @@ recorded rollout (the ROIs keep the grippers while the policy moves the
 arms), and the recorded joint states end closer to the last command than they
 started (the sim followed the commands). The sim sends every frame however late
 (--late-frames send) and the node takes every one (the live tests'
-RELIABLE_INPUT: reliable inputs, 64 frames pending): the policy's CPU load
+LOSSLESS_TRANSPORT: reliable inputs, 64 frames pending): the policy's CPU load
 must not drop frames, which the stamp_gaps and frames_missing gates would
 count against the rollout.
 """
@@ -35,7 +35,7 @@ from roi_node.bagio.reader import stamp_ns
 from roi_node.cli import main
 from roi_node.policy.policy_diagnostics import STATUS_NAME
 from roi_node.wire import topics
-from test.dds.harness import RELIABLE_INPUT, diagnostics_values, next_domain, node_args, process, ros_env, wait_until
+from test.dds.harness import LOSSLESS_TRANSPORT, diagnostics_values, next_domain, node_args, process, ros_env, wait_until
 from test.policy.policy_dataset import RIG, export_dataset
 
 pytest.importorskip("lerobot.policies.act.modeling_act")
@@ -98,7 +98,7 @@ def test_act_drives_the_sim_and_the_rollout_passes_the_gates(tmp_path: Path) -> 
               "--config", str(RIG), "--command-topic", COMMAND_TOPIC, "--timeout-s", "120"]
     listener = DiagnosticsListener(domain)
     try:
-        with process(node_args(RIG, *RELIABLE_INPUT), env, tmp_path / "node.log"), \
+        with process(node_args(RIG, *LOSSLESS_TRANSPORT), env, tmp_path / "node.log"), \
                 process(["-m", "roi_node.cli", "record", "-o", str(rollout), "--topics", *record_topics], env,
                         tmp_path / "record.log") as recorder, \
                 process(sim, env, tmp_path / "sim.log") as simulator, process(policy, env, tmp_path / "policy.log") as runner:

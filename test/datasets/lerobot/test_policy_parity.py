@@ -33,7 +33,7 @@ from roi_node.policy.errors import NodeNotObservedError
 from roi_node.policy.features import PolicyFeatures
 from roi_node.policy.observations import LIVE_ABSENT_KEYS, TASK_KEY, PolicyObservation, PolicyObservationStream
 from test.conftest import REPO
-from test.dds.harness import PATIENT_SYNC, RELIABLE_INPUT, next_domain, node_args, process, ros_env, wait_until
+from test.dds.harness import LOSSLESS_TRANSPORT, PATIENT_SYNC, next_domain, node_args, process, ros_env, wait_until
 from test.policy.policyrig import TASK, Session, export_dataset, record_session
 from test.support.exportbags import psnr_db
 
@@ -63,7 +63,7 @@ def live(session: Session, lossless: Path, tmp_path_factory: pytest.TempPathFact
     logs = tmp_path_factory.mktemp("logs")
     domain = next_domain()
     env = ros_env(domain)
-    with pytest.MonkeyPatch.context() as patch, process(node_args(session.rig, *RELIABLE_INPUT, *PATIENT_SYNC), env, logs / "node.log"):
+    with pytest.MonkeyPatch.context() as patch, process(node_args(session.rig, *LOSSLESS_TRANSPORT, *PATIENT_SYNC), env, logs / "node.log"):
         for name in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
             patch.setenv(name, env[name])
         features = PolicyFeatures.load(lossless)
