@@ -39,6 +39,10 @@ from rclpy.task import Future
 from roi_node.engine.errors import RoiNodeError
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# Python runs a signal's handler on the main thread, at its next bytecode. A signal the kernel hands to another thread
+# (any thread may take one that arrived while the process was stopped, SIGSTOP or Ctrl-Z) does not interrupt the main
+# thread's wait, so the main thread waits in slices this long and then takes the handler.
+SIGNAL_POLL_S = 0.1
 
 
 @contextlib.contextmanager
@@ -109,7 +113,8 @@ def _spin_until(node: Node, stop: Future) -> BaseException | None:
 
     thread = threading.Thread(target=spin, name="roi_node_executor")
     thread.start()
-    thread.join()  # a signal handler runs meanwhile (joins are interruptible) and completes `stop`
+    while thread.is_alive():  # a signal handler runs meanwhile and completes `stop`
+        thread.join(SIGNAL_POLL_S)
     executor.shutdown(timeout_sec=1.0)
     return raised[0] if raised else None
 

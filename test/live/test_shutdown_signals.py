@@ -61,3 +61,51 @@ def test_a_second_signal_while_closing_is_ignored() -> None:
             child.wait()
     assert child.returncode == 0, err
     assert out == "closing\nclosed\n" and "Traceback" not in err, (out, err)
+
+
+OTHER_THREAD_CHILD = textwrap.dedent(
+    """
+    import signal
+    import sys
+    import threading
+
+    from rclpy.node import Node
+
+    from roi_node.live.spin import spin_node
+
+
+    class SignalledOnAnotherThread(Node):
+        def __init__(self) -> None:
+            super().__init__("signalled_on_another_thread")
+            self.create_timer(0.2, self.once)
+            self.sent = False
+
+        def once(self) -> None:  # on the executor thread, never the main one
+            if not self.sent:
+                self.sent = True
+                print("signalling", flush=True)
+                signal.pthread_kill(threading.get_ident(), signal.SIGINT)
+
+        def close(self) -> None:
+            print("closed", flush=True)
+
+
+    sys.exit(spin_node(SignalledOnAnotherThread))
+    """
+)
+
+
+@pytest.mark.dds
+def test_a_signal_taken_by_another_thread_still_stops_the_node() -> None:
+    """A process stopped (SIGSTOP, Ctrl-Z) and sent SIGINT has it taken by whichever thread runs first on SIGCONT: here
+    the executor's thread takes it. `roi-node record` stopped, interrupted and continued so never exited before."""
+    child = subprocess.Popen([sys.executable, "-c", OTHER_THREAD_CHILD], cwd=REPO, env=ros_env(next_domain()),
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        out, err = child.communicate(timeout=TIMEOUT_S)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    assert child.returncode == 0, err
+    assert out == "signalling\nclosed\n", (out, err)
