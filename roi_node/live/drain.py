@@ -24,22 +24,31 @@ def draining_subscription(node: Node, msg_type: Any, topic: str, handle: Callabl
                           raw: bool = False) -> Subscription:
     """A subscription whose callback handles the message it is given, then every message already queued
     (`raw`: serialized bytes, as rclpy's `create_subscription(raw=True)`)."""
-    limit = max(1, qos.depth)
     subscription: Subscription | None = None
 
     def callback(msg: Any) -> None:
         handle(msg)
-        for _ in range(limit):
-            if subscription is None:
-                return
-            try:
-                with subscription.handle:
-                    taken = subscription.handle.take_message(subscription.msg_type, subscription.raw)
-            except InvalidHandle:  # destroyed meanwhile (a lifecycle cleanup)
-                return
-            if taken is None:
-                return
-            handle(taken[0])
+        if subscription is not None:
+            take_queued(subscription, handle)
 
     subscription = node.create_subscription(msg_type, topic, callback, qos, raw=raw)
     return subscription
+
+
+def take_queued(subscription: Subscription, handle: Callable[[Any], None]) -> int:
+    """Hand every message already queued on `subscription` to `handle` (at most its queue depth); returns how many.
+
+    Also what a node stopping takes from its queues: messages delivered but not yet taken by its executor.
+    """
+    taken_count = 0
+    for _ in range(max(1, subscription.qos_profile.depth)):
+        try:
+            with subscription.handle:
+                taken = subscription.handle.take_message(subscription.msg_type, subscription.raw)
+        except InvalidHandle:  # destroyed meanwhile (a lifecycle cleanup)
+            break
+        if taken is None:
+            break
+        handle(taken[0])
+        taken_count += 1
+    return taken_count

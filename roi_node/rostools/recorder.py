@@ -35,6 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from rclpy.node import Node
+from rclpy.subscription import Subscription
 from rosbags.interfaces import Qos
 
 from roi_node import __version__
@@ -43,7 +44,7 @@ from roi_node.bagio.mcap_file import Compression
 from roi_node.bagio.rig_attachments import RigInputs
 from roi_node.bagio.writer import RECORDED_BY_KEY, BagWriteError, BagWriter, SplitPolicy
 from roi_node.engine.errors import BagError, ImageError, UsageError
-from roi_node.live.drain import draining_subscription
+from roi_node.live.drain import draining_subscription, take_queued
 from roi_node.live.msg_types import message_class, subscription_qos, to_bag_qos
 from roi_node.rostools.transcode import COMPRESSED_TYPE, IMAGE_TYPE, ImageTranscoder, ImageTransport, compressed_topic
 
@@ -107,7 +108,7 @@ class Recorder(Node):
         self._queued_bytes = 0  # of the samples in the queue; under _queued_lock
         self._queued_lock = threading.Lock()
         self._stop = threading.Event()
-        self._recorded: dict[str, object] = {}
+        self._recorded: dict[str, Subscription] = {}
         self._thread = threading.Thread(target=self._drain, name="recorder_writer", daemon=True)
         self._thread.start()
         self._deadline = None if options.duration_s is None else time.monotonic() + options.duration_s
@@ -204,7 +205,14 @@ class Recorder(Node):
         self.written[item.topic] += 1
 
     def close(self, status: BagStatus = BagStatus.COMPLETE) -> None:
-        """Drain what was received (bounded in time) and finalize the bag."""
+        """Take what was delivered but not yet taken, write what was received (bounded in time), finalize the bag.
+
+        A recorder stopped right after its publishers sent their last messages (a starved executor is behind its
+        readers) would otherwise finalize without them.
+        """
+        if self.context.ok():
+            for topic, subscription in self._recorded.items():
+                take_queued(subscription, self._callback(topic))
         self._stop.set()
         with contextlib.suppress(queue.Full):
             self._queue.put(None, timeout=JOIN_TIMEOUT_S)

@@ -149,3 +149,56 @@ def test_a_write_failure_stops_the_recorder_with_a_finalized_bag(tmp_path: Path)
     assert "status (roi_node.status): failed" in info.stdout
     stamps = _frame_stamps(bag)
     assert stamps and os.path.getsize(next(iter(sorted(bag.glob("*.mcap"))))) > 0
+
+
+UNTAKEN_CHILD = """
+import sys
+import time
+from pathlib import Path
+
+import rclpy
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
+
+from roi_node.rostools.recorder import Recorder, RecordOptions
+
+out, count = Path(sys.argv[1]), int(sys.argv[2])
+qos = QoSProfile(depth=count, reliability=ReliabilityPolicy.RELIABLE)
+rclpy.init()
+try:
+    talker = Node("talker")
+    publisher = talker.create_publisher(String, "/chatter", qos)
+    probe = Node("probe")
+    heard: list[String] = []
+    probe.create_subscription(String, "/chatter", heard.append, qos)
+    recorder = Recorder(out, ["/chatter"], record_all=False, overwrite=False, options=RecordOptions())
+    deadline = time.monotonic() + 30
+    while ("/chatter" not in recorder.stored_as or publisher.get_subscription_count() < 2) and time.monotonic() < deadline:
+        rclpy.spin_once(recorder, timeout_sec=0.05)  # its discovery timer subscribes to /chatter
+    assert publisher.get_subscription_count() == 2, "the recorder subscribed"
+    for i in range(count):
+        publisher.publish(String(data=str(i)))
+    while len(heard) < count and time.monotonic() < deadline:
+        rclpy.spin_once(probe, timeout_sec=0.05)
+    assert len(heard) == count and publisher.wait_for_all_acked(Duration(seconds=10)), "every reader has every message"
+    recorder.close()  # its executor never took one of them
+    print(recorder.summary())
+    recorder.destroy_node()
+finally:
+    rclpy.try_shutdown()
+"""
+
+
+def test_a_recorder_stopped_before_its_executor_took_what_was_delivered_still_writes_it(tmp_path: Path) -> None:
+    """A recorder whose executor is behind its readers when it is stopped (a starved process stopped right after the last
+    message was sent) writes every message its readers acknowledged: stopping takes them from the queues."""
+    out, count = tmp_path / "bag", 25
+    run = subprocess.run([sys.executable, "-c", UNTAKEN_CHILD, str(out), str(count)], cwd=REPO, env=ros_env(next_domain()),
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert f"/chatter: {count} written, 0 dropped" in run.stdout, run.stdout
+    with AnyReader([out], default_typestore=typestore()) as reader:
+        data = [reader.deserialize(raw, c.msgtype).data for c, _, raw in reader.messages()]
+    assert data == [str(i) for i in range(count)]
