@@ -30,7 +30,8 @@ test: $(STAMP)
 	# two workers, each test module whole on one (its fixtures built once, test/conftest.py); DDS tests take domains
 	# from their worker's own block of ROS_DOMAIN_ID.. (test/dds/harness.py), so two of them never hear each other
 	# a run that hangs anyway is interrupted after 40 min (pytest then prints what failed) rather than at CI's limit
-	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-71} timeout -s INT -k 60 2400 $(PY) -m pytest -q -n 2 --dist loadgroup test
+	# --durations: the 25 slowest tests close the output, where a run that grew slower shows it
+	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-71} timeout -s INT -k 60 2400 $(PY) -m pytest -q -n 2 --dist loadgroup --durations=25 test
 
 # The edit loop: everything but the DDS, Ray, colcon and demo tests (markers dds and ray; see pyproject.toml).
 test-fast: $(STAMP)
