@@ -10,10 +10,12 @@ and starts no more.
 
 from __future__ import annotations
 
+import contextlib
 import signal
+import threading
 import time
-from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed, wait
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from multiprocessing.synchronize import Event
 from pathlib import Path
@@ -32,6 +34,7 @@ from roi_node.util.atomic_output import ensure_parent, interrupted_name, remove_
 from roi_node.util.process_memory import tune_malloc_for_large_frames
 
 OUTPUT_SUFFIX = "_roi"
+CTRL_C_POLL_S = 0.1  # how often the batch looks for a Ctrl-C while it waits for its workers
 
 
 @dataclass(frozen=True)
@@ -117,8 +120,9 @@ def _replay_in_worker(source: Path, target: Path, config_path: Path, options: di
     """One bag in a worker, or None (not started) once the batch was interrupted: a job already queued to a worker
     cannot be cancelled, so the worker drops it."""
     assert _stop is not None, "set by _worker_init"
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
+    previous = signal.getsignal(signal.SIGINT)
+    try:  # from here a Ctrl-C is a KeyboardInterrupt, caught below until replay_bag takes it over
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         if _interrupted or _stop.is_set():
             _stop.set()
             return None
@@ -179,22 +183,25 @@ def _parallel(
     stop = context.Event()
     started_s = time.time()
     interrupted = False
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_worker_init, initargs=(stop,)) as pool:
+    with _ctrl_c_as_event() as ctrl_c, \
+            ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_worker_init, initargs=(stop,)) as pool:
         futures: dict[Future[BagOutcome | None], int] = {}
+        # the workers start (at the first submit) with Ctrl-C blocked, so one that comes before their initializer ran
+        # neither kills them nor is lost: they note it then, and this process sees it once all are submitted
+        _block_ctrl_c(True)
         try:
-            # the workers start (at the first submit) with Ctrl-C blocked, so one that comes before their initializer
-            # ran neither kills them nor is lost: they note it then, and this process takes it once all are submitted
-            _block_ctrl_c(True)
-            try:
-                for i, (source, target, config) in enumerate(jobs):
-                    futures[pool.submit(_replay_in_worker, source, target, config, options)] = i
-            finally:
-                _block_ctrl_c(False)
-            for future in as_completed(futures):
+            for i, (source, target, config) in enumerate(jobs):
+                futures[pool.submit(_replay_in_worker, source, target, config, options)] = i
+        finally:
+            _block_ctrl_c(False)
+        pending = set(futures)
+        while pending and not ctrl_c.is_set():
+            done, pending = wait(pending, timeout=CTRL_C_POLL_S, return_when=FIRST_COMPLETED)
+            for future in sorted(done, key=futures.__getitem__):
                 outcome = _collect(future, jobs[futures[future]], started_s)
                 if on_done is not None and outcome is not None:
                     on_done(outcome)
-        except KeyboardInterrupt:
+        if ctrl_c.is_set():
             interrupted = True
             stop.set()  # a job already queued to a worker is dropped there
             for future in futures:
@@ -205,6 +212,25 @@ def _parallel(
     outcomes = [o for o in collected if o is not None]
     interrupted = interrupted or len(outcomes) < len(collected) or any(o.interrupted for o in outcomes)
     return BatchResult(outcomes, interrupted, start)
+
+
+@contextlib.contextmanager
+def _ctrl_c_as_event() -> Iterator[threading.Event]:
+    """Ctrl-C sets the event instead of raising KeyboardInterrupt, for as long as the pool runs.
+
+    A KeyboardInterrupt raised at an arbitrary bytecode of concurrent.futures (between a lock's acquire and its
+    `with`) can leave a future's lock held, and the pool's own thread then waits on it forever. In a thread other
+    than the main one, where Python runs no signal handler, the event is never set.
+    """
+    event = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield event
+        return
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: event.set())
+    try:
+        yield event
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _block_ctrl_c(block: bool) -> None:

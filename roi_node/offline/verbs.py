@@ -107,7 +107,8 @@ def _replay_many(inputs: list[Path], args: argparse.Namespace) -> int:
     started = f" by workers started with {result.worker_start}" if result.worker_start else ""
     print(f"replayed {done} of {len(inputs)} bags into {out}{started}" + (f"; {failed} failed" if failed else ""))
     if result.interrupted:
-        print(f"roi-node replay: interrupted; {len(inputs) - len(result.outcomes)} bags not started", file=sys.stderr)
+        not_started = len(inputs) - len(result.outcomes)
+        print(f"roi-node replay: interrupted; {not_started} bag{'' if not_started == 1 else 's'} not started", file=sys.stderr)
         return EXIT_INTERRUPTED
     return EXIT_FAILED if failed else 0
 
