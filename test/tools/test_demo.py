@@ -36,6 +36,8 @@ def test_demo_runs_the_whole_job_and_live_equals_offline(tmp_path: Path) -> None
     assert f"live == offline: yes ({compared} frames compared" in run.stdout
     meta = yaml.safe_load((out / "session" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert meta["custom_data"]["roi_node.status"] == "complete"
+    session_bytes = sum(f.stat().st_size for f in (out / "session").iterdir())
+    assert session_bytes >= 180 * 1280 * 720 * 3  # every camera frame raw (README: 600 of them in the 20 s demo)
     assert (out / "report" / "REPORT.md").read_text().startswith("#")
     sheet = cv2.imread(str(out / "contact_sheet.png"))
     assert sheet is not None and sheet.shape[0] > 256
