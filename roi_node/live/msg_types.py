@@ -53,12 +53,13 @@ def from_bag_qos(profiles: list[Qos]) -> QoSProfile:
                       liveliness=LivelinessPolicy.AUTOMATIC)
 
 
-def subscription_qos(offered: list[QoSProfile]) -> QoSProfile:
-    """QoS that receives from every publisher: reliable only if all offer it, transient-local only if all do."""
+def subscription_qos(offered: list[QoSProfile], depth: int) -> QoSProfile:
+    """QoS that receives from every publisher, queueing `depth` messages: reliable only if all offer it,
+    transient-local only if all do."""
     reliable = bool(offered) and all(p.reliability == ReliabilityPolicy.RELIABLE for p in offered)
     latched = bool(offered) and all(p.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in offered)
     return QoSProfile(
-        depth=100,
+        depth=depth,
         reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
     )

@@ -6,9 +6,8 @@ durability the recording publisher offered. Its history depth is not
 discoverable (a recorder stores 0), and a reliable writer repairs only what its
 history still holds: a reader stalled longer than the history covers loses
 messages for good (a 200 Hz joint state topic with a depth of 10 covers 50 ms).
-So each topic keeps the messages of its last HISTORY_S seconds of bag time,
-within HISTORY_BUDGET_BYTES (large images keep 10, which is what fits the
-shared-memory segment of config/fastdds_shm.xml). The
+So each topic keeps the messages of its last two seconds of bag time, within a
+memory budget per topic (rostools/writer_history.py). The
 player exits only once every reliable subscriber acknowledged what it sent
 (5 s at most), so the tail a subscriber could still take is not thrown
 away. Pacing follows the bag's log times scaled by `--rate`;
@@ -19,13 +18,11 @@ the live node treats as a bag loop).
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
 
 import rclpy
-from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -37,14 +34,11 @@ from roi_node.bagio.reader import open_bag, read_messages
 from roi_node.engine.errors import BagError
 from roi_node.live.conversions import time_msg
 from roi_node.live.msg_types import from_bag_qos, message_class
+from roi_node.rostools.writer_history import history_depth, wait_for_acknowledgements
 from roi_node.util.progress import Progress
 
 CLOCK_PERIOD_NS = 10_000_000  # /clock at 100 Hz of bag time at most
 DISCOVERY_WAIT_S = 3.0
-ACKED_WAIT_S = 5.0  # the longest the player waits at the end for reliable subscribers to acknowledge
-HISTORY_S = 2.0  # each topic's history covers this much bag time, for a reliable reader that stalls
-HISTORY_BUDGET_BYTES = 8 * 2**20  # per topic: the history of large messages stays at MIN_HISTORY_DEPTH
-MIN_HISTORY_DEPTH = 10
 
 
 def play(bag: Path, *, rate: float, loop: bool, clock: bool, topics: Sequence[str], ros_args: Sequence[str]) -> int:
@@ -75,7 +69,8 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
         publishers = {}
         for c in connections:
             qos = from_bag_qos(list(getattr(c.ext, "offered_qos_profiles", []) or []))
-            qos.depth = max(qos.depth, history_depth(int(c.msgcount), duration_ns, sizes.get(c.id)))
+            rate_hz = (c.msgcount - 1) * 1e9 / duration_ns if c.msgcount >= 2 else None
+            qos.depth = max(qos.depth, history_depth(rate_hz, sizes.get(c.id)))
             publishers[c.id] = node.create_publisher(message_class(c.msgtype), c.topic, qos)
         clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)) if clock else None
         _wait_for_subscribers(list(publishers.values()))
@@ -109,22 +104,9 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
             progress.finish()
             if not loop or not rclpy.ok(context=node.context):
                 break
-        _wait_for_acknowledgements(list(publishers.values()))
+        wait_for_acknowledgements(list(publishers.values()))
     print(f"roi-node play: published {sent} messages from {bag}")
     return 0
-
-
-def history_depth(message_count: int, duration_ns: int, message_bytes: int | None) -> int:
-    """Messages a topic's writer keeps: its last HISTORY_S seconds of bag time, within HISTORY_BUDGET_BYTES.
-
-    A topic whose message size is unknown (none among the first messages read) keeps MIN_HISTORY_DEPTH.
-    """
-    if message_bytes is None or message_count < 2:
-        return MIN_HISTORY_DEPTH
-    rate_hz = (message_count - 1) * 1e9 / max(1, duration_ns)
-    wanted = math.ceil(rate_hz * HISTORY_S)
-    affordable = HISTORY_BUDGET_BYTES // max(1, message_bytes)
-    return max(MIN_HISTORY_DEPTH, min(wanted, affordable))
 
 
 def _first_message_sizes(reader: AnyReader, connections: list[Connection], bag: Path, scan: int = 10_000) -> dict[int, int]:
@@ -143,10 +125,3 @@ def _wait_for_subscribers(publishers: list[Publisher], timeout_s: float = DISCOV
     while time.monotonic() < deadline and not all(p.get_subscription_count() > 0 for p in publishers):
         time.sleep(0.05)
     time.sleep(0.3)
-
-
-def _wait_for_acknowledgements(publishers: list[Publisher]) -> None:
-    """Until every reliable subscriber acknowledged what was sent (ACKED_WAIT_S at most in all): the tail is not lost."""
-    deadline = time.monotonic() + ACKED_WAIT_S
-    for publisher in publishers:
-        publisher.wait_for_all_acked(Duration(nanoseconds=max(0, int((deadline - time.monotonic()) * 1e9))))

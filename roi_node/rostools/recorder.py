@@ -49,6 +49,11 @@ from roi_node.live.msg_types import message_class, subscription_qos, to_bag_qos
 from roi_node.rostools.transcode import COMPRESSED_TYPE, IMAGE_TYPE, ImageTranscoder, ImageTransport, compressed_topic
 
 DISCOVERY_PERIOD_S = 0.5
+# a subscription queues what arrives while the executor is held back (a starved process, one stopped for a moment):
+# 10 s of a 200 Hz joint state stream; camera images and point clouds, large, about 3 s at 30 Hz
+SUBSCRIPTION_DEPTH = 2000
+LARGE_MESSAGE_SUBSCRIPTION_DEPTH = 100
+LARGE_MESSAGE_TYPES = frozenset({IMAGE_TYPE, COMPRESSED_TYPE, "sensor_msgs/msg/PointCloud2"})
 # between the executor and the writer thread, to ride out a write stalled by the kernel's writeback (512 messages,
 # about 1 s of the demo's topics, lost messages in a demo run right after a make test had written GBs)
 QUEUE_MESSAGES = 8192
@@ -147,7 +152,9 @@ class Recorder(Node):
                 continue
             self.stored_as[name] = stored_as
             # draining (live/drain.py): a 200 Hz joint stream must not wait for one executor cycle per message
-            self._recorded[name] = draining_subscription(self, cls, name, self._callback(name), subscription_qos(offered), raw=True)
+            depth = LARGE_MESSAGE_SUBSCRIPTION_DEPTH if type_name in LARGE_MESSAGE_TYPES else SUBSCRIPTION_DEPTH
+            self._recorded[name] = draining_subscription(self, cls, name, self._callback(name), subscription_qos(offered, depth),
+                                                         raw=True)
             note = f" as {stored_as} [{stored_type}]" if transcode else ""
             self.get_logger().info(f"recording {name} [{type_name}]{note}")
 

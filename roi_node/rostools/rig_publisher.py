@@ -21,20 +21,27 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 from roi_node.engine.camera import CameraModel
 from roi_node.engine.errors import RoiNodeError
 from roi_node.live.conversions import camera_info_msg, header, image_msg, time_msg
+from roi_node.rostools.writer_history import history_depth, wait_for_acknowledgements
 from roi_node.wire import topics
 
 DISCOVERY_TIMEOUT_S = 30.0
 
 
+SMALL_MESSAGE_BYTES = 1024  # a JointState of a few arms or a CameraInfo, serialized: what their history is budgeted by
+
+
 class RigPublisher:
-    def __init__(self, node_name: str = "roi_node_sim") -> None:
+    """Reliable writers that keep 2 s of each stream (rostools/writer_history.py): a subscriber a busy machine holds
+    back that long loses nothing."""
+
+    def __init__(self, camera: CameraModel, frame_rate_hz: float, joint_rate_hz: float, node_name: str = "roi_node_sim") -> None:
         self.node = Node(node_name)
-        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.image_pub = self.node.create_publisher(Image, topics.IMAGE, qos)
-        self.info_pub = self.node.create_publisher(CameraInfo, topics.CAMERA_INFO, qos)
-        # small messages at 200 Hz: a reliable writer repairs only what its history holds, so it keeps 2 s of them
-        # (a reader stalled that long loses none; see rostools/player.py)
-        joint_qos = QoSProfile(depth=400, reliability=ReliabilityPolicy.RELIABLE)
+        frame_bytes = camera.width_px * camera.height_px * 3  # rgb8
+        image_qos = QoSProfile(depth=history_depth(frame_rate_hz, frame_bytes), reliability=ReliabilityPolicy.RELIABLE)
+        info_qos = QoSProfile(depth=history_depth(frame_rate_hz, SMALL_MESSAGE_BYTES), reliability=ReliabilityPolicy.RELIABLE)
+        joint_qos = QoSProfile(depth=history_depth(joint_rate_hz, SMALL_MESSAGE_BYTES), reliability=ReliabilityPolicy.RELIABLE)
+        self.image_pub = self.node.create_publisher(Image, topics.IMAGE, image_qos)
+        self.info_pub = self.node.create_publisher(CameraInfo, topics.CAMERA_INFO, info_qos)
         self.joint_pub = self.node.create_publisher(JointState, topics.JOINT_STATES, joint_qos)
 
     def wait_for_subscribers(self, count: int) -> None:
@@ -62,6 +69,10 @@ class RigPublisher:
     def send_image(self, stamp_ns: int, message: Image) -> None:
         message.header.stamp = time_msg(stamp_ns)
         self.image_pub.publish(message)
+
+    def wait_for_acknowledgements(self) -> None:
+        """Until every subscriber acknowledged what was sent (bounded): one behind at the end still gets the tail."""
+        wait_for_acknowledgements([self.image_pub, self.info_pub, self.joint_pub])
 
     def close(self) -> None:
         self.node.destroy_node()

@@ -31,7 +31,6 @@ render at the camera's rate shows up as frames not rendered by their slot.
 from __future__ import annotations
 
 import sys
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
@@ -54,7 +53,6 @@ if TYPE_CHECKING:
     from roi_node.rostools.command_listener import CommandListener
 
 LEAD_NS = 1_000_000_000  # timeline zero lies this far after the start: an on-the-fly renderer gets a head start
-TAIL_S = 0.5  # after the last message, before the node closes: reliable subscribers fetch the tail
 INTERRUPTED_EXIT = 130  # as the CLI's for Ctrl-C; the summary still says what was sent
 
 
@@ -288,7 +286,7 @@ def run_live(
     if follow_commands is not None:
         follower = sim.follow_commands(max_joint_speed_rad_s, lambda issue, name: _report_first(follow_commands, issue, name))
     with ros_context(ros_args):
-        rig = RigPublisher()
+        rig = RigPublisher(sim.camera, sim.rate_hz, sim.joint_rate_hz)
         listener = None
         publisher = SimPublisher(rig, sim, duration_s, render_budget_mib=render_budget_mib, late_frames=late_frames,
                                  health_check=lambda: _raise_failure(listener))
@@ -301,7 +299,7 @@ def run_live(
             publisher.prepare(Progress("sim pre-rendering", publisher.plan.frames, enabled=True))
             rig.wait_for_subscribers(min_subscribers)
             publisher.run()
-            time.sleep(TAIL_S)
+            rig.wait_for_acknowledgements()
         except KeyboardInterrupt:
             interrupted = True
         finally:

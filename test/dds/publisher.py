@@ -34,6 +34,7 @@ from std_msgs.msg import String
 from roi_node.engine.config import load_rig_config
 from roi_node.engine.pipeline import RoiPipeline
 from roi_node.live.conversions import camera_info_msg, header
+from roi_node.rostools.writer_history import history_depth
 from roi_node.wire.image_codec import encode_compressed
 from test.support.rigs import PANDA_HOME, draw_markers
 
@@ -94,10 +95,11 @@ def main(spec_path: str, truth_path: str) -> int:
 
     rclpy.init()
     node = rclpy.create_node("test_camera_publisher")
-    # reliable writers keep the last N samples for a reader that has not acknowledged them: 10 frames (333 ms at
-    # 30 Hz; more 720p frames would not fit fastdds_shm.xml's 64 MiB segment), and 1000 joint states (5 s at 200 Hz),
-    # so a subscriber process stalled by a loaded machine does not lose a sample
-    sensor = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    # reliable writers keep the last N samples for a reader that has not acknowledged them: 2 s of frames within the
+    # simulated rig's memory budget (rostools/writer_history.py) and 1000 joint states (5 s at 200 Hz), so a subscriber
+    # process stalled by a loaded machine does not lose a sample (10 frames, 333 ms, lost 5 under load in CI)
+    frame_bytes = pipeline.camera.width_px * pipeline.camera.height_px * 3 if pipeline.camera is not None else None
+    sensor = QoSProfile(depth=history_depth(1e9 / period_ns, frame_bytes), reliability=ReliabilityPolicy.RELIABLE)
     deep = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
     compressed = spec.get("transport", "raw") == "compressed"
     image_type, image_topic = (CompressedImage, "image_raw/compressed") if compressed else (Image, "image_raw")
@@ -167,6 +169,7 @@ def main(spec_path: str, truth_path: str) -> int:
     for f in frames:
         f["stamp_ns"] += t0
     sent_joint_faults: list[str] = []
+    sent_joint_stamps: list[int] = []
     # "pace": "poll" wakes every 0.5 ms until a message is due; "sleep" sleeps until then in one call, as a driver
     # blocked on its device does (a benchmark should not add 2000 wake-ups a second that no camera makes)
     poll = spec.get("pace", "poll") == "poll"
@@ -217,12 +220,14 @@ def main(spec_path: str, truth_path: str) -> int:
             if fault:
                 sent_joint_faults.append(fault)
             joint_pub.publish(JointState(header=header(stamp, ""), name=names, position=values))
+            sent_joint_stamps.append(stamp)
     time.sleep(float(spec.get("linger_s", 1.0)))
     truth = {
         "joints": joints,
         "fingers": fingers,
         "frames": [{k: v for k, v in f.items() if k != "pixels"} for f in frames],
         "joint_faults_sent": sent_joint_faults,
+        "joint_stamps_ns": sent_joint_stamps,
     }
     Path(truth_path).write_text(json.dumps(truth))
     node.destroy_node()

@@ -13,7 +13,7 @@ import pytest
 
 from roi_node.engine.config import load_rig_config
 from roi_node.engine.pipeline import RoiPipeline
-from roi_node.rostools.player import HISTORY_BUDGET_BYTES, HISTORY_S, MIN_HISTORY_DEPTH, history_depth
+from roi_node.rostools.writer_history import HISTORY_BUDGET_BYTES, HISTORY_S, MIN_HISTORY_DEPTH, history_depth
 from test.conftest import REPO
 from test.dds.harness import next_domain, process, ros_env, wait_until
 from test.support.bagtools import JOINT_PERIOD_NS, read_raw, small_rig, write_bag
@@ -22,13 +22,14 @@ STALL_S = 1.5  # the fault injected: the reader's process is stopped this long w
 
 
 def test_history_covers_the_topic_rate_within_a_byte_budget() -> None:
-    second = 10**9
-    assert history_depth(2001, 10 * second, 700) == round(200 * HISTORY_S)  # joint states at 200 Hz
-    assert history_depth(301, 10 * second, 2_764_800) == MIN_HISTORY_DEPTH  # 720p rgb8 at 30 Hz: the budget holds 3
-    assert history_depth(301, 10 * second, HISTORY_BUDGET_BYTES // 40) == 40  # the budget binds before the rate
-    assert history_depth(5, 10 * second, 100) == MIN_HISTORY_DEPTH  # a slow topic keeps the floor
-    assert history_depth(1, 0, 100) == MIN_HISTORY_DEPTH  # one message: no rate
-    assert history_depth(2001, 10 * second, None) == MIN_HISTORY_DEPTH  # size unknown
+    assert history_depth(200.0, 700) == round(200 * HISTORY_S)  # joint states at 200 Hz
+    assert history_depth(30.0, 1280 * 720 * 3) == round(30 * HISTORY_S)  # 720p rgb8 at 30 Hz fits the budget
+    assert history_depth(30.0, 3840 * 2160 * 3) == HISTORY_BUDGET_BYTES // (3840 * 2160 * 3)  # 4K: what the budget holds
+    assert history_depth(30.0, HISTORY_BUDGET_BYTES // 40) == 40  # the budget binds before the rate
+    assert history_depth(30.0, HISTORY_BUDGET_BYTES) == MIN_HISTORY_DEPTH  # never below the floor
+    assert history_depth(0.5, 100) == MIN_HISTORY_DEPTH  # a slow topic keeps the floor
+    assert history_depth(None, 100) == MIN_HISTORY_DEPTH  # one message: no rate
+    assert history_depth(200.0, None) == MIN_HISTORY_DEPTH  # size unknown
 
 
 @pytest.mark.dds

@@ -33,6 +33,7 @@ BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 TOPICS = ["/image_raw", "/joint_states", "/camera_info"]
 RATE_HZ = 30.0
 NS = 1_000_000_000
+STALL_S = 1.5  # a recorder held still this long (SIGSTOP) loses nothing
 
 
 def _publisher(tmp_path: Path, env: dict[str, str], frames: int, subscribers: int) -> subprocess.Popen[bytes]:
@@ -202,3 +203,36 @@ def test_a_recorder_stopped_before_its_executor_took_what_was_delivered_still_wr
     with AnyReader([out], default_typestore=typestore()) as reader:
         data = [reader.deserialize(raw, c.msgtype).data for c, _, raw in reader.messages()]
     assert data == [str(i) for i in range(count)]
+
+
+def test_a_recorder_stalled_mid_stream_loses_no_frame_and_no_joint_state(tmp_path: Path) -> None:
+    """A recorder process held still for 1.5 s (SIGSTOP, as a starved process on a busy machine) while 720p frames
+    and 200 Hz joint states stream: once it runs again it writes every message the publisher sent."""
+    env = ros_env(next_domain())
+    bag = tmp_path / "bag"
+    with process(_record(bag), env, tmp_path / "rec.log") as rec:
+        pub = _publisher(tmp_path, env, frames=150, subscribers=1)
+        try:
+            wait_for_log(tmp_path / "rec.log", ["recording /image_raw ", "recording /joint_states "])
+            deadline = time.monotonic() + 60
+            while not list(bag.glob("*.mcap")) or sum(f.stat().st_size for f in bag.glob("*.mcap")) < 40 * 2**20:
+                assert time.monotonic() < deadline and pub.poll() is None, "frames reach the recorder"
+                time.sleep(0.02)
+            rec.send_signal(signal.SIGSTOP)
+            try:
+                time.sleep(STALL_S)  # the fault injected: how long the recorder stands still
+            finally:
+                rec.send_signal(signal.SIGCONT)
+            assert pub.wait(timeout=60) == 0, (tmp_path / "pub.log").read_text()
+            rec.send_signal(signal.SIGINT)
+            assert rec.wait(timeout=30) == 0, (tmp_path / "rec.log").read_text()
+        finally:
+            if pub.poll() is None:
+                pub.kill()
+                pub.wait()
+    truth = json.loads((tmp_path / "truth.json").read_text())
+    assert _frame_stamps(bag) == [f["stamp_ns"] for f in truth["frames"]]
+    with AnyReader([bag], default_typestore=typestore()) as reader:
+        joints = [c for c in reader.connections if c.topic == "/joint_states"]
+        recorded_joints = [int(t) for _, t, _ in reader.messages(connections=joints)]
+    assert len(recorded_joints) == len(truth["joint_stamps_ns"]), (len(recorded_joints), len(truth["joint_stamps_ns"]))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+import signal
 import subprocess
 import sys
 import threading
@@ -41,7 +42,7 @@ from roi_node.sim.rig_sim import ImageEvent, JointStateEvent, SimRig
 from roi_node.util.progress import Progress
 from roi_node.wire.image_codec import image_from_msg
 from test.conftest import CONFIG, REPO
-from test.dds.harness import next_domain, ros_env
+from test.dds.harness import next_domain, process, ros_env
 from test.support.simrig import DEFAULT_RIG, scaled_camera_rig
 
 RATE_HZ = 10.0
@@ -368,3 +369,49 @@ def test_live_sim_sends_its_frames_on_the_wall_clock_and_accounts_for_every_one(
         assert rest == 0 and 1 <= k <= 10
         assert _digest(image_from_msg(msg)) == _digest(small_sim.image_event(k - 1).image), f"frame {k - 1}"
     assert abs(joint_stamps[0] - start_ns - 1.7 * NS_PER_MS) <= 0.3 * NS_PER_MS
+
+
+STALL_S = 1.5  # the fault injected: how long a subscriber's process stands still (SIGSTOP) mid-run
+
+
+@pytest.mark.dds
+def test_a_recorder_stalled_mid_run_loses_nothing_the_simulated_rig_sent(tmp_path: Path) -> None:
+    """A recorder held still for 1.5 s while the 720p rig streams (a process a busy machine holds back): the rig's
+    writers keep 2 s of each stream, so the recorder catches up on every frame and joint state once it runs again
+    (with a history of 10 frames, 333 ms, it lost most of what was sent while it stood still)."""
+    domain = next_domain()
+    env = {**ros_env(domain), "ROI_NODE_PROGRESS_S": "0", "FASTRTPS_DEFAULT_PROFILES_FILE": str(CONFIG / "fastdds_shm.xml")}
+    bag = tmp_path / "bag"
+    listener = RigListener(domain)
+    try:
+        with process(["-m", "roi_node.cli", "record", "-o", str(bag), "--topics", "/image_raw", "/camera_info", "/joint_states"],
+                     env, tmp_path / "rec.log") as recorder:
+            sim = subprocess.Popen(
+                [sys.executable, "-m", "roi_node.cli", "sim", "live", "--config", str(DEFAULT_RIG), "--duration", "4",
+                 "--rate-hz", "30", "--min-subscribers", "2", "--late-frames", "send"],
+                cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=(tmp_path / "sim.log").open("wb"), text=True,
+            )
+            try:
+                assert listener.wait_for(30, 0, 120.0), (tmp_path / "sim.log").read_text()  # a second of frames went out
+                recorder.send_signal(signal.SIGSTOP)
+                try:
+                    time.sleep(STALL_S)
+                finally:
+                    recorder.send_signal(signal.SIGCONT)
+                out, _ = sim.communicate(timeout=120)
+            finally:
+                if sim.poll() is None:
+                    sim.kill()
+                    sim.wait()
+            assert sim.returncode == 0, (tmp_path / "sim.log").read_text()
+            recorder.send_signal(signal.SIGINT)
+            assert recorder.wait(timeout=30) == 0, (tmp_path / "rec.log").read_text()
+    finally:
+        listener.close()
+    summary = SUMMARY.match(out.strip().splitlines()[-1])
+    assert summary is not None, out
+    recorded = _bag_messages(bag)
+    assert [_stamp(m) for m in recorded["/image_raw"]] == [_stamp(m) for m in listener.images]
+    assert len(recorded["/image_raw"]) == int(summary["sent"]), (tmp_path / "rec.log").read_text()
+    assert len(recorded["/camera_info"]) == int(summary["sent"])
+    assert len(recorded["/joint_states"]) == int(summary["joints"])

@@ -1,0 +1,45 @@
+"""How many messages a reliable writer keeps for a reader that falls behind.
+
+A reliable KEEP_LAST writer repairs only what its history still holds: a
+reader whose process a busy machine holds back, or one stopped for a moment,
+loses for good whatever the writer dropped from its history meanwhile (a
+camera topic with a history of 10 covers 333 ms at 30 Hz). So each writer of
+the player and the simulated rig keeps its last HISTORY_S seconds of messages,
+within HISTORY_BUDGET_BYTES of memory per topic (a 4K camera keeps fewer
+frames than 2 s of them), and never fewer than MIN_HISTORY_DEPTH. Both wait,
+before they close, until every reliable reader acknowledged what was sent
+(ACKED_WAIT_S at most), so a reader behind at the end still gets the tail.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+
+from rclpy.duration import Duration
+from rclpy.publisher import Publisher
+
+HISTORY_S = 2.0
+HISTORY_BUDGET_BYTES = 256 * 2**20
+MIN_HISTORY_DEPTH = 10
+ACKED_WAIT_S = 5.0  # the longest a writer waits at the end for reliable readers to acknowledge, over all its topics
+
+
+def history_depth(rate_hz: float | None, message_bytes: int | None) -> int:
+    """Messages a writer keeps: HISTORY_S seconds at `rate_hz`, within HISTORY_BUDGET_BYTES of `message_bytes` each.
+
+    An unknown rate or size (a topic with one message, or none read yet) keeps MIN_HISTORY_DEPTH.
+    """
+    if rate_hz is None or message_bytes is None:
+        return MIN_HISTORY_DEPTH
+    wanted = math.ceil(rate_hz * HISTORY_S)
+    affordable = HISTORY_BUDGET_BYTES // max(1, message_bytes)
+    return max(MIN_HISTORY_DEPTH, min(wanted, affordable))
+
+
+def wait_for_acknowledgements(publishers: Sequence[Publisher], timeout_s: float = ACKED_WAIT_S) -> None:
+    """Until every reliable reader of `publishers` acknowledged what was sent, `timeout_s` at most in all."""
+    deadline = time.monotonic() + timeout_s
+    for publisher in publishers:
+        publisher.wait_for_all_acked(Duration(nanoseconds=max(0, int((deadline - time.monotonic()) * 1e9))))
