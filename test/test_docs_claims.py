@@ -276,5 +276,5 @@ def test_the_queue_and_history_sizes_on_the_offline_page_are_the_codes() -> None
     assert f"the history of its last {HISTORY_S:g} s of bag time within {budget}" in text
     assert (f"a 720p30 image topic keeps {history_depth(30.0, 1280 * 720 * 3)} frames, "
             f"a 4K one {history_depth(30.0, 3840 * 2160 * 3)}") in text
-    assert f"keep {HISTORY_S:g} s of each stream within {budget} ({history_depth(30.0, 1280 * 720 * 3)} frames at 720p30)" in text
+    assert f"keep {HISTORY_S:g} s of each stream within {budget} ({history_depth(30.0, 1280 * 720 * 3)} frames at 720p30" in text
     assert f"acknowledged what was sent ({ACKED_WAIT_S:g} s at most)" in text

@@ -31,8 +31,8 @@ SMALL_MESSAGE_BYTES = 1024  # a JointState of a few arms or a CameraInfo, serial
 
 
 class RigPublisher:
-    """Reliable writers that keep 2 s of each stream (rostools/writer_history.py): a subscriber a busy machine holds
-    back that long loses nothing."""
+    """Reliable writers that keep seconds of each stream (rostools/writer_history.py): a subscriber a busy machine
+    holds back for a while loses nothing."""
 
     def __init__(self, camera: CameraModel, frame_rate_hz: float, joint_rate_hz: float, node_name: str = "roi_node_sim") -> None:
         self.node = Node(node_name)

@@ -6,7 +6,7 @@ loses for good whatever the writer dropped from its history meanwhile (a
 camera topic with a history of 10 covers 333 ms at 30 Hz). So each writer of
 the player and the simulated rig keeps its last HISTORY_S seconds of messages,
 within HISTORY_BUDGET_BYTES of memory per topic (a 4K camera keeps fewer
-frames than 2 s of them), and never fewer than MIN_HISTORY_DEPTH. Both wait,
+frames than that), and never fewer than MIN_HISTORY_DEPTH. Both wait,
 before they close, until every reliable reader acknowledged what was sent
 (ACKED_WAIT_S at most), so a reader behind at the end still gets the tail.
 """
@@ -20,7 +20,8 @@ from collections.abc import Sequence
 from rclpy.duration import Duration
 from rclpy.publisher import Publisher
 
-HISTORY_S = 2.0
+# well beyond a stall: after one, the reader's repairs compete with the stream, which keeps pushing the oldest out
+HISTORY_S = 5.0
 HISTORY_BUDGET_BYTES = 256 * 2**20
 MIN_HISTORY_DEPTH = 10
 ACKED_WAIT_S = 5.0  # the longest a writer waits at the end for reliable readers to acknowledge, over all its topics

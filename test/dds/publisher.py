@@ -95,7 +95,7 @@ def main(spec_path: str, truth_path: str) -> int:
 
     rclpy.init()
     node = rclpy.create_node("test_camera_publisher")
-    # reliable writers keep the last N samples for a reader that has not acknowledged them: 2 s of frames within the
+    # reliable writers keep the last N samples for a reader that has not acknowledged them: 5 s of frames within the
     # simulated rig's memory budget (rostools/writer_history.py) and 1000 joint states (5 s at 200 Hz), so a subscriber
     # process stalled by a loaded machine does not lose a sample (10 frames, 333 ms, lost 5 under load in CI)
     frame_bytes = pipeline.camera.width_px * pipeline.camera.height_px * 3 if pipeline.camera is not None else None

@@ -23,7 +23,8 @@ STALL_S = 1.5  # the fault injected: the reader's process is stopped this long w
 
 def test_history_covers_the_topic_rate_within_a_byte_budget() -> None:
     assert history_depth(200.0, 700) == round(200 * HISTORY_S)  # joint states at 200 Hz
-    assert history_depth(30.0, 1280 * 720 * 3) == round(30 * HISTORY_S)  # 720p rgb8 at 30 Hz fits the budget
+    assert history_depth(30.0, 1280 * 720 * 3) == HISTORY_BUDGET_BYTES // (1280 * 720 * 3)  # 720p rgb8 at 30 Hz: the budget binds
+    assert history_depth(30.0, 640 * 480 * 3) == round(30 * HISTORY_S)  # VGA at 30 Hz fits
     assert history_depth(30.0, 3840 * 2160 * 3) == HISTORY_BUDGET_BYTES // (3840 * 2160 * 3)  # 4K: what the budget holds
     assert history_depth(30.0, HISTORY_BUDGET_BYTES // 40) == 40  # the budget binds before the rate
     assert history_depth(30.0, HISTORY_BUDGET_BYTES) == MIN_HISTORY_DEPTH  # never below the floor

@@ -15,7 +15,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -113,12 +113,14 @@ class Oracle:
         self.node.destroy_client(client)
         return f"{state.label} [{state.id}]"
 
-    def wait_for_diagnostics(self) -> DiagnosticArray:
+    def wait_for_diagnostics(self, until: Callable[[DiagnosticArray], bool] = lambda _: True) -> DiagnosticArray:
+        """The first /diagnostics message for which `until` holds (any message by default)."""
         deadline = time.monotonic() + ORACLE_TIMEOUT_S
-        while not self.diagnostics and time.monotonic() < deadline:
+        while not any(until(m) for m in self.diagnostics) and time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=0.1)
-        assert self.diagnostics, "no /diagnostics reached the oracle"
-        return self.diagnostics[-1]
+        found = [m for m in self.diagnostics if until(m)]
+        assert found, f"no such /diagnostics reached the oracle in {ORACLE_TIMEOUT_S} s; last: {self.diagnostics[-1:]}"
+        return found[0]
 
     def close(self) -> None:
         self.executor.shutdown(timeout_sec=1.0)
@@ -287,6 +289,9 @@ def test_lifecycle_node_driven_through_its_transitions_by_label(tmp_path: Path) 
 @pytest.mark.dds
 def test_diagnostics_view_prints_one_table_of_the_nodes_statuses(node_env: dict[str, str], oracle: Oracle) -> None:
     empty = ros_env(next_domain())  # a domain without a node
+    # the node reports its silent camera once silence_timeout_s passed since it started: the tables below show that
+    oracle.wait_for_diagnostics(until=lambda array: any(
+        s.name == "roi_node: input" and s.message.startswith("no frames on /image_raw") for s in array.status))
     once, piped, nothing = roi_node_cli_together(
         node_env, ["diagnostics", "--once", "--timeout-s", "20"],
         ["diagnostics", "--timeout-s", "20"],  # not a terminal: one table, as with --once

@@ -377,7 +377,7 @@ STALL_S = 1.5  # the fault injected: how long a subscriber's process stands stil
 @pytest.mark.dds
 def test_a_recorder_stalled_mid_run_loses_nothing_the_simulated_rig_sent(tmp_path: Path) -> None:
     """A recorder held still for 1.5 s while the 720p rig streams (a process a busy machine holds back): the rig's
-    writers keep 2 s of each stream, so the recorder catches up on every frame and joint state once it runs again
+    writers keep 5 s of each stream, so the recorder catches up on every frame and joint state once it runs again
     (with a history of 10 frames, 333 ms, it lost most of what was sent while it stood still)."""
     domain = next_domain()
     env = {**ros_env(domain), "ROI_NODE_PROGRESS_S": "0", "FASTRTPS_DEFAULT_PROFILES_FILE": str(CONFIG / "fastdds_shm.xml")}
