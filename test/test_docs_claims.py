@@ -267,14 +267,15 @@ def test_the_layering_section_gives_each_folder_the_floor_the_import_test_holds(
 
 def test_the_queue_and_history_sizes_on_the_offline_page_are_the_codes() -> None:
     from roi_node.rostools.recorder import LARGE_MESSAGE_SUBSCRIPTION_DEPTH, SUBSCRIPTION_DEPTH
-    from roi_node.rostools.writer_history import ACKED_WAIT_S, HISTORY_BUDGET_BYTES, HISTORY_S, history_depth
+    from roi_node.rostools.writer_history import ACKED_WAIT_S, HISTORY_BUDGET_BYTES, HISTORY_S, MIN_HISTORY_DEPTH, history_depth
 
     text = " ".join(_text(DOCS / "offline.md").split())
     budget = f"{HISTORY_BUDGET_BYTES // 2**20} MiB"
     assert (f"held back: {SUBSCRIPTION_DEPTH} messages ({SUBSCRIPTION_DEPTH // 200} s of 200 Hz joint states), "
             f"{LARGE_MESSAGE_SUBSCRIPTION_DEPTH} for images") in text
-    assert f"the history of its last {HISTORY_S:g} s of bag time within {budget}" in text
+    assert f"the history of its last {HISTORY_S:g} s of bag time (of wall time when `--rate` is above 1) within {budget}" in text
     assert (f"a 720p30 image topic keeps {history_depth(30.0, 1280 * 720 * 3)} frames, "
             f"a 4K one {history_depth(30.0, 3840 * 2160 * 3)}") in text
-    assert f"keep {HISTORY_S:g} s of each stream within {budget} ({history_depth(30.0, 1280 * 720 * 3)} frames at 720p30" in text
+    assert (f"keep {HISTORY_S:g} s of each stream within {budget} per topic and at least {MIN_HISTORY_DEPTH} messages "
+            f"({history_depth(30.0, 1280 * 720 * 3)} frames at 720p30") in text
     assert f"acknowledged what was sent ({ACKED_WAIT_S:g} s at most)" in text

@@ -6,8 +6,10 @@ durability the recording publisher offered. Its history depth is not
 discoverable (a recorder stores 0), and a reliable writer repairs only what its
 history still holds: a reader stalled longer than the history covers loses
 messages for good (a 200 Hz joint state topic with a depth of 10 covers 50 ms).
-So each topic keeps the messages of its last two seconds of bag time, within a
-memory budget per topic (rostools/writer_history.py). The
+So each reliable, volatile topic keeps the messages of its last five seconds of
+bag time (at the playback rate, if faster), within a memory budget per topic
+(rostools/writer_history.py); a best-effort reader is never repaired, and a
+latched topic keeps the depth it was recorded with. The
 player exits only once every reliable subscriber acknowledged what it sent
 (5 s at most), so the tail a subscriber could still take is not thrown
 away. Pacing follows the bag's log times scaled by `--rate`;
@@ -18,6 +20,7 @@ the live node treats as a bag loop).
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -25,7 +28,7 @@ from pathlib import Path
 import rclpy
 from rclpy.node import Node
 from rclpy.publisher import Publisher
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
 from rosgraph_msgs.msg import Clock
@@ -34,7 +37,7 @@ from roi_node.bagio.reader import open_bag, read_messages
 from roi_node.engine.errors import BagError
 from roi_node.live.conversions import time_msg
 from roi_node.live.msg_types import from_bag_qos, message_class
-from roi_node.rostools.writer_history import history_depth, wait_for_acknowledgements
+from roi_node.rostools.writer_history import ACKED_WAIT_S, history_depth, wait_for_acknowledgements
 from roi_node.util.progress import Progress
 
 CLOCK_PERIOD_NS = 10_000_000  # /clock at 100 Hz of bag time at most
@@ -69,8 +72,9 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
         publishers = {}
         for c in connections:
             qos = from_bag_qos(list(getattr(c.ext, "offered_qos_profiles", []) or []))
-            rate_hz = (c.msgcount - 1) * 1e9 / duration_ns if c.msgcount >= 2 else None
-            qos.depth = max(qos.depth, history_depth(rate_hz, sizes.get(c.id)))
+            if qos.reliability == ReliabilityPolicy.RELIABLE and qos.durability == DurabilityPolicy.VOLATILE:
+                sent_hz = (c.msgcount - 1) * 1e9 / duration_ns * max(1.0, rate) if c.msgcount >= 2 else None
+                qos.depth = max(qos.depth, history_depth(sent_hz, sizes.get(c.id)))
             publishers[c.id] = node.create_publisher(message_class(c.msgtype), c.topic, qos)
         clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)) if clock else None
         _wait_for_subscribers(list(publishers.values()))
@@ -104,7 +108,9 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
             progress.finish()
             if not loop or not rclpy.ok(context=node.context):
                 break
-        wait_for_acknowledgements(list(publishers.values()))
+        if unacknowledged := wait_for_acknowledgements(node, list(publishers.values())):
+            print(f"roi-node play: a subscriber had not acknowledged everything on {', '.join(unacknowledged)} within "
+                  f"{ACKED_WAIT_S:g} s; it may miss the last messages", file=sys.stderr)
     print(f"roi-node play: published {sent} messages from {bag}")
     return 0
 

@@ -50,10 +50,15 @@ from roi_node.rostools.transcode import COMPRESSED_TYPE, IMAGE_TYPE, ImageTransc
 
 DISCOVERY_PERIOD_S = 0.5
 # a subscription queues what arrives while the executor is held back (a starved process, one stopped for a moment):
-# 10 s of a 200 Hz joint state stream; camera images and point clouds, large, about 3 s at 30 Hz
+# 10 s of a 200 Hz joint state stream; of the types whose messages are commonly megabytes (images, point clouds,
+# maps, video), about 3 s at 30 Hz
 SUBSCRIPTION_DEPTH = 2000
 LARGE_MESSAGE_SUBSCRIPTION_DEPTH = 100
-LARGE_MESSAGE_TYPES = frozenset({IMAGE_TYPE, COMPRESSED_TYPE, "sensor_msgs/msg/PointCloud2"})
+LARGE_MESSAGE_TYPES = frozenset({
+    IMAGE_TYPE, COMPRESSED_TYPE, "sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/PointCloud", "stereo_msgs/msg/DisparityImage",
+    "nav_msgs/msg/OccupancyGrid", "foxglove_msgs/msg/RawImage", "foxglove_msgs/msg/CompressedImage",
+    "foxglove_msgs/msg/CompressedVideo", "foxglove_msgs/msg/PointCloud",
+})
 # between the executor and the writer thread, to ride out a write stalled by the kernel's writeback (512 messages,
 # about 1 s of the demo's topics, lost messages in a demo run right after a make test had written GBs)
 QUEUE_MESSAGES = 8192

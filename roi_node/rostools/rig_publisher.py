@@ -25,14 +25,13 @@ from roi_node.rostools.writer_history import history_depth, wait_for_acknowledge
 from roi_node.wire import topics
 
 DISCOVERY_TIMEOUT_S = 30.0
-
-
-SMALL_MESSAGE_BYTES = 1024  # a JointState of a few arms or a CameraInfo, serialized: what their history is budgeted by
+# a JointState of a few arms or a CameraInfo, serialized: their history is budgeted by it (never the bound at 200 Hz)
+SMALL_MESSAGE_BYTES = 1024
 
 
 class RigPublisher:
-    """Reliable writers that keep seconds of each stream (rostools/writer_history.py): a subscriber a busy machine
-    holds back for a while loses nothing."""
+    """Reliable writers that keep the last seconds of each stream within a memory budget (rostools/writer_history.py):
+    a reliable subscriber that a busy machine holds back for a while loses nothing."""
 
     def __init__(self, camera: CameraModel, frame_rate_hz: float, joint_rate_hz: float, node_name: str = "roi_node_sim") -> None:
         self.node = Node(node_name)
@@ -45,7 +44,8 @@ class RigPublisher:
         self.joint_pub = self.node.create_publisher(JointState, topics.JOINT_STATES, joint_qos)
 
     def wait_for_subscribers(self, count: int) -> None:
-        """Until `count` subscribers matched the image and joint topics, plus a settle (readers match a moment later)."""
+        """Until `count` subscribers matched the image and joint topics, plus a settle (readers match a moment later;
+        camera info is not awaited: a node whose rig has intrinsics never subscribes to it)."""
         deadline = time.monotonic() + DISCOVERY_TIMEOUT_S
         while min(self.image_pub.get_subscription_count(), self.joint_pub.get_subscription_count()) < count:
             if time.monotonic() > deadline:
@@ -70,9 +70,10 @@ class RigPublisher:
         message.header.stamp = time_msg(stamp_ns)
         self.image_pub.publish(message)
 
-    def wait_for_acknowledgements(self) -> None:
-        """Until every subscriber acknowledged what was sent (bounded): one behind at the end still gets the tail."""
-        wait_for_acknowledgements([self.image_pub, self.info_pub, self.joint_pub])
+    def wait_for_acknowledgements(self) -> list[str]:
+        """Until every subscriber acknowledged what was sent (bounded): one behind at the end still gets the tail.
+        Returns the topics not acknowledged in time."""
+        return wait_for_acknowledgements(self.node, [self.image_pub, self.info_pub, self.joint_pub])
 
     def close(self) -> None:
         self.node.destroy_node()

@@ -34,7 +34,7 @@ from std_msgs.msg import String
 from roi_node.engine.config import load_rig_config
 from roi_node.engine.pipeline import RoiPipeline
 from roi_node.live.conversions import camera_info_msg, header
-from roi_node.rostools.writer_history import history_depth
+from roi_node.rostools.writer_history import history_depth, wait_for_acknowledgements
 from roi_node.wire.image_codec import encode_compressed
 from test.support.rigs import PANDA_HOME, draw_markers
 
@@ -222,6 +222,7 @@ def main(spec_path: str, truth_path: str) -> int:
             joint_pub.publish(JointState(header=header(stamp, ""), name=names, position=values))
             sent_joint_stamps.append(stamp)
     time.sleep(float(spec.get("linger_s", 1.0)))
+    wait_for_acknowledgements(node, [image_pub, joint_pub, info_pub])  # a reader behind still gets the tail
     truth = {
         "joints": joints,
         "fingers": fingers,

@@ -122,7 +122,7 @@ def test_a_png_bomb_is_refused_from_its_header_without_a_decode_and_good_frames_
     published = {r["stamp_ns"] for r in collector.metadata}
     good_after = [f["stamp_ns"] for f in frames[bomb_at + 1:] if f["index"] not in (*damaged, *bombs)]
     # every good frame after the bomb comes out, but those dropped for load and those a stalled reader lost to the
-    # publisher's 10-frame history (a loaded machine again): both are counted
+    # publisher's history (rostools/writer_history.py; a loaded machine again): both are counted
     not_out = load_drops + inputs["lost_before_node"]
     assert sum(stamp in published for stamp in good_after) >= len(good_after) - not_out, inputs
     assert frames[-1]["stamp_ns"] in published or load_drops, "frames flow to the end"
@@ -178,7 +178,7 @@ def test_frames_withheld_before_the_node_are_counted_as_lost_in_transport(tmp_pa
     inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
     lost = inputs["lost_before_node"]
     # the withheld frames never arrive; on a loaded machine a stalled reader can also lose a few more to the publisher's
-    # 10-frame history: the estimate must count both, from the stamps alone
+    # history (rostools/writer_history.py): the estimate must count both, from the stamps alone
     never_arrived = len(truth["frames"]) - inputs["totals"]["frames_in"]
     assert never_arrived >= len(withheld), inputs
     assert abs(lost - never_arrived) <= 1, inputs

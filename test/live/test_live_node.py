@@ -239,7 +239,7 @@ def test_a_full_pending_queue_drops_its_oldest_frame_counts_it_and_keeps_stamp_o
     # a frame before the first joint state never has one before it: it leaves the queue pushed out, or after 5 s
     assert drops["overflow"] >= no_joints_before - pending, inputs
     assert set(drops) == {"overflow"}, inputs
-    # reliable input, but the publisher keeps 10 frames for a reader: one stalled longer on a loaded machine loses some
+    # reliable input, but the publisher keeps seconds of frames for a reader: one stalled longer on a loaded machine loses some
     # before the node, and those are counted apart, from the gaps in the stamps
     assert totals["frames_in"] + inputs["lost_before_node"] == len(truth["frames"]), inputs
     assert totals["frames_in"] == totals["frames_out"] + drops["overflow"], "every frame is published or counted"

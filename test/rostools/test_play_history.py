@@ -13,7 +13,7 @@ import pytest
 
 from roi_node.engine.config import load_rig_config
 from roi_node.engine.pipeline import RoiPipeline
-from roi_node.rostools.writer_history import HISTORY_BUDGET_BYTES, HISTORY_S, MIN_HISTORY_DEPTH, history_depth
+from roi_node.rostools.writer_history import ACKED_WAIT_S, HISTORY_BUDGET_BYTES, HISTORY_S, MIN_HISTORY_DEPTH, history_depth
 from test.conftest import REPO
 from test.dds.harness import next_domain, process, ros_env, wait_until
 from test.support.bagtools import JOINT_PERIOD_NS, read_raw, small_rig, write_bag
@@ -25,7 +25,7 @@ def test_history_covers_the_topic_rate_within_a_byte_budget() -> None:
     assert history_depth(200.0, 700) == round(200 * HISTORY_S)  # joint states at 200 Hz
     assert history_depth(30.0, 1280 * 720 * 3) == HISTORY_BUDGET_BYTES // (1280 * 720 * 3)  # 720p rgb8 at 30 Hz: the budget binds
     assert history_depth(30.0, 640 * 480 * 3) == round(30 * HISTORY_S)  # VGA at 30 Hz fits
-    assert history_depth(30.0, 3840 * 2160 * 3) == HISTORY_BUDGET_BYTES // (3840 * 2160 * 3)  # 4K: what the budget holds
+    assert history_depth(30.0, 3840 * 2160 * 3) == max(MIN_HISTORY_DEPTH, HISTORY_BUDGET_BYTES // (3840 * 2160 * 3))  # 4K
     assert history_depth(30.0, HISTORY_BUDGET_BYTES // 40) == 40  # the budget binds before the rate
     assert history_depth(30.0, HISTORY_BUDGET_BYTES) == MIN_HISTORY_DEPTH  # never below the floor
     assert history_depth(0.5, 100) == MIN_HISTORY_DEPTH  # a slow topic keeps the floor
@@ -63,3 +63,30 @@ def test_a_reader_stalled_while_play_publishes_loses_no_joint_state(tmp_path: Pa
         assert player.returncode == 0, err
         assert f"published {sent} messages" in out, out
     assert f"received {sent}" in log.read_text(), log.read_text()
+
+
+@pytest.mark.dds
+def test_a_reader_still_stopped_when_play_ends_is_named_after_a_bounded_wait(tmp_path: Path) -> None:
+    """The reader is stopped (SIGSTOP) from its first message until play has exited: play waits for its
+    acknowledgements ACKED_WAIT_S at most, says on stderr which topic was not acknowledged, and exits 0."""
+    bag = tmp_path / "bag"
+    write_bag(bag, RoiPipeline(load_rig_config(small_rig(tmp_path))), frames=30, reliable=True)  # 1 s
+    env = ros_env(next_domain())
+    log = tmp_path / "counter.log"
+    with process(["-m", "test.dds.joint_counter", "/joint_states"], env, log) as counter:
+        assert wait_until(lambda: "subscribed" in log.read_text(), 30.0), log.read_text()
+        player = subprocess.Popen([sys.executable, "-m", "roi_node.cli", "play", str(bag), "--topics", "/joint_states"],
+                                  cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            assert wait_until(lambda: "first message" in log.read_text() or player.poll() is not None, 30.0), log.read_text()
+            os.kill(counter.pid, signal.SIGSTOP)
+            try:
+                out, err = player.communicate(timeout=60)
+            finally:
+                os.kill(counter.pid, signal.SIGCONT)
+        finally:
+            player.kill()
+    assert player.returncode == 0, err
+    assert (f"roi-node play: a subscriber had not acknowledged everything on /joint_states within {ACKED_WAIT_S:g} s; "
+            "it may miss the last messages") in err.splitlines(), err
+    assert "published" in out

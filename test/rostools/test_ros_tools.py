@@ -114,13 +114,13 @@ class Oracle:
         return f"{state.label} [{state.id}]"
 
     def wait_for_diagnostics(self, until: Callable[[DiagnosticArray], bool] = lambda _: True) -> DiagnosticArray:
-        """The first /diagnostics message for which `until` holds (any message by default)."""
+        """The latest /diagnostics message for which `until` holds (any message by default)."""
         deadline = time.monotonic() + ORACLE_TIMEOUT_S
         while not any(until(m) for m in self.diagnostics) and time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=0.1)
         found = [m for m in self.diagnostics if until(m)]
         assert found, f"no such /diagnostics reached the oracle in {ORACLE_TIMEOUT_S} s; last: {self.diagnostics[-1:]}"
-        return found[0]
+        return found[-1]
 
     def close(self) -> None:
         self.executor.shutdown(timeout_sec=1.0)

@@ -49,6 +49,7 @@ RATE_HZ = 10.0
 PERIOD_NS = round(NS_PER_S / RATE_HZ)
 DELAY_MS = 80.0
 SEED = 5
+STALL_S = 1.5  # the fault injected: how long a subscriber's process stands still (SIGSTOP) mid-run
 SUMMARY = re.compile(
     r"^roi-node sim: sent (?P<sent>\d+), dropped (?P<dropped>\d+) late of (?P<planned>\d+) frames "
     rf"\((?P<unrendered>\d+) {FrameDrop.NOT_RENDERED}, (?P<late>\d+) {FrameDrop.PAST_DEADLINE}\); "
@@ -371,16 +372,14 @@ def test_live_sim_sends_its_frames_on_the_wall_clock_and_accounts_for_every_one(
     assert abs(joint_stamps[0] - start_ns - 1.7 * NS_PER_MS) <= 0.3 * NS_PER_MS
 
 
-STALL_S = 1.5  # the fault injected: how long a subscriber's process stands still (SIGSTOP) mid-run
-
-
 @pytest.mark.dds
-def test_a_recorder_stalled_mid_run_loses_nothing_the_simulated_rig_sent(tmp_path: Path) -> None:
+def test_a_recorder_stalled_mid_run_loses_nothing_the_simulated_rig_sent(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A recorder held still for 1.5 s while the 720p rig streams (a process a busy machine holds back): the rig's
     writers keep 5 s of each stream, so the recorder catches up on every frame and joint state once it runs again
     (with a history of 10 frames, 333 ms, it lost most of what was sent while it stood still)."""
     domain = next_domain()
-    env = {**ros_env(domain), "ROI_NODE_PROGRESS_S": "0", "FASTRTPS_DEFAULT_PROFILES_FILE": str(CONFIG / "fastdds_shm.xml")}
+    env = {**ros_env(domain), "ROI_NODE_PROGRESS_S": "0"}
+    monkeypatch.setenv("FASTRTPS_DEFAULT_PROFILES_FILE", env["FASTRTPS_DEFAULT_PROFILES_FILE"])  # the listener's too
     bag = tmp_path / "bag"
     listener = RigListener(domain)
     try:
