@@ -7,6 +7,8 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -33,6 +35,23 @@ def test_history_covers_the_topic_rate_within_a_byte_budget() -> None:
     assert history_depth(200.0, None) == MIN_HISTORY_DEPTH  # size unknown
 
 
+@contextmanager
+def _playing_to_a_counter(bag: Path, tmp_path: Path) -> Iterator[tuple[subprocess.Popen[bytes], subprocess.Popen[str], Path]]:
+    """A joint-state counter (test/dds/joint_counter.py) subscribed, then `roi-node play BAG` started; yields
+    (counter, player, counter's log) once the counter has its first message (or play has ended)."""
+    env = ros_env(next_domain())
+    log = tmp_path / "counter.log"
+    with process(["-m", "test.dds.joint_counter", "/joint_states"], env, log) as counter:
+        assert wait_until(lambda: "subscribed" in log.read_text(), 30.0), log.read_text()
+        player = subprocess.Popen([sys.executable, "-m", "roi_node.cli", "play", str(bag), "--topics", "/joint_states"],
+                                  cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            assert wait_until(lambda: "first message" in log.read_text() or player.poll() is not None, 30.0), log.read_text()
+            yield counter, player, log
+        finally:
+            player.kill()
+
+
 @pytest.mark.dds
 def test_a_reader_stalled_while_play_publishes_loses_no_joint_state(tmp_path: Path) -> None:
     """The reader is stopped (SIGSTOP) for STALL_S mid-play; the writer's history repairs what it missed.
@@ -44,24 +63,15 @@ def test_a_reader_stalled_while_play_publishes_loses_no_joint_state(tmp_path: Pa
     spec = write_bag(bag, RoiPipeline(load_rig_config(small_rig(tmp_path))), frames=120, reliable=True)  # 4 s
     sent = sum(1 for topic, _, _ in read_raw(bag) if topic == "/joint_states")
     assert sent == len(spec.joint_stamps) and (spec.joint_stamps[1] - spec.joint_stamps[0]) == JOINT_PERIOD_NS
-    env = ros_env(next_domain())
-    log = tmp_path / "counter.log"
-    with process(["-m", "test.dds.joint_counter", "/joint_states"], env, log) as counter:
-        assert wait_until(lambda: "subscribed" in log.read_text(), 30.0), log.read_text()
-        player = subprocess.Popen([sys.executable, "-m", "roi_node.cli", "play", str(bag), "--topics", "/joint_states"],
-                                  cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    with _playing_to_a_counter(bag, tmp_path) as (counter, player, log):
+        os.kill(counter.pid, signal.SIGSTOP)
         try:
-            assert wait_until(lambda: "first message" in log.read_text() or player.poll() is not None, 30.0), log.read_text()
-            os.kill(counter.pid, signal.SIGSTOP)
-            try:
-                time.sleep(STALL_S)  # the injected stall's length, not a wait for anything
-            finally:
-                os.kill(counter.pid, signal.SIGCONT)
-            out, err = player.communicate(timeout=60)
+            time.sleep(STALL_S)  # the injected stall's length, not a wait for anything
         finally:
-            player.kill()
-        assert player.returncode == 0, err
-        assert f"published {sent} messages" in out, out
+            os.kill(counter.pid, signal.SIGCONT)
+        out, err = player.communicate(timeout=60)
+    assert player.returncode == 0, err
+    assert f"published {sent} messages" in out, out
     assert f"received {sent}" in log.read_text(), log.read_text()
 
 
@@ -71,21 +81,12 @@ def test_a_reader_still_stopped_when_play_ends_is_named_after_a_bounded_wait(tmp
     acknowledgements ACKED_WAIT_S at most, says on stderr which topic was not acknowledged, and exits 0."""
     bag = tmp_path / "bag"
     write_bag(bag, RoiPipeline(load_rig_config(small_rig(tmp_path))), frames=30, reliable=True)  # 1 s
-    env = ros_env(next_domain())
-    log = tmp_path / "counter.log"
-    with process(["-m", "test.dds.joint_counter", "/joint_states"], env, log) as counter:
-        assert wait_until(lambda: "subscribed" in log.read_text(), 30.0), log.read_text()
-        player = subprocess.Popen([sys.executable, "-m", "roi_node.cli", "play", str(bag), "--topics", "/joint_states"],
-                                  cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    with _playing_to_a_counter(bag, tmp_path) as (counter, player, _):
+        os.kill(counter.pid, signal.SIGSTOP)
         try:
-            assert wait_until(lambda: "first message" in log.read_text() or player.poll() is not None, 30.0), log.read_text()
-            os.kill(counter.pid, signal.SIGSTOP)
-            try:
-                out, err = player.communicate(timeout=60)
-            finally:
-                os.kill(counter.pid, signal.SIGCONT)
+            out, err = player.communicate(timeout=60)
         finally:
-            player.kill()
+            os.kill(counter.pid, signal.SIGCONT)
     assert player.returncode == 0, err
     assert (f"roi-node play: a subscriber had not acknowledged everything on /joint_states within {ACKED_WAIT_S:g} s; "
             "it may miss the last messages") in err.splitlines(), err
