@@ -20,7 +20,6 @@ the live node treats as a bag loop).
 
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -37,7 +36,7 @@ from roi_node.bagio.reader import open_bag, read_messages
 from roi_node.engine.errors import BagError
 from roi_node.live.conversions import time_msg
 from roi_node.live.msg_types import from_bag_qos, message_class
-from roi_node.rostools.writer_history import ACKED_WAIT_S, history_depth, wait_for_acknowledgements
+from roi_node.rostools.writer_history import history_depth, report_unacknowledged, wait_for_acknowledgements
 from roi_node.util.progress import Progress
 
 CLOCK_PERIOD_NS = 10_000_000  # /clock at 100 Hz of bag time at most
@@ -108,9 +107,7 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
             progress.finish()
             if not loop or not rclpy.ok(context=node.context):
                 break
-        if unacknowledged := wait_for_acknowledgements(node, list(publishers.values())):
-            print(f"roi-node play: a subscriber had not acknowledged everything on {', '.join(unacknowledged)} within "
-                  f"{ACKED_WAIT_S:g} s; it may miss the last messages", file=sys.stderr)
+        report_unacknowledged("roi-node play", wait_for_acknowledgements(node, list(publishers.values())))
     print(f"roi-node play: published {sent} messages from {bag}")
     return 0
 

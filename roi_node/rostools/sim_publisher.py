@@ -275,7 +275,7 @@ def run_live(
     from roi_node.live.spin import ros_context
     from roi_node.rostools.command_listener import CommandListener, check_command_topic
     from roi_node.rostools.rig_publisher import RigPublisher
-    from roi_node.rostools.writer_history import ACKED_WAIT_S
+    from roi_node.rostools.writer_history import report_unacknowledged
 
     if follow_commands is not None:
         check_command_topic("--follow-commands", follow_commands)
@@ -300,9 +300,7 @@ def run_live(
             publisher.prepare(Progress("sim pre-rendering", publisher.plan.frames, enabled=True))
             rig.wait_for_subscribers(min_subscribers)
             publisher.run()
-            if unacknowledged := rig.wait_for_acknowledgements():
-                print(f"sim: a subscriber had not acknowledged everything on {', '.join(unacknowledged)} within "
-                      f"{ACKED_WAIT_S:g} s; it may miss the last messages", file=sys.stderr, flush=True)
+            report_unacknowledged("sim", rig.wait_for_acknowledgements())
         except KeyboardInterrupt:
             interrupted = True
         finally:

@@ -16,6 +16,7 @@ tail, and say which topics a reader had not acknowledged by then.
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Sequence
 
@@ -63,3 +64,10 @@ def wait_for_acknowledgements(node: Node, publishers: Sequence[Publisher], timeo
         if not acked:
             unacknowledged.append(publisher.topic_name)
     return unacknowledged
+
+
+def report_unacknowledged(program: str, topics: Sequence[str]) -> None:
+    """One stderr line naming the topics a reader had not acknowledged in time (none: nothing is printed)."""
+    if topics:
+        print(f"{program}: a subscriber had not acknowledged everything on {', '.join(topics)} within {ACKED_WAIT_S:g} s; "
+              "it may miss the last messages", file=sys.stderr, flush=True)
