@@ -39,7 +39,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -49,47 +48,26 @@ from typing import Any
 import yaml
 from independent.added_latency import (
     WARM_UP_FRAMES,
-    Block,
     NoLatencyError,
     SentFrame,
     SizeSummary,
-    StreamPath,
-    block_of,
     final_line,
     report_lines,
     run_pairs,
     summarize,
 )
-from independent.procs import BlockCpu, ChildNotReadyError, LineProcess, wait_for_stamp, wait_node_up
+from independent.paths import NodeAndReceivers, Sender
+from independent.procs import ChildNotReadyError
 
 from roi_node.engine.camera import calibration_yaml_text, camera_from_info
 from roi_node.engine.config import load_rig_config
 
 REPO = Path(__file__).resolve().parents[1]
 RIG = REPO / "config" / "rig_demo_bimanual.yaml"
-RECEIVER = Path(__file__).resolve().parent / "independent" / "receiver.py"
 SIZES = {720: (1280, 720), 1080: (1920, 1080)}
 RATE_HZ = 30.0
 JOINT_RATE_HZ = 200.0
 TARGETS_MS = {720: (4.0, None), 1080: (6.0, 12.0)}  # node-added latency: (median, p99)
-START_TIMEOUT_S = 300.0  # a node's first start loads the URDFs and the compiled kernels: minutes on a crowded machine
-LAST_FRAME_WAIT_S = 2.0  # after the publisher's end: an ROI not arrived by then is counted lost
-BARE_QOS = ("--reliability", "best_effort", "--depth", "5")  # as roi_node subscribes to the camera by default
-ROI_QOS = ("--reliability", "reliable", "--depth", "10")  # roi_node publishes reliable
-JOINT_READER = ("--type", "joint_state", "--quiet", "--reliability", "best_effort", "--depth", "100")  # in (a), as the node reads
-
-
-def env_for(domain: int) -> dict[str, str]:
-    env = dict(os.environ)
-    env.update(
-        ROS_DOMAIN_ID=str(domain),
-        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-        FASTRTPS_DEFAULT_PROFILES_FILE=str(REPO / "config" / "fastdds_shm.xml"),
-        MALLOC_MMAP_THRESHOLD_="33554432",
-        MALLOC_TRIM_THRESHOLD_="4000000000",
-        PYTHONUNBUFFERED="1",
-    )
-    return env
 
 
 def rig_at(width: int, height: int, tmp: Path, interpolation: str) -> Path:
@@ -128,41 +106,20 @@ def publish(spec: dict[str, object], tmp: Path, name: str, env: dict[str, str]) 
     return [SentFrame(int(f["stamp_ns"]), int(f["sent_ns"])) for f in truth["frames"]]
 
 
+def test_publisher(spec: dict[str, object], tmp: Path, name: str) -> Sender:
+    """The test publisher as a sender of one block (see NodeAndReceivers.block)."""
+    return lambda env: publish(spec, tmp, name, env)
+
+
 def run_size(size: int, pairs: int, block_frames: int, tmp: Path, domain: int, interpolation: str,
              sync_policy: str) -> SizeSummary:
     """Both paths' processes up for the whole size; the publisher run once per block, ABBA."""
     width, height = SIZES[size]
     rig = rig_at(width, height, tmp, interpolation)
     spec = publisher_spec(rig, block_frames)
-    receiver_argv = [sys.executable, str(RECEIVER)]
-    bare_env, node_env = env_for(domain), env_for(domain + 1)
-    node_args = ["run", "--config", str(rig), "--ros-args", "-p", f"sync.policy:={sync_policy}"]
-    children: list[LineProcess] = []
-    try:
-        children.append(bare := LineProcess("bare receiver", [*receiver_argv, "image_raw", *BARE_QOS], bare_env, REPO))
-        children.append(LineProcess("joint reader", [*receiver_argv, "joint_states", *JOINT_READER], bare_env, REPO))
-        children.append(node := LineProcess("roi-node run", [sys.executable, "-m", "roi_node.cli", *node_args], node_env, REPO))
-        node_cpu = BlockCpu(node)
-        children.append(through := LineProcess("ROI receiver", [*receiver_argv, "roi/left/image_raw", *ROI_QOS], node_env, REPO,
-                                               lambda line: node_cpu.mark() if line.startswith("got ") else None))
-        wait_node_up(node, through, START_TIMEOUT_S)
-
-        def run_block(path: StreamPath, pair: int) -> Block:
-            if path is StreamPath.BARE:
-                sent = publish(spec, tmp, f"{size}_{pair}_a", bare_env)
-                wait_for_stamp(bare, sent[-1].stamp_ns, LAST_FRAME_WAIT_S)  # or lost
-                return block_of(path, sent, bare.lines)
-            window = node_cpu.start()
-            sent = publish(spec, tmp, f"{size}_{pair}_b", node_env)
-            wait_for_stamp(through, sent[-1].stamp_ns, LAST_FRAME_WAIT_S)  # or lost
-            if node.process.poll() is not None:
-                raise ChildNotReadyError(node.name, "running to the end", f"exited with {node.process.returncode}")
-            return block_of(path, sent, through.lines, window.cpu_ms_per_interval())
-
-        blocks = run_pairs(pairs, run_block)
-    finally:
-        for child in reversed(children):
-            child.stop(signal.SIGINT if child.name == "roi-node run" else signal.SIGTERM)
+    node_argv = [sys.executable, "-m", "roi_node.cli", "run", "--config", str(rig), "--ros-args", "-p", f"sync.policy:={sync_policy}"]
+    with NodeAndReceivers(node_argv, domain, domain + 1) as paths:
+        blocks = run_pairs(pairs, lambda path, pair: paths.block(path, test_publisher(spec, tmp, f"{size}_{pair}_{path}")))
     label = f"{size}p" + ("" if sync_policy == "interpolate" else f" sync={sync_policy}")
     return summarize(label, width, height, RATE_HZ, block_frames, blocks)
 

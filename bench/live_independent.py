@@ -38,18 +38,16 @@ from pathlib import Path
 import numpy as np
 from independent.added_latency import (
     WARM_UP_FRAMES,
-    Block,
     NoLatencyError,
     SentFrame,
     SizeSummary,
-    StreamPath,
-    block_of,
     final_line,
     report_lines,
     run_pairs,
     summarize,
 )
-from independent.procs import BlockCpu, ChildNotReadyError, LineProcess, wait_for_stamp, wait_node_up
+from independent.paths import START_TIMEOUT_S, NodeAndReceivers, Sender
+from independent.procs import ChildNotReadyError, LineProcess
 from independent.rig import scaled_rig
 
 REPO = Path(__file__).resolve().parents[1]
@@ -58,24 +56,6 @@ RIG = REPO / "config" / "rig_demo_bimanual.yaml"
 SIZES_PX = {720: (1280, 720), 1080: (1920, 1080)}
 RATE_HZ = 30.0
 JOINT_RATE_HZ = 200.0
-BARE_QOS = ("--reliability", "best_effort", "--depth", "5")  # as roi_node subscribes to the camera by default
-ROI_QOS = ("--reliability", "reliable", "--depth", "10")  # roi_node publishes reliable
-JOINT_READER = ("--type", "joint_state", "--quiet", "--reliability", "best_effort", "--depth", "100")  # in (a), as the node reads
-START_TIMEOUT_S = 300.0  # a node's first start loads the URDFs and the compiled kernels: minutes on a crowded machine
-LAST_FRAME_WAIT_S = 2.0  # after the camera's last frame: what has not arrived by then is counted lost
-
-
-def env_for(domain: int) -> dict[str, str]:
-    env = dict(os.environ)
-    env.update(
-        ROS_DOMAIN_ID=str(domain),
-        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-        FASTRTPS_DEFAULT_PROFILES_FILE=str(REPO / "config" / "fastdds_shm.xml"),
-        MALLOC_MMAP_THRESHOLD_="33554432",
-        MALLOC_TRIM_THRESHOLD_="4000000000",
-        PYTHONUNBUFFERED="1",
-    )
-    return env
 
 
 def part(script: str, *args: str) -> list[str]:
@@ -109,42 +89,25 @@ def send_block(size: int, frames: int, prefixes: list[str], env: dict[str, str])
     return [SentFrame(stamp_ns, sent_ns) for stamp_ns, sent_ns, _ in sent], [(done_ns - sent_ns) / 1e6 for _, sent_ns, done_ns in sent]
 
 
+def independent_sender(size: int, frames: int, prefixes: list[str], publish_call_ms: list[float]) -> Sender:
+    """The robot driver and the camera as a sender of one block (see NodeAndReceivers.block); each publish call's
+    duration (ms) is appended to publish_call_ms."""
+    def send(env: dict[str, str]) -> list[SentFrame]:
+        sent, publish_ms = send_block(size, frames, prefixes, env)
+        publish_call_ms.extend(publish_ms)
+        return sent
+    return send
+
+
 def run_size(size: int, pairs: int, frames: int, domain: int, tmp: Path) -> tuple[SizeSummary, float]:
     """Both paths' subscribers (and the node) up for the whole size; camera and robot driver once per block, ABBA.
     Returns the summary and the camera's median publish call (ms)."""
     width_px, height_px = SIZES_PX[size]
     rig, prefixes = scaled_rig(RIG, width_px, height_px, tmp)
-    bare_env, node_env = env_for(domain), env_for(domain + 1)
-    children: list[LineProcess] = []
     publish_call_ms: list[float] = []
-    try:
-        children.append(bare := LineProcess("bare receiver", part("receiver.py", "image_raw", *BARE_QOS), bare_env, REPO))
-        children.append(LineProcess("joint reader", part("receiver.py", "joint_states", *JOINT_READER), bare_env, REPO))
-        node_argv = [sys.executable, "-m", "roi_node.cli", "run", "--config", str(rig)]
-        children.append(node := LineProcess("roi-node run", node_argv, node_env, REPO))
-        node_cpu = BlockCpu(node)
-        children.append(through := LineProcess("ROI receiver", part("receiver.py", "roi/left/image_raw", *ROI_QOS), node_env, REPO,
-                                               lambda line: node_cpu.mark() if line.startswith("got ") else None))
-        wait_node_up(node, through, START_TIMEOUT_S)
-
-        def run_block(path: StreamPath, pair: int) -> Block:
-            if path is StreamPath.BARE:
-                sent, publish_ms = send_block(size, frames, prefixes, bare_env)
-                publish_call_ms.extend(publish_ms)
-                wait_for_stamp(bare, sent[-1].stamp_ns, LAST_FRAME_WAIT_S)  # or lost
-                return block_of(path, sent, bare.lines)
-            window = node_cpu.start()
-            sent, publish_ms = send_block(size, frames, prefixes, node_env)
-            publish_call_ms.extend(publish_ms)
-            wait_for_stamp(through, sent[-1].stamp_ns, LAST_FRAME_WAIT_S)  # or lost
-            if node.process.poll() is not None:
-                raise ChildNotReadyError(node.name, "running to the end", f"exited with {node.process.returncode}")
-            return block_of(path, sent, through.lines, window.cpu_ms_per_interval())
-
-        blocks = run_pairs(pairs, run_block)
-    finally:
-        for child in reversed(children):
-            child.stop(signal.SIGTERM)
+    node_argv = [sys.executable, "-m", "roi_node.cli", "run", "--config", str(rig)]
+    with NodeAndReceivers(node_argv, domain, domain + 1) as paths:
+        blocks = run_pairs(pairs, lambda path, _pair: paths.block(path, independent_sender(size, frames, prefixes, publish_call_ms)))
     return summarize(f"{size}p", width_px, height_px, RATE_HZ, frames, blocks), float(np.median(publish_call_ms))
 
 
