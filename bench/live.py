@@ -106,7 +106,7 @@ def publish(spec: dict[str, object], tmp: Path, name: str, env: dict[str, str]) 
     return [SentFrame(int(f["stamp_ns"]), int(f["sent_ns"])) for f in truth["frames"]]
 
 
-def test_publisher(spec: dict[str, object], tmp: Path, name: str) -> Sender:
+def publisher_sender(spec: dict[str, object], tmp: Path, name: str) -> Sender:
     """The test publisher as a sender of one block (see NodeAndReceivers.block)."""
     return lambda env: publish(spec, tmp, name, env)
 
@@ -119,7 +119,7 @@ def run_size(size: int, pairs: int, block_frames: int, tmp: Path, domain: int, i
     spec = publisher_spec(rig, block_frames)
     node_argv = [sys.executable, "-m", "roi_node.cli", "run", "--config", str(rig), "--ros-args", "-p", f"sync.policy:={sync_policy}"]
     with NodeAndReceivers(node_argv, domain, domain + 1) as paths:
-        blocks = run_pairs(pairs, lambda path, pair: paths.block(path, test_publisher(spec, tmp, f"{size}_{pair}_{path}")))
+        blocks = run_pairs(pairs, lambda path, pair: paths.block(path, publisher_sender(spec, tmp, f"{size}_{pair}_{path}")))
     label = f"{size}p" + ("" if sync_policy == "interpolate" else f" sync={sync_policy}")
     return summarize(label, width, height, RATE_HZ, block_frames, blocks)
 

@@ -52,7 +52,7 @@ from independent.added_latency import (
 from independent.paths import NodeAndReceivers
 from independent.procs import ChildNotReadyError
 from independent.rig import scaled_rig
-from live import RATE_HZ, SIZES, publisher_spec, test_publisher
+from live import RATE_HZ, SIZES, publisher_sender, publisher_spec
 from live_independent import independent_sender
 
 REPO = Path(__file__).resolve().parents[1]
@@ -137,7 +137,7 @@ def run_size(size: int, rounds: int, frames: int, domain: int, tmp: Path) -> Agr
         for k in range(rounds):
             blocks: dict[tuple[SenderName, StreamPath], Block] = {}
             for name, path in round_order(k):
-                sender = (test_publisher(spec, tmp, f"{size}_{k}_{path}") if name is LIVE
+                sender = (publisher_sender(spec, tmp, f"{size}_{k}_{path}") if name is LIVE
                           else independent_sender(size, frames, prefixes, publish_call_ms))
                 blocks[name, path] = paths.block(path, sender)
             results.append({name: (blocks[name, A], blocks[name, B]) for name in SenderName})
@@ -145,7 +145,7 @@ def run_size(size: int, rounds: int, frames: int, domain: int, tmp: Path) -> Agr
 
 
 def agreement_lines(a: Agreement, within_ms: float) -> list[str]:
-    per_round = " ".join(f"{v:+.2f}" for v in a.difference_per_round_ms)
+    per_round = " ".join(f"{round(v, 2) + 0.0:+.2f}" for v in a.difference_per_round_ms)  # + 0.0: no "-0.00"
     verdict = "SHOWN" if a.within(within_ms) else "NOT SHOWN"
     return [
         *(f"  left out: {why}" for why in a.left_out),
