@@ -78,6 +78,7 @@ bench: $(STAMP)
 	$(PY) bench/record_preset.py
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-73} $(PY) bench/live.py
 	$(PY) bench/live_independent.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 4 ))
+	$(PY) bench/live_agreement.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 8 ))
 	$(PY) bench/live_overload.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 2 ))
 	$(PY) bench/policy.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 6 )) --policies callable  # ACT: run it with .venv-lerobot/bin/python
 

@@ -10,6 +10,8 @@ from __future__ import annotations
 import json
 import re
 import shlex
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -279,3 +281,32 @@ def test_the_queue_and_history_sizes_on_the_offline_page_are_the_codes() -> None
     assert (f"keep {HISTORY_S:g} s of each stream within {budget} per topic and at least {MIN_HISTORY_DEPTH} messages "
             f"({history_depth(30.0, 1280 * 720 * 3)} frames at 720p30") in text
     assert f"acknowledged what was sent ({ACKED_WAIT_S:g} s at most)" in text
+
+
+def test_the_live_latency_section_shows_each_bench_with_flags_it_takes_and_the_agreement_its_table_holds() -> None:
+    """The README's performance row: the node's added latency and CPU per frame, by two benches that agree. Each
+    live bench the section runs is run by `make bench` and takes the flags shown; the agreement stated is the one
+    the agreement table's intervals hold, run by run."""
+    section = _text(DOCS / "performance.md").split("## Live node latency")[1].split("\n## ")[0]
+    benches = {}
+    for block in re.findall(r"```sh\n(.*?)```", section, re.S):
+        for line in block.splitlines():
+            match = re.search(r"python (bench/\w+\.py)(.*)", line)
+            assert match, f"performance.md: {line!r} runs no bench"
+            benches[match[1]] = set(re.findall(r"--[a-z-]+", match[2]))
+    assert set(benches) == {"bench/live.py", "bench/live_independent.py", "bench/live_agreement.py"}
+    makefile = _text(REPO / "Makefile")
+    for bench, flags in benches.items():
+        assert f"$(PY) {bench}" in makefile, f"make bench does not run {bench}"
+        shown = subprocess.run([sys.executable, bench, "--help"], cwd=REPO, capture_output=True, text=True, check=True).stdout
+        assert flags and flags <= set(re.findall(r"--[a-z-]+", shown)), f"{bench}: {flags} against its --help"
+    header = next(line for line in section.splitlines() if "live.py - independent ms (bootstrap 95%)" in line)
+    assert "node-added p50 ms" in header and "node CPU ms/frame" in header
+    runs: dict[str, list[tuple[float, float]]] = {"720p": [], "1080p": []}
+    for size, low, high in re.findall(r"^\| (\d+p), run \d+ \| [^|]+\| [^|]+\| [-+.\d]+ \((-?[.\d]+)\.\.(-?[.\d]+)\) \|",
+                                      section, re.M):
+        runs[size].append((float(low), float(high)))
+    within = {size: sum(1 for low, high in intervals if low >= -0.5 and high <= 0.5) for size, intervals in runs.items()}
+    assert runs["720p"] and runs["1080p"]
+    assert (f"within ±0.5 ms: shown in {within['720p']} of {len(runs['720p'])} runs at 720p and "
+            f"{within['1080p']} of {len(runs['1080p'])} at 1080p") in " ".join(section.split())
