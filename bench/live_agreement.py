@@ -130,7 +130,6 @@ def run_size(size: int, rounds: int, frames: int, domain: int, tmp: Path) -> Agr
     width_px, height_px = SIZES[size]
     rig, prefixes = scaled_rig(RIG, width_px, height_px, tmp)
     spec = publisher_spec(rig, frames)
-    publish_call_ms: list[float] = []
     node_argv = [sys.executable, "-m", "roi_node.cli", "run", "--config", str(rig)]
     results: list[dict[SenderName, tuple[Block, Block]]] = []
     with NodeAndReceivers(node_argv, domain, domain + 1) as paths:
@@ -138,7 +137,7 @@ def run_size(size: int, rounds: int, frames: int, domain: int, tmp: Path) -> Agr
             blocks: dict[tuple[SenderName, StreamPath], Block] = {}
             for name, path in round_order(k):
                 sender = (publisher_sender(spec, tmp, f"{size}_{k}_{path}") if name is LIVE
-                          else independent_sender(size, frames, prefixes, publish_call_ms))
+                          else independent_sender(size, frames, prefixes))
                 blocks[name, path] = paths.block(path, sender)
             results.append({name: (blocks[name, A], blocks[name, B]) for name in SenderName})
     return agreement_of(f"{size}p", width_px, height_px, frames, results)

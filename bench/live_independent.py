@@ -89,12 +89,13 @@ def send_block(size: int, frames: int, prefixes: list[str], env: dict[str, str])
     return [SentFrame(stamp_ns, sent_ns) for stamp_ns, sent_ns, _ in sent], [(done_ns - sent_ns) / 1e6 for _, sent_ns, done_ns in sent]
 
 
-def independent_sender(size: int, frames: int, prefixes: list[str], publish_call_ms: list[float]) -> Sender:
+def independent_sender(size: int, frames: int, prefixes: list[str], publish_call_ms: list[float] | None = None) -> Sender:
     """The robot driver and the camera as a sender of one block (see NodeAndReceivers.block); each publish call's
-    duration (ms) is appended to publish_call_ms."""
+    duration (ms) is appended to publish_call_ms when one is given."""
     def send(env: dict[str, str]) -> list[SentFrame]:
         sent, publish_ms = send_block(size, frames, prefixes, env)
-        publish_call_ms.extend(publish_ms)
+        if publish_call_ms is not None:
+            publish_call_ms.extend(publish_ms)
         return sent
     return send
 
