@@ -68,13 +68,16 @@ def ros_env(domain_id: int) -> dict[str, str]:
 def next_domain() -> int:
     """A domain for one test: distinct within the run across pytest-xdist workers, offset from the run's ROS_DOMAIN_ID.
 
-    Domains 1..200 are split into one block per worker and each worker takes its own block in turn: two workers
-    never share a domain, and a test on one never hears another's joint states.
+    Domains 1..200 (or `ROI_NODE_TEST_DOMAINS=first:last`, for test runs of several checkouts side by side) are
+    split into one block per worker and each worker takes its own block in turn: two workers never share a domain,
+    and a test on one never hears another's joint states.
     """
+    first, last = (int(d) for d in os.environ.get("ROI_NODE_TEST_DOMAINS", "1:200").split(":"))
+    span = last - first + 1
     base = int(os.environ.get("ROS_DOMAIN_ID", "71"))
     worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw"))
-    block = 200 // int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-    domain = (base + worker * block + next(_domains) % block) % 200 + 1
+    block = span // int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    domain = first + (base + worker * block + next(_domains) % block) % span
     purge_domain_ports(domain)
     return domain
 
