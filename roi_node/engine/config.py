@@ -14,6 +14,7 @@ a usable id, or with one another entry also has, is named by its index.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -58,6 +59,8 @@ MAX_OUTPUT_SIDE_PX = 4096  # an ROI or global view larger than this is a mistake
 MAX_WINDOW_SIDE_PX = 8192  # the crop window after `aspect`: the canvas is materialised
 MAX_TIME_MS = 10_000.0  # sync limits and camera delay: beyond 10 s nothing is synchronised any more
 MAX_DISTANCE_M = 1000.0
+IMAGE_TOPIC = "image_raw"  # a camera's default input topics (under `<camera id>/` in a rig of several cameras)
+CAMERA_INFO_TOPIC = "camera_info"
 
 
 @dataclass(frozen=True)
@@ -103,21 +106,66 @@ class ArmConfig:
 class RobotConfig:
     id: str
     urdf_path: Path
-    world_T_base: Transform
+    world_T_base: Transform  # fixed base (identity when absent); a base from a topic has `base_topic` instead
     joint_prefix: str
     base_in_world_raw: dict[str, Any]
+    base_topic: BasePoseTopic | None = None
+
+
+@dataclass(frozen=True)
+class LinkMount:
+    """A camera carried by a robot link (a head or torso camera): its pose follows that link's FK each frame."""
+
+    robot: str  # robots[].id
+    link: str  # a frame of that robot's URDF
+
+    @property
+    def parent(self) -> str:
+        """As the rig file writes it: `<robot id>/<link>`."""
+        return f"{self.robot}/{self.link}"
 
 
 @dataclass(frozen=True)
 class CameraConfig:
     id: str
     intrinsics: CameraModel | None  # None: from the CameraInfo topic live
-    world_T_cam: Transform
+    parent_T_cam: Transform  # the optical frame's pose in its parent: world, or the mount link
+    mount: LinkMount | None  # None: fixed in world
     extrinsics_raw: dict[str, Any]
     extrinsics_version: str | None
     rectified: bool
     delay_ms: float
     z_min_m: float
+    image_topic: str  # relative, as the live node subscribes to it and a bag names it (absolute)
+    camera_info_topic: str
+    intrinsics_path: Path | None = None  # the calibration file `intrinsics` names (None: from the CameraInfo topic)
+
+    @property
+    def world_T_cam(self) -> Transform:
+        """The pose of a camera fixed in world; a camera on a link has none (it moves with the joints)."""
+        if self.mount is not None:
+            raise ConfigError(f"camera {self.id!r} is mounted on {self.mount.parent}: its pose in world changes with the joints")
+        return self.parent_T_cam
+
+
+class BasePoseSource(StrEnum):
+    """The message a robot's base pose in world comes in."""
+
+    ODOMETRY = "odometry"  # nav_msgs/Odometry: pose of child_frame_id in header.frame_id (taken as world)
+    POSE = "pose"  # geometry_msgs/PoseStamped: pose of the base in header.frame_id (taken as world)
+    TF = "tf"  # tf2_msgs/TFMessage: the transform parent_frame -> child_frame among those on the topic
+
+
+@dataclass(frozen=True)
+class BasePoseTopic:
+    """A robot base that moves (a mobile base, a humanoid's pelvis): its pose in world from a topic, paired with
+    each frame at the frame's capture time like the joints, with its own skew limit."""
+
+    topic: str  # relative name
+    source: BasePoseSource
+    max_skew_ms: float
+    parent_frame: str | None  # the frame id a sample must be given in; None: any (odometry, pose)
+    child_frame: str | None  # tf: which transform is the base's; odometry: checked when given; pose: not used
 
 
 @dataclass(frozen=True)
@@ -142,15 +190,49 @@ class RigConfig:
     path: Path  # absolute: what paths in the file are relative to
     source: Path  # the path as the user gave it: every message names the file by it
     rig_id: str
-    camera: CameraConfig
+    cameras: tuple[CameraConfig, ...]  # in the file's order; outputs are named by id, never by position
     robots: tuple[RobotConfig, ...]
     arms: tuple[ArmConfig, ...]
     output: OutputConfig
     sync: SyncConfig
     raw: dict[str, Any] = field(repr=False, compare=False)
+    # how many cameras the rig file has: a rig narrowed to one of them (`for_camera`) keeps the names of a rig of several
+    camera_count: int = 1
+
+    @property
+    def camera(self) -> CameraConfig:
+        """The camera of a one-camera rig, or of a rig narrowed to one camera (`for_camera`)."""
+        if len(self.cameras) != 1:
+            raise ConfigError(f"{self.source}: the rig has {len(self.cameras)} cameras ({', '.join(self.camera_ids)}); "
+                              "this needs one: choose it by id")
+        return self.cameras[0]
+
+    @property
+    def camera_ids(self) -> tuple[str, ...]:
+        return tuple(c.id for c in self.cameras)
+
+    @property
+    def several_cameras(self) -> bool:
+        """Whether output topics, dataset keys and observations carry the camera id (a rig of one camera keeps the
+        names it always had)."""
+        return self.camera_count > 1
+
+    def for_camera(self, camera_id: str) -> RigConfig:
+        """This rig narrowed to one camera: what one camera's stream engine and pipeline work with."""
+        return dataclasses.replace(self, cameras=(self.camera_by_id(camera_id),))
+
+    def camera_by_id(self, camera_id: str) -> CameraConfig:
+        for camera in self.cameras:
+            if camera.id == camera_id:
+                return camera
+        raise ConfigError(f"{self.source}: no camera {camera_id!r}; the rig's cameras are {', '.join(self.camera_ids)}")
 
     def robot(self, robot_id: str) -> RobotConfig:
         return next(r for r in self.robots if r.id == robot_id)
+
+    def camera_location(self, camera_id: str) -> str:
+        """The location of a camera's block: `camera` in a rig that has one such block, else `cameras[<id>]`."""
+        return self.location("camera" if "camera" in self.raw else f"cameras[{camera_id}]")
 
     def location(self, key_path: str) -> str:
         """`<file as given>: <key_path>`, the start of every message about a place in this rig file."""
@@ -281,8 +363,12 @@ def _entry_labels(entries: list[Any]) -> list[str]:
     return [str(i) if ok and taken.count(i) == 1 else str(index) for index, (i, ok) in enumerate(zip(ids, usable, strict=True))]
 
 
+POSE_KEYS = ("parent", "child", "translation", "rotation_xyzw", "version")
+BASE_TOPIC_KEYS = ("topic", "type", "max_skew_ms", "parent_frame", "child_frame")
+
+
 def _pose(node: _Node) -> Transform:
-    node.check_keys(("parent", "child", "translation", "rotation_xyzw", "version"))
+    node.check_keys(POSE_KEYS)
     translation = node.numbers("translation", 3, limit=MAX_DISTANCE_M)
     rotation = node.numbers("rotation_xyzw", 4, limit=1e6)
     return Transform.from_xyz_quat(translation, rotation, where=f"{node.file}: {node.where}")
@@ -303,30 +389,31 @@ def load_rig_config(path: str | Path) -> RigConfig:
     file = resolve_config_file(path)
     doc = read_yaml(file, "rig config")
     root = _Node(doc, "", file)
-    root.check_keys(("schema", "rig_id", "camera", "robots", "arms", "output", "sync"))
+    root.check_keys(("schema", "rig_id", "camera", "cameras", "robots", "arms", "output", "sync"))
     schema = root.text("schema")
     if schema != RIG_SCHEMA:
         raise root.fail("schema", f"expected {RIG_SCHEMA!r}, got {schema!r}")
     base_dir = file.resolve().parent
 
-    camera = _load_camera(root.child("camera"), base_dir)
-    robots = tuple(_load_robot(node, base_dir) for node in root.items("robots"))
+    sync = _load_sync(root.child("sync") if root.has("sync") else _Node({}, "sync", file))
+    robots = tuple(_load_robot(node, base_dir, sync) for node in root.items("robots"))
     _unique([r.id for r in robots], root, "robots", "id")
     robot_ids = {r.id for r in robots}
+    cameras = _load_cameras(root, base_dir, robot_ids)
     arms = tuple(_load_arm(node, robot_ids) for node in root.items("arms"))
     _unique([a.id for a in arms], root, "arms", "id")
     output = _load_output(root.child("output") if root.has("output") else _Node({}, "output", file))
-    sync = _load_sync(root.child("sync") if root.has("sync") else _Node({}, "sync", file))
     return RigConfig(
         path=file.resolve(),
         source=file,
         rig_id=root.text("rig_id"),
-        camera=camera,
+        cameras=cameras,
         robots=robots,
         arms=arms,
         output=output,
         sync=sync,
         raw=dict(doc),
+        camera_count=len(cameras),
     )
 
 
@@ -338,40 +425,66 @@ def _unique(ids: list[str], root: _Node, key: str, field_name: str) -> None:
         seen.add(value)
 
 
-def _load_camera(node: _Node, base_dir: Path) -> CameraConfig:
-    node.check_keys(("id", "intrinsics", "extrinsics", "rectified", "delay_ms", "z_min_m"))
+def _load_cameras(root: _Node, base_dir: Path, robot_ids: set[str]) -> tuple[CameraConfig, ...]:
+    """`camera:` (one camera) or `cameras:` (a list); ids and input topics unique across cameras."""
+    if root.has("camera") == root.has("cameras"):
+        raise root.fail("cameras", "give exactly one of camera: (the rig's one camera) or cameras: (a list of cameras)")
+    nodes = [root.child("camera")] if root.has("camera") else root.items("cameras")
+    cameras = tuple(_load_camera(node, base_dir, robot_ids, several=len(nodes) > 1) for node in nodes)
+    key = "camera" if root.has("camera") else "cameras"
+    _unique([c.id for c in cameras], root, key, "id")
+    _unique([t for c in cameras for t in (c.image_topic, c.camera_info_topic)], root, key, "input topic")
+    return cameras
+
+
+def _load_camera(node: _Node, base_dir: Path, robot_ids: set[str], *, several: bool) -> CameraConfig:
+    node.check_keys(("id", "intrinsics", "extrinsics", "rectified", "delay_ms", "z_min_m", "image_topic", "camera_info_topic"))
+    camera_id = node.text("id")
     rectified = node.boolean("rectified", False)
     intrinsics: CameraModel | None = None
+    intrinsics_path = None
     value = node.data.get("intrinsics")
     if value not in (None, "topic"):
         if not isinstance(value, str) or not value:
             raise node.fail("intrinsics", f"expected a calibration file path or 'topic', got {value!r}")
+        intrinsics_path = _resolve_path(base_dir, value)
         try:
-            intrinsics = load_calibration_yaml(_resolve_path(base_dir, value), rectified=rectified)
+            intrinsics = load_calibration_yaml(intrinsics_path, rectified=rectified)
         except CalibrationError as exc:
             raise CalibrationError(f"{node.file}: {node.where}.intrinsics: {exc}") from exc
     ext = node.child("extrinsics")
     parent = ext.text("parent", "world")
+    mount = None
     if parent != "world":
-        raise ext.fail("parent", f"must be 'world' (the pose of the camera optical frame in world), got {parent!r}")
+        robot, _, link = parent.partition("/")
+        if robot not in robot_ids or not link:
+            raise ext.fail("parent", f"expected 'world' or '<robot id>/<link>' (a camera on a robot link) with a robot "
+                           f"id of {', '.join(sorted(robot_ids))}, got {parent!r}")
+        mount = LinkMount(robot, link)
     version = ext.data.get("version")
     if version is not None and not isinstance(version, str):
         raise ext.fail("version", f"expected a string, got {short_repr(version)}")
     if version is not None:
         ext.text("version")  # bounded like every string copied into records
+    # a rig of several cameras takes each camera's streams under its id; a rig of one keeps the names it always had
+    namespace = f"{camera_id}/" if several else ""
     return CameraConfig(
-        id=node.text("id"),
+        id=camera_id,
         intrinsics=intrinsics,
-        world_T_cam=_pose(ext),
+        parent_T_cam=_pose(ext),
+        mount=mount,
         extrinsics_raw=dict(ext.data),
         extrinsics_version=version,
         rectified=rectified,
         delay_ms=node.number("delay_ms", 0.0, minimum=-MAX_TIME_MS, maximum=MAX_TIME_MS, unit="ms"),
         z_min_m=node.number("z_min_m", 0.01, positive=True, maximum=100.0, unit="m"),
+        image_topic=node.text("image_topic", namespace + IMAGE_TOPIC),
+        camera_info_topic=node.text("camera_info_topic", namespace + CAMERA_INFO_TOPIC),
+        intrinsics_path=intrinsics_path,
     )
 
 
-def _load_robot(node: _Node, base_dir: Path) -> RobotConfig:
+def _load_robot(node: _Node, base_dir: Path, sync: SyncConfig) -> RobotConfig:
     node.check_keys(("id", "urdf", "base_in_world", "joint_prefix"))
     urdf = node.text("urdf")
     if urdf.startswith(EXAMPLE_ROBOT_DATA_PREFIX):
@@ -380,17 +493,40 @@ def _load_robot(node: _Node, base_dir: Path) -> RobotConfig:
         urdf_path = _resolve_path(base_dir, urdf)
         if not urdf_path.is_file():
             raise node.fail("urdf", f"URDF file {urdf_path} not found")
+    world_T_base, base_raw, base_topic = Transform.identity(), {}, None
     if node.has("base_in_world"):
         base = node.child("base_in_world")
-        world_T_base = _pose(base)
         base_raw = dict(base.data)
-    else:
-        world_T_base = Transform.identity()
-        base_raw = {}
+        base.check_keys(POSE_KEYS + BASE_TOPIC_KEYS)
+        if base.has("type"):
+            base.choice("type", tuple(BasePoseSource), BasePoseSource.ODOMETRY)
+        if base.has("topic"):
+            if pose_keys := [k for k in ("translation", "rotation_xyzw") if base.has(k)]:
+                raise base.fail(pose_keys[0], "a base whose pose comes from a topic takes no fixed pose: give topic or "
+                                "translation and rotation_xyzw, not both")
+            base_topic = _base_pose_topic(base, sync)
+        else:
+            if topic_keys := [k for k in BASE_TOPIC_KEYS if base.has(k)]:
+                raise base.fail(topic_keys[0], "belongs to a base pose from a topic: give topic: too")
+            world_T_base = _pose(base)
     prefix = node.data.get("joint_prefix", "")
     if not isinstance(prefix, str) or len(prefix) > MAX_TEXT_CHARS:
         raise node.fail("joint_prefix", f"expected a string of at most {MAX_TEXT_CHARS} characters, got {short_repr(prefix)}")
-    return RobotConfig(node.text("id"), urdf_path, world_T_base, prefix, base_raw)
+    return RobotConfig(node.text("id"), urdf_path, world_T_base, prefix, base_raw, base_topic)
+
+
+def _base_pose_topic(node: _Node, sync: SyncConfig) -> BasePoseTopic:
+    source = BasePoseSource(node.choice("type", tuple(BasePoseSource), BasePoseSource.ODOMETRY))
+    if source is BasePoseSource.TF and not node.has("child_frame"):
+        raise node.fail("child_frame", "missing: a base pose from tf names the transform's child frame (the base's frame id)")
+    tf = source is BasePoseSource.TF
+    return BasePoseTopic(
+        topic=node.text("topic"),
+        source=source,
+        max_skew_ms=node.number("max_skew_ms", sync.max_skew_ms, positive=True, maximum=MAX_TIME_MS, unit="ms"),
+        parent_frame=node.text("parent_frame", "world" if tf else None) if tf or node.has("parent_frame") else None,
+        child_frame=node.text("child_frame") if node.has("child_frame") else None,
+    )
 
 
 def load_arm(data: Mapping[str, Any], where: str, file: Path, robot_ids: set[str]) -> ArmConfig:

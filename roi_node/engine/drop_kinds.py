@@ -36,5 +36,6 @@ class DropKind(StrEnum):
     JOINT_OUT_OF_LIMITS = "joint_out_of_limits"
     COMMAND = "command"
     CAMERA_INFO = "camera_info"
+    BASE_POSE = "base_pose"  # a base pose sample for a robot that takes none, or not finite
     URDF = "urdf"
     CODEC_WARNING = "codec_warning"  # a frame decoded despite the codec's complaint: counted, still used

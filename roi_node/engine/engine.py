@@ -47,6 +47,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from roi_node.engine.base_poses import BaseSync, base_pose_series, base_pose_values
 from roi_node.engine.camera import CameraModel
 from roi_node.engine.config import RigConfig
 from roi_node.engine.drop_kinds import DropKind
@@ -58,7 +59,8 @@ from roi_node.engine.resample import crop_resize
 from roi_node.engine.roi_policy import window_around
 from roi_node.engine.stamps import NS_PER_MS, NS_PER_S, StampVerdict, StreamClock
 from roi_node.engine.stream_stats import StreamStats
-from roi_node.engine.sync import FrameSynchronizer, JointStateBuffer, PendingFrame, SyncResult, command_residual
+from roi_node.engine.sync import FrameSynchronizer, JointStateBuffer, PendingFrame, SampleGroup, SyncResult, command_residual
+from roi_node.engine.transforms import Transform
 
 EARLY_JOINT_STATES = 2000  # joint states kept while waiting for a URDF (2 s at 1 kHz)
 REFUSED_STAMPS_KEPT = 2000  # per joint: stamps of out-of-limit samples, for flagging the frames near them
@@ -98,13 +100,23 @@ class CameraInfoEvent:
 
 
 @dataclass(frozen=True)
+class BasePoseEvent:
+    """A robot base's pose in world (robots[].base_in_world from a topic), stamped like a joint state."""
+
+    stamp_ns: int
+    robot_id: str
+    world_T_base: Transform
+    where: str = "base_pose"
+
+
+@dataclass(frozen=True)
 class UrdfEvent:
     stamp_ns: int  # robot_description carries no header: the receive (log) time
     text: str
     where: str = "robot_description"
 
 
-StampedEvent = FrameEvent | JointStateEvent | CommandEvent | CameraInfoEvent  # judged by a StreamClock
+StampedEvent = FrameEvent | JointStateEvent | CommandEvent | CameraInfoEvent | BasePoseEvent  # judged by a StreamClock
 Event = StampedEvent | UrdfEvent
 
 
@@ -131,6 +143,7 @@ class ReadyFrame:
     epoch: int
     sync: SyncResult
     command_residual: float | None  # r_t, when a command stream is fed
+    bases: tuple[BaseSync, ...] = ()  # the bases that come from a topic, at the frame's capture time
 
 
 @dataclass(frozen=True)
@@ -171,8 +184,10 @@ class StreamEngine:
         stats: StreamStats | None = None,
         overlap_global_view: bool = False,
     ) -> None:
-        """`overlap_global_view`: the pipelines resample the global view on a thread of their own beside the
+        """`rig`: a rig of one camera, or narrowed to one (`RigConfig.for_camera`): an engine is one camera's stream.
+        `overlap_global_view`: the pipelines resample the global view on a thread of their own beside the
         ROIs (the live node, for latency) instead of inline (offline work); the bytes are the same."""
+        self.camera_id = rig.camera.id
         self.rig = rig
         self._global_view_thread = GlobalViewThread() if overlap_global_view else None
         self.stats = stats or StreamStats(tuple(a.id for a in rig.arms))
@@ -188,7 +203,7 @@ class StreamEngine:
         self._urdf_texts: set[str] = set()
         self.synchronizer: FrameSynchronizer[FramePayload] | None = None
         self.commands: JointStateBuffer | None = None
-        self._early_joints: deque[JointStateEvent] = deque(maxlen=EARLY_JOINT_STATES)
+        self._early_joints: deque[JointStateEvent | BasePoseEvent] = deque(maxlen=EARLY_JOINT_STATES)
         self._clocks: dict[str, StreamClock] = {}
         self._held: dict[str, list[StampedEvent]] = {}  # per stream: messages behind an unconfirmed stamp jump
         self._limit_refusals: dict[tuple[int, str], list[int]] = {}  # (epoch, joint) -> stamps of refused samples
@@ -215,6 +230,9 @@ class StreamEngine:
             max_pending=self.max_pending,
             on_drop=lambda _frame, reason: self.stats.drop(reason),
             extra_ready=self._camera_settled,
+            groups={
+                r.id: SampleGroup(base_pose_series(r.id), r.base_topic.max_skew_ms) for r in self.rig.robots if r.base_topic is not None
+            },
         )
         self.commands = JointStateBuffer(pipeline.continuous_joints)
         early, self._early_joints = list(self._early_joints), deque(maxlen=EARLY_JOINT_STATES)
@@ -245,7 +263,7 @@ class StreamEngine:
         """Take one input; a refused one is counted in `stats` and described in the returned Refusal."""
         if isinstance(event, FrameEvent):
             self.stats.frame_in()
-        elif isinstance(event, JointStateEvent):
+        elif isinstance(event, JointStateEvent | BasePoseEvent):
             self.stats.joint_msg_in()
             if self.synchronizer is None:  # kept for when the URDF arrives
                 self._early_joints.append(event)
@@ -307,7 +325,20 @@ class StreamEngine:
             return self._use_joint_state(event, epoch)
         if isinstance(event, CommandEvent):
             return self._use_command(event)
+        if isinstance(event, BasePoseEvent):
+            return self._use_base_pose(event, epoch)
         return self._use_camera_info(event, epoch)
+
+    def _use_base_pose(self, event: BasePoseEvent, epoch: int) -> Refusal | None:
+        robot = next((r for r in self.rig.robots if r.id == event.robot_id and r.base_topic is not None), None)
+        if robot is None:
+            return Refusal(DropKind.BASE_POSE, f"{event.where}: robot {event.robot_id!r} takes no base pose from a topic")
+        values = base_pose_values(event.world_T_base)
+        if not all(math.isfinite(v) for v in values):
+            return Refusal(DropKind.BASE_POSE, f"{event.where}: non-finite base pose for robot {event.robot_id!r}; sample refused")
+        assert self.synchronizer is not None
+        self.synchronizer.add_joint_state(event.stamp_ns, base_pose_series(robot.id), values, where=event.where, epoch=epoch)
+        return None
 
     def _use_frame(self, event: FrameEvent, epoch: int) -> Refusal | None:
         if self.synchronizer is None:
@@ -509,7 +540,8 @@ class StreamEngine:
             if self.commands is not None and self.commands.known_joints() and released.sync.positions:
                 residual = command_residual(self.commands, released.capture_ns, released.sync.positions, self.synchronizer.max_skew_ns)
                 self.commands.prune_before(released.capture_ns - 2 * NS_PER_S)
-            ready.append(ReadyFrame(released.payload, released.capture_ns, released.epoch, released.sync, residual))
+            bases = tuple(BaseSync.from_sync(robot_id, sync) for robot_id, sync in released.groups.items())
+            ready.append(ReadyFrame(released.payload, released.capture_ns, released.epoch, released.sync, residual, bases))
         return ready
 
     def prepare(self, ready: ReadyFrame) -> PreparedFrame | None:
@@ -566,7 +598,8 @@ class StreamEngine:
             command_residual=rnd(ready.command_residual, M_DECIMALS),
         )
         return prepared.pipeline.process(
-            payload.image, payload.stamp_ns, payload.frame_index, sync, teleop, flagged_joints=prepared.flagged_joints
+            payload.image, payload.stamp_ns, payload.frame_index, sync, teleop, flagged_joints=prepared.flagged_joints,
+            bases=ready.bases,
         )
 
     def run(self, ready: ReadyFrame) -> FrameResult | None:

@@ -21,6 +21,7 @@ import numpy as np
 
 from roi_node.engine.area_resample import warm_up as warm_up_resampling
 from roi_node.engine.arm_joints import arm_joints, check_joint_names_distinct
+from roi_node.engine.base_poses import BaseSync
 from roi_node.engine.camera import CameraModel
 from roi_node.engine.config import ArmConfig, RigConfig
 from roi_node.engine.errors import ImageError
@@ -40,7 +41,7 @@ from roi_node.engine.metadata import (
     text_hash,
 )
 from roi_node.engine.quality import confidence, in_frame_ratio, padding_ratio
-from roi_node.engine.records import ArmFlag, ArmRecord, FrameRecord, PoseRecord, SyncRecord, TeleopRecord
+from roi_node.engine.records import ArmFlag, ArmRecord, BaseRecord, FrameRecord, PoseRecord, SyncRecord, TeleopRecord
 from roi_node.engine.resample import crop_resize, place_in_output
 from roi_node.engine.roi_policy import roi_geometry
 from roi_node.engine.sync import SyncPolicy, SyncResult, SyncStatus
@@ -52,6 +53,7 @@ SYNC_FLAGS = {
     SyncStatus.EXTRAPOLATED: ArmFlag.SYNC_EXTRAPOLATED,
     SyncStatus.MISSING: ArmFlag.SYNC_MISSING,
 }
+BASE_FLAGS = {SyncStatus.STALE: ArmFlag.BASE_STALE, SyncStatus.EXTRAPOLATED: ArmFlag.BASE_EXTRAPOLATED}
 
 
 @dataclass(frozen=True)
@@ -76,13 +78,34 @@ class FrameResult:
 class _ArmModel:
     config: ArmConfig
     kinematics: RobotKinematics
-    world_T_base: Transform
-    cam_T_base: Transform
+    cam_T_base: Transform | None  # None: the camera or this arm's base moves, so it is found per frame
     prefix: str
     chain: tuple[str, ...]  # URDF joint names that move the ee/tip frames
     gripper: tuple[str, ...]  # JointState names of the joints below the wrist (hand, fingers)
     tip_frame: str | None
     ee_T_tip: Transform | None
+
+
+@dataclass(frozen=True)
+class _Mount:
+    """A camera on a robot link: `world_T_cam = world_T_base @ base_T_link(q) @ link_T_cam` each frame."""
+
+    robot_id: str
+    kinematics: RobotKinematics
+    link: str
+    link_T_cam: Transform
+    prefix: str
+    chain: tuple[str, ...]  # URDF joints between the robot's root and the link
+
+
+@dataclass(frozen=True)
+class _FramePoses:
+    """Where the camera and each robot base are for one frame; a pose that cannot be found is absent, with its flag."""
+
+    cam_T_world: Transform | None
+    world_T_base: dict[str, Transform]
+    flags: dict[str, tuple[str, ...]]  # robot id -> flags of its arms (base pose and camera pose problems)
+    world_T_cam: Transform | None = None  # the moving camera's pose, for the record
 
 
 def _crop_offset_version(rig: RigConfig) -> str:
@@ -115,12 +138,19 @@ class RoiPipeline:
         self.rig = rig
         self._global_view_thread = global_view_thread
         texts = urdf_texts or {}
-        self.cam_T_world = rig.camera.world_T_cam.inverse()
+        camera_config = rig.camera
         kinematics = {r.id: RobotKinematics(r.id, r.urdf_path, texts.get(r.id)) for r in rig.robots}
         self._kinematics = kinematics
         check_joint_names_distinct(rig, kinematics)
+        self._mount = self._mount_model(kinematics)
+        self._moving_bases = frozenset(r.id for r in rig.robots if r.base_topic is not None)
+        # a fixed camera and fixed bases: the camera's view of every base is one transform, found once
+        self.cam_T_world = None if self._mount is not None else camera_config.world_T_cam.inverse()
         self._arms = tuple(self._arm_model(arm, kinematics[arm.robot]) for arm in rig.arms)
-        self.required_joints: tuple[str, ...] = unique_in_order(arm.prefix + j for arm in self._arms for j in arm.chain)
+        mount_joints = () if self._mount is None else tuple(self._mount.prefix + j for j in self._mount.chain)
+        self.required_joints: tuple[str, ...] = unique_in_order(
+            [*(arm.prefix + j for arm in self._arms for j in arm.chain), *mount_joints]
+        )
         self.continuous_joints: tuple[str, ...] = tuple(
             arm.prefix + j for arm in self._arms for j in arm.chain if arm.kinematics.is_continuous(j)
         )
@@ -152,9 +182,41 @@ class RoiPipeline:
             assert arm.tip.position_m is not None
             ee_T_tip = Transform(np.eye(3), np.asarray(arm.tip.position_m, dtype=np.float64))
         robot = self.rig.robot(arm.robot)
-        cam_T_base = self.cam_T_world @ robot.world_T_base
+        cam_T_base = None if self.cam_T_world is None or robot.id in self._moving_bases else self.cam_T_world @ robot.world_T_base
         gripper = tuple(robot.joint_prefix + j for j in joints.gripper)
-        return _ArmModel(arm, kin, robot.world_T_base, cam_T_base, robot.joint_prefix, joints.chain, gripper, arm.tip.frame, ee_T_tip)
+        return _ArmModel(arm, kin, cam_T_base, robot.joint_prefix, joints.chain, gripper, arm.tip.frame, ee_T_tip)
+
+    def _mount_model(self, kinematics: Mapping[str, RobotKinematics]) -> _Mount | None:
+        camera = self.rig.camera
+        if camera.mount is None:
+            return None
+        kin = kinematics[camera.mount.robot]
+        kin.check_frame(camera.mount.link, f"{self.rig.camera_location(camera.id)}.extrinsics.parent")
+        robot = self.rig.robot(camera.mount.robot)
+        return _Mount(robot.id, kin, camera.mount.link, camera.parent_T_cam, robot.joint_prefix, kin.chain_joints(camera.mount.link))
+
+    def _frame_poses(self, sync: SyncResult, bases: tuple[BaseSync, ...]) -> _FramePoses:
+        """The camera's and the bases' poses for one frame (fixed ones as configured, moving ones as paired)."""
+        world_T_base = {r.id: r.world_T_base for r in self.rig.robots if r.base_topic is None}
+        flags: dict[str, list[str]] = {r.id: [] for r in self.rig.robots}
+        for base in bases:
+            if base.world_T_base is None:
+                flags[base.robot_id].append(ArmFlag.NO_BASE_POSE)
+                continue
+            world_T_base[base.robot_id] = base.world_T_base
+            if base.status in BASE_FLAGS:
+                flags[base.robot_id].append(BASE_FLAGS[SyncStatus(base.status)])
+        mount = self._mount
+        if mount is None:
+            world_T_cam = self.rig.camera.world_T_cam
+        else:
+            names = [mount.prefix + j for j in mount.chain]
+            if mount.robot_id not in world_T_base or any(n not in sync.positions for n in names):
+                return _FramePoses(None, world_T_base, {r: (*f, ArmFlag.NO_CAMERA_POSE) for r, f in flags.items()})
+            base_T_link = mount.kinematics.fk({j: sync.positions[n] for j, n in zip(mount.chain, names, strict=True)}, [mount.link])[0]
+            world_T_cam = world_T_base[mount.robot_id] @ base_T_link @ mount.link_T_cam
+        moving_camera = world_T_cam if mount is not None else None
+        return _FramePoses(world_T_cam.inverse(), world_T_base, {r: tuple(f) for r, f in flags.items()}, moving_camera)
 
     def _fk_version(self) -> str:
         shas = {r.id: self._kinematics[r.id].urdf_sha256 for r in self.rig.robots}
@@ -225,20 +287,23 @@ class RoiPipeline:
         teleop: TeleopRecord | None = None,
         *,
         flagged_joints: frozenset[str] = frozenset(),
+        bases: tuple[BaseSync, ...] = (),
     ) -> FrameResult:
         """Run the ROI policy on one frame (uint8, calibrated size) for every arm.
 
         `flagged_joints` are joints whose samples near this frame were refused
-        (beyond their URDF limits): the arms they move are flagged.
+        (beyond their URDF limits): the arms they move are flagged. `bases` are the
+        poses of the bases that come from a topic, paired at the frame's capture time.
         """
         self.check_image(image)
+        poses = None if self.cam_T_world is not None and not self._moving_bases else self._frame_poses(sync, bases)
         camera, lineage = self.camera, self.lineage
         assert camera is not None and lineage is not None
         output = self.rig.output
         place_global = (place_in_output, image, (0, 0), output.global_size_px, output.resize_policy, output.interpolation)
         thread = self._global_view_thread if output.global_enabled else None
         pending_global = thread.submit(*place_global) if thread is not None else None
-        rois = tuple(self._process_arm(arm, camera, image, sync, flagged_joints) for arm in self._arms)
+        rois = tuple(self._process_arm(arm, camera, image, sync, flagged_joints, poses) for arm in self._arms)
         global_view = None
         if output.global_enabled:
             global_view = (pending_global.result() if pending_global is not None else place_in_output(*place_global[1:])).image
@@ -257,11 +322,19 @@ class RoiPipeline:
             arms=tuple(roi.record for roi in rois),
             teleop=teleop,
             lineage=lineage,
+            camera_in_world=None if poses is None or poses.world_T_cam is None else _pose_record(poses.world_T_cam),
+            bases=tuple(_base_record(b) for b in bases),
         )
         return FrameResult(int(stamp_ns), int(frame_index), rois, global_view, record, record.to_json())
 
     def _process_arm(
-        self, arm: _ArmModel, camera: CameraModel, image: np.ndarray, sync: SyncResult, flagged_joints: frozenset[str]
+        self,
+        arm: _ArmModel,
+        camera: CameraModel,
+        image: np.ndarray,
+        sync: SyncResult,
+        flagged_joints: frozenset[str],
+        poses: _FramePoses | None,
     ) -> ArmRoi:
         cfg = arm.config
         out_w, out_h = self.rig.output.size_px
@@ -273,15 +346,23 @@ class RoiPipeline:
         names = [arm.prefix + j for j in arm.chain]
         if flagged_joints and any(n in flagged_joints for n in names):
             flags.append(ArmFlag.JOINT_OUT_OF_LIMITS)
+        cam_T_base = arm.cam_T_base
+        if poses is not None:
+            flags.extend(poses.flags[cfg.robot])
+            world_T_base = poses.world_T_base.get(cfg.robot)
+            if poses.cam_T_world is None or world_T_base is None:
+                return self._invalid(arm, image, flags, None, None)
+            cam_T_base = poses.cam_T_world @ world_T_base
+        assert cam_T_base is not None
         if any(n not in sync.positions for n in names):
             flags.append(ArmFlag.NO_JOINT_STATE)
             return self._invalid(arm, image, flags, None, None)
         q = {j: sync.positions[arm.prefix + j] for j in arm.chain}
         frames = [cfg.ee_frame] + ([arm.tip_frame] if arm.tip_frame else [])
-        poses = arm.kinematics.fk(q, frames)
-        base_T_ee = poses[0]
-        base_T_tip = poses[1] if arm.tip_frame else base_T_ee @ arm.ee_T_tip  # type: ignore[operator]
-        points_cam = arm.cam_T_base.apply(np.vstack([base_T_ee.translation_m, base_T_tip.translation_m]))
+        frame_poses = arm.kinematics.fk(q, frames)
+        base_T_ee = frame_poses[0]
+        base_T_tip = frame_poses[1] if arm.tip_frame else base_T_ee @ arm.ee_T_tip  # type: ignore[operator]
+        points_cam = cam_T_base.apply(np.vstack([base_T_ee.translation_m, base_T_tip.translation_m]))
         if cfg.offset_m is not None:  # the metric inward offset: a 3D point along ee -> tip
             axis = points_cam[1] - points_cam[0]
             points_cam = np.vstack([points_cam, points_cam[0] + cfg.offset_m * axis / max(float(np.linalg.norm(axis)), 1e-12)])
@@ -369,10 +450,15 @@ class RoiPipeline:
         return ArmRoi(arm.config.id, blank, None, record)
 
 
-def _pose_record(base_T_ee: Transform) -> PoseRecord:
-    xyz = rnd_list(base_T_ee.translation_m, M_DECIMALS)
-    quat = rnd_list(base_T_ee.quat_xyzw(), M_DECIMALS)
+def _pose_record(pose: Transform) -> PoseRecord:
+    xyz = rnd_list(pose.translation_m, M_DECIMALS)
+    quat = rnd_list(pose.quat_xyzw(), M_DECIMALS)
     return PoseRecord((xyz[0], xyz[1], xyz[2]), (quat[0], quat[1], quat[2], quat[3]))
+
+
+def _base_record(base: BaseSync) -> BaseRecord:
+    pose = None if base.world_T_base is None else _pose_record(base.world_T_base)
+    return BaseRecord(base.robot_id, base.stamp_ns, base.residual_ms, base.status, pose)
 
 
 _T = TypeVar("_T")

@@ -45,6 +45,10 @@ class ArmFlag(StrEnum):
     PARTIALLY_OUT_OF_FRAME = "partially_out_of_frame"
     CENTER_OUT_OF_FRAME = "center_out_of_frame"
     DEGENERATE_DIRECTION = "degenerate_inward_dir"
+    NO_BASE_POSE = "no_base_pose"  # the arm's base comes from a topic that has no sample for this frame
+    BASE_STALE = "base_stale"  # ... whose nearest sample is farther than its max_skew_ms
+    BASE_EXTRAPOLATED = "base_extrapolated"
+    NO_CAMERA_POSE = "no_camera_pose"  # the camera rides a link whose joints (or base) this frame lacks
 
 
 @dataclass(frozen=True)
@@ -165,6 +169,31 @@ class TeleopRecord:
 
 
 @dataclass(frozen=True)
+class BaseRecord:
+    """A base pose from a topic as paired with the frame: its sample stamp, residual and status (SyncStatus)."""
+
+    robot_id: str
+    stamp_ns: int | None
+    residual_ms: float | None
+    status: str
+    pose: PoseRecord | None  # world_T_base; None when missing
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "robot_id": self.robot_id,
+            "stamp_ns": self.stamp_ns,
+            "residual_ms": self.residual_ms,
+            "status": self.status,
+            "pose": None if self.pose is None else self.pose.as_dict(),
+        }
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> BaseRecord:
+        pose = None if doc["pose"] is None else PoseRecord.from_dict(doc["pose"])
+        return cls(doc["robot_id"], doc["stamp_ns"], doc["residual_ms"], doc["status"], pose)
+
+
+@dataclass(frozen=True)
 class FrameRecord:
     stamp_ns: int
     frame_index: int
@@ -176,10 +205,12 @@ class FrameRecord:
     arms: tuple[ArmRecord, ...]
     teleop: TeleopRecord
     lineage: Lineage
+    camera_in_world: PoseRecord | None = None  # a camera on a robot link: its pose this frame (absent when fixed)
+    bases: tuple[BaseRecord, ...] = ()  # the robots whose base comes from a topic (absent when every base is fixed)
 
     def as_dict(self) -> dict[str, Any]:
         sec, nanosec = ns_to_stamp(self.stamp_ns)
-        return {
+        doc = {
             "schema": METADATA_SCHEMA,
             "stamp_ns": self.stamp_ns,
             "stamp": {"sec": sec, "nanosec": nanosec},
@@ -193,6 +224,12 @@ class FrameRecord:
             "teleop": self.teleop.as_dict(),
             "lineage": self.lineage.as_dict(),
         }
+        # only where the rig has them, so a fixed camera's records keep the bytes they always had
+        if self.camera_in_world is not None:
+            doc["camera_in_world"] = self.camera_in_world.as_dict()
+        if self.bases:
+            doc["bases"] = [base.as_dict() for base in self.bases]
+        return doc
 
     def to_json(self) -> str:
         """The one serialisation of a record: key order as built, compact, ASCII, no NaN."""
@@ -232,6 +269,8 @@ class FrameRecord:
                 arms=tuple(ArmRecord.from_dict(arm) for arm in doc["arms"]),
                 teleop=TeleopRecord.from_dict(doc["teleop"]),
                 lineage=Lineage(**doc["lineage"]),
+                camera_in_world=PoseRecord.from_dict(doc["camera_in_world"]) if "camera_in_world" in doc else None,
+                bases=tuple(BaseRecord.from_dict(base) for base in doc.get("bases", ())),
             )
         except KeyError as exc:
             raise RecordFormatError(str(exc.args[0]), "missing") from exc

@@ -18,7 +18,7 @@ from __future__ import annotations
 import bisect
 import dataclasses
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Generic, TypeVar
@@ -291,6 +291,15 @@ class ReleasedFrame(Generic[P]):
     capture_ns: int
     epoch: int
     sync: SyncResult
+    groups: Mapping[str, SyncResult] = field(default_factory=dict)  # each sample group resolved with its own skew
+
+
+@dataclass(frozen=True)
+class SampleGroup:
+    """Series a frame waits for like its joints but judges apart, with a skew limit of their own (a base pose)."""
+
+    series: tuple[str, ...]
+    max_skew_ms: float
 
 
 @dataclass
@@ -323,10 +332,14 @@ class FrameSynchronizer(Generic[P]):
         max_pending: int = 8,
         on_drop: Callable[[PendingFrame[P], DropKind], None] | None = None,
         extra_ready: Callable[[PendingFrame[P]], bool] | None = None,
+        groups: Mapping[str, SampleGroup] | None = None,
     ) -> None:
         """`extra_joints` are resolved too (for the record) but never held back for; `extra_ready` is a
-        further condition a frame waits for (up to `max_wait_ms`), e.g. its camera info."""
+        further condition a frame waits for (up to `max_wait_ms`), e.g. its camera info; `groups` are waited for
+        like the joints and resolved apart, each with its own skew limit (ReleasedFrame.groups)."""
         self.joints = tuple(joints)
+        self.groups = dict(groups or {})
+        self._waited_for = self.joints + tuple(name for group in self.groups.values() for name in group.series)
         self.extra_joints = tuple(j for j in extra_joints if j not in self.joints)
         self.policy = policy
         self.set_limits(max_skew_ms, max_wait_ms)
@@ -392,7 +405,7 @@ class FrameSynchronizer(Generic[P]):
         if self.policy == SyncPolicy.LATEST or now_ns is None:
             return True
         settled = self._extra_ready is None or self._extra_ready(frame)
-        if settled and self.buffer(frame.epoch).has_bracket(frame.capture_ns, self.joints):
+        if settled and self.buffer(frame.epoch).has_bracket(frame.capture_ns, self._waited_for):
             return True
         return now_ns - frame.arrival_ns >= self.max_wait_ns
 
@@ -412,11 +425,16 @@ class FrameSynchronizer(Generic[P]):
             if extras:
                 extra = buf.resolve(frame.capture_ns, extras, self.policy, self.max_skew_ns, latest_limit_ns=latest_limit)
                 result = dataclasses.replace(result, positions={**result.positions, **extra.positions})
+            groups = {
+                name: buf.resolve(frame.capture_ns, group.series, self.policy, int(group.max_skew_ms * NS_PER_MS),
+                                  latest_limit_ns=latest_limit)
+                for name, group in self.groups.items()
+            }
             self.counters.released += 1
             self.counters.status_counts[result.status] += 1
             self._last_released = frame.order
             for old in [e for e in self.buffers if e < frame.epoch]:
                 del self.buffers[old]
             buf.prune_before(frame.capture_ns - HISTORY_NS)
-            out.append(ReleasedFrame(frame.payload, frame.capture_ns, frame.epoch, result))
+            out.append(ReleasedFrame(frame.payload, frame.capture_ns, frame.epoch, result, groups))
         return out

@@ -7,10 +7,9 @@ wrote and see every default the loader chose.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
-from roi_node.engine.config import ArmConfig, CameraConfig, DepthScale, RigConfig
+from roi_node.engine.config import ArmConfig, CameraConfig, DepthScale, RigConfig, RobotConfig
 
 IDENTITY_POSE: dict[str, Any] = {"translation": [0.0, 0.0, 0.0], "rotation_xyzw": [0.0, 0.0, 0.0, 1.0]}
 
@@ -20,14 +19,9 @@ def resolved_rig(rig: RigConfig) -> dict[str, Any]:
     return {
         "schema": rig.raw["schema"],
         "rig_id": rig.rig_id,
-        "camera": _camera(rig.camera, rig),
+        **({"camera": _camera(rig.camera)} if "camera" in rig.raw else {"cameras": [_camera(c) for c in rig.cameras]}),
         "robots": [
-            {
-                "id": robot.id,
-                "urdf": str(robot.urdf_path),
-                "base_in_world": _pose(robot.base_in_world_raw) if robot.base_in_world_raw else dict(IDENTITY_POSE),
-                "joint_prefix": robot.joint_prefix,
-            }
+            {"id": robot.id, "urdf": str(robot.urdf_path), "base_in_world": _base(robot), "joint_prefix": robot.joint_prefix}
             for robot in rig.robots
         ],
         "arms": [_arm(arm) for arm in rig.arms],
@@ -42,11 +36,10 @@ def resolved_rig(rig: RigConfig) -> dict[str, Any]:
     }
 
 
-def _camera(camera: CameraConfig, rig: RigConfig) -> dict[str, Any]:
-    intrinsics = "topic"
-    if camera.intrinsics is not None:  # a file, relative to the rig config as the loader read it
-        intrinsics = str((rig.path.parent / Path(rig.raw["camera"]["intrinsics"]).expanduser()).resolve())
-    extrinsics: dict[str, Any] = {"parent": "world"}
+def _camera(camera: CameraConfig) -> dict[str, Any]:
+    # a file, as the loader resolved it against the rig config's folder
+    intrinsics = "topic" if camera.intrinsics_path is None else str(camera.intrinsics_path.resolve())
+    extrinsics: dict[str, Any] = {"parent": "world" if camera.mount is None else camera.mount.parent}
     if "child" in camera.extrinsics_raw:
         extrinsics["child"] = camera.extrinsics_raw["child"]
     extrinsics.update(_pose(camera.extrinsics_raw))
@@ -59,7 +52,18 @@ def _camera(camera: CameraConfig, rig: RigConfig) -> dict[str, Any]:
         "rectified": camera.rectified,
         "delay_ms": camera.delay_ms,
         "z_min_m": camera.z_min_m,
+        "image_topic": camera.image_topic,
+        "camera_info_topic": camera.camera_info_topic,
     }
+
+
+def _base(robot: RobotConfig) -> dict[str, Any]:
+    topic = robot.base_topic
+    if topic is None:
+        return _pose(robot.base_in_world_raw) if robot.base_in_world_raw else dict(IDENTITY_POSE)
+    out: dict[str, Any] = {"topic": topic.topic, "type": topic.source.value, "max_skew_ms": topic.max_skew_ms}
+    out.update({k: v for k, v in (("parent_frame", topic.parent_frame), ("child_frame", topic.child_frame)) if v is not None})
+    return out
 
 
 def _pose(raw: dict[str, Any]) -> dict[str, Any]:

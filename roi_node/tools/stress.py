@@ -91,12 +91,12 @@ def _turn_camera(rig: RigConfig, deg: float) -> Perturbation:
     a = math.radians(deg)
     about_y = np.array([[math.cos(a), 0.0, math.sin(a)], [0.0, 1.0, 0.0], [-math.sin(a), 0.0, math.cos(a)]])
     pose = rig.camera.world_T_cam
-    return Perturbation(_with_camera(rig, world_T_cam=Transform(pose.rotation @ about_y, pose.translation_m)))
+    return Perturbation(_with_camera(rig, parent_T_cam=Transform(pose.rotation @ about_y, pose.translation_m)))
 
 
 def _shift_camera(rig: RigConfig, cm: float) -> Perturbation:
     pose = rig.camera.world_T_cam
-    return Perturbation(_with_camera(rig, world_T_cam=Transform(pose.rotation, pose.apply(np.array([cm / 100.0, 0.0, 0.0])))))
+    return Perturbation(_with_camera(rig, parent_T_cam=Transform(pose.rotation, pose.apply(np.array([cm / 100.0, 0.0, 0.0])))))
 
 
 def _focal(rig: RigConfig, percent: float) -> Perturbation:
@@ -155,7 +155,7 @@ SWEEPS = (
 
 
 def _with_camera(rig: RigConfig, **changes: Any) -> RigConfig:
-    return dataclasses.replace(rig, camera=dataclasses.replace(rig.camera, **changes))
+    return dataclasses.replace(rig, cameras=(dataclasses.replace(rig.camera, **changes),))
 
 
 def _intrinsics(rig: RigConfig) -> CameraModel:

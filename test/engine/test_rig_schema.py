@@ -51,7 +51,14 @@ def _bases() -> dict[str, dict[str, Any]]:
     arm["scale"] = {"mode": "fixed", "size_px": 200}
     del arm["offset_px"]
     arm["offset_m"] = 0.05
-    return {"bimanual": bimanual, "fixed_offset_m": other}
+    several = copy.deepcopy(bimanual)
+    head = copy.deepcopy(several["camera"])
+    head.update(id="side", image_topic="side/image_raw", camera_info_topic="side/camera_info")
+    head["extrinsics"]["parent"] = "left_panda/panda_link0"
+    several["cameras"] = [several.pop("camera"), head]
+    several["robots"][0]["base_in_world"] = {"topic": "odom", "type": "tf", "max_skew_ms": 30, "parent_frame": "map",
+                                             "child_frame": "left_base"}
+    return {"bimanual": bimanual, "fixed_offset_m": other, "several_cameras": several}
 
 
 BASES = _bases()
@@ -186,7 +193,11 @@ def _numbers() -> Iterator[tuple[Path_, dict[str, Any], int | None]]:
                 yield (*site.path, key), sub, None
 
 
-NOT_PROBED_AT_BOUNDS = {("camera", "extrinsics", "rotation_xyzw"), ("robots", 0, "base_in_world", "rotation_xyzw")}  # unit norm
+NOT_PROBED_AT_BOUNDS = {  # unit norm
+    ("camera", "extrinsics", "rotation_xyzw"),
+    ("cameras", 0, "extrinsics", "rotation_xyzw"),
+    ("robots", 0, "base_in_world", "rotation_xyzw"),
+}
 
 
 def test_every_range_is_the_same(judge: Judge) -> None:
@@ -281,21 +292,29 @@ def _smallest(doc: dict[str, Any]) -> dict[str, Any]:
     return doc
 
 
-def test_defaults_are_the_loaders(tmp_path: Path) -> None:
-    """A rig without every key it may leave out resolves to the schema's default for every key that has one."""
-    doc = _smallest(BASES["bimanual"])
+@pytest.mark.parametrize("base", ["bimanual", "several_cameras"])
+def test_defaults_are_the_loaders(tmp_path: Path, base: str) -> None:
+    """A rig without every key it may leave out resolves to the schema's default for every key that has one
+    (in each object the rig has: a rig has `camera` or `cameras`)."""
+    doc = _smallest(BASES[base])
     assert "output" not in doc and "offset_px" not in doc["arms"][0] and "mode" not in doc["arms"][0]["scale"]
     resolved = resolved_rig(load_rig_config(write_rig(tmp_path, doc)))
     assert VALIDATOR.is_valid(resolved)
     checked = []
     for site in SITES:
+        if not _has(resolved, site.path):
+            assert site.path[:1] in (("camera",), ("cameras",)), _name(site.path)
+            continue
         for key, sub in site.node["properties"].items():
             sub = _resolve(sub)
             if "default" not in sub:
                 continue
             path = (*site.path, key)
             value = _get(resolved, path) if _has(resolved, path) else "(absent)"
-            assert value == sub["default"], f"{_name(path)}: loader {value!r}, schema {sub['default']!r}"
+            expected = sub["default"]
+            if site.path[:1] == ("cameras",) and key.endswith("topic") and len(resolved["cameras"]) > 1:
+                expected = f"{_get(resolved, site.path)['id']}/{expected}"  # as its description says: per camera id
+            assert value == expected, f"{_name(path)}: loader {value!r}, schema {expected!r}"
             checked.append(path)
     assert len(checked) >= 15
 

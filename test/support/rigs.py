@@ -76,7 +76,8 @@ def draw_markers(
     for arm in pipeline._arms:
         q = {j: positions[arm.prefix + j] for j in arm.chain}
         base_T_ee = arm.kinematics.fk(q, [arm.config.ee_frame])[0]
-        point_cam = (pipeline.cam_T_world @ arm.world_T_base).apply(base_T_ee.translation_m)
+        world_T_base = pipeline.rig.robot(arm.config.robot).world_T_base
+        point_cam = (pipeline.rig.camera.world_T_cam.inverse() @ world_T_base).apply(base_T_ee.translation_m)
         uv, valid = pipeline.camera.project(point_cam[None, :], pipeline.rig.camera.z_min_m)
         if valid[0]:
             markers[arm.config.id] = uv[0]
