@@ -15,7 +15,7 @@ StreamSnapshot; its summaries and arms go out as the JSON they always were.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
@@ -48,34 +48,52 @@ def _status(name: str, level: bytes, message: str, values: dict[str, object]) ->
 
 
 class StreamHealth:
-    """When the camera and the joint streams were last heard from (monotonic ns), for the silence check."""
+    """When a camera, the joint streams and each base pose stream were last heard from (monotonic ns), for the
+    silence check."""
+
+    FRAMES = "frames"
+    JOINTS = "joints"
 
     def __init__(self, start_ns: int, timeout_ns: int) -> None:
         self.start_ns = start_ns
         self.timeout_ns = timeout_ns
-        self.last_frame_ns: int | None = None
-        self.last_joints_ns: int | None = None
+        self._last_ns: dict[str, int] = {}
 
     def frame_seen(self, now_ns: int) -> None:
-        self.last_frame_ns = now_ns
+        self._last_ns[self.FRAMES] = now_ns
 
     def joints_seen(self, now_ns: int) -> None:
-        self.last_joints_ns = now_ns
+        self._last_ns[self.JOINTS] = now_ns
 
-    def silence(self, now_ns: int, image_topic: str, joint_topics: Sequence[str]) -> str | None:
-        """'no frames on X for N s' (and/or joint states) when a stream is silent too long, else None."""
+    def base_seen(self, robot_id: str, now_ns: int) -> None:
+        self._last_ns[f"base:{robot_id}"] = now_ns
+
+    def silence(
+        self, now_ns: int, image_topic: str | None, joint_topics: Sequence[str], base_topics: Mapping[str, str] | None = None
+    ) -> str | None:
+        """'no frames on X for N s' (and/or joint states, base poses) when a stream is silent too long, else None;
+        `image_topic` None: this health watches no camera."""
+        streams = [] if image_topic is None else [(f"frames on {image_topic}", self.FRAMES)]
+        if joint_topics:
+            streams.append((f"joint states on {', '.join(joint_topics)}", self.JOINTS))
+        streams += [(f"base poses of {robot} on {topic}", f"base:{robot}") for robot, topic in (base_topics or {}).items()]
         problems = []
-        streams = ((f"frames on {image_topic}", self.last_frame_ns), (f"joint states on {', '.join(joint_topics)}", self.last_joints_ns))
-        for what, last in streams:
+        for what, key in streams:
+            last = self._last_ns.get(key)
             quiet_ns = now_ns - (last if last is not None else self.start_ns)
             if quiet_ns > self.timeout_ns:
                 problems.append(f"no {what} for {quiet_ns / 1e9:.1f} s" + (" (none since start)" if last is None else ""))
         return "; ".join(problems) or None
 
 
-def diagnostics_msg(
-    stamp_ns: int, snap: StreamSnapshot, lineage: Lineage | None, waiting_for: str | None, silence: str | None = None
-) -> DiagnosticArray:
+def diagnostics_msg(stamp_ns: int, statuses: Sequence[DiagnosticStatus]) -> DiagnosticArray:
+    return DiagnosticArray(header=header(stamp_ns, ""), status=list(statuses))
+
+
+def diagnostic_statuses(
+    snap: StreamSnapshot, lineage: Lineage | None, waiting_for: str | None, silence: str | None = None, *, prefix: str = ""
+) -> list[DiagnosticStatus]:
+    """One camera's statuses; `prefix` ("camera <id>: " in a rig of several cameras) starts each status name."""
     statuses = []
     bad = snap.bad_messages
     drops = snap.drops
@@ -166,4 +184,6 @@ def diagnostics_msg(
         )
     if lineage is not None:
         statuses.append(_status("lineage", DiagnosticStatus.OK, lineage.intrinsics_ver, dict(lineage.as_dict())))
-    return DiagnosticArray(header=header(stamp_ns, ""), status=statuses)
+    for status in statuses:
+        status.name = status.name.replace("roi_node: ", f"roi_node: {prefix}", 1)
+    return statuses

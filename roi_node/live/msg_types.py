@@ -10,7 +10,9 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProf
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
 from roi_node.bagio.writer import INFINITE_DURATION
-from roi_node.engine.errors import BagError
+from roi_node.engine.config import BasePoseTopic
+from roi_node.engine.errors import BagError, ConfigError
+from roi_node.wire.base_pose import MESSAGE_TYPES
 
 
 def message_class(type_name: str) -> Any:
@@ -20,6 +22,16 @@ def message_class(type_name: str) -> Any:
         return getattr(importlib.import_module(f"{package}.{kind}"), name)
     except (ValueError, ImportError, AttributeError) as exc:
         raise BagError(f"message type {type_name!r} is not available in this ROS environment") from exc
+
+
+def base_pose_class(config: BasePoseTopic, where: str) -> Any:
+    """The rclpy class of a base pose topic's messages; ConfigError naming the rig key when it is not installed (the
+    ROS wheels on PyPI lack tf2_msgs: a system ROS install has it)."""
+    try:
+        return message_class(MESSAGE_TYPES[config.source])
+    except BagError as exc:
+        raise ConfigError(f"{where}: type {config.source.value}: {exc}; use type odometry or pose, or a ROS install "
+                          "that has it") from exc
 
 
 def _time(d: Duration) -> QosTime:

@@ -32,6 +32,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 from typing import Any
 
 import cv2
@@ -47,9 +48,10 @@ from std_msgs.msg import String
 
 from roi_node import __version__
 from roi_node.engine.area_resample import start_warm_up
-from roi_node.engine.config import RigConfig, load_rig_config
+from roi_node.engine.config import BasePoseTopic, CameraConfig, RigConfig, load_rig_config
 from roi_node.engine.drop_kinds import DropKind
 from roi_node.engine.engine import (
+    BasePoseEvent,
     CameraInfoEvent,
     CommandEvent,
     Event,
@@ -66,17 +68,19 @@ from roi_node.engine.short_repr import short_text
 from roi_node.engine.stamps import NS_PER_MS, NS_PER_S
 from roi_node.engine.stream_snapshot import SyncCounters
 from roi_node.engine.stream_stats import StreamStats
+from roi_node.live.camera_stream import CameraStream
 from roi_node.live.conversions import stamp_ns
-from roi_node.live.diagnostics import StreamHealth, diagnostics_msg
+from roi_node.live.diagnostics import StreamHealth, diagnostic_statuses, diagnostics_msg
 from roi_node.live.drain import draining_subscription
 from roi_node.live.frame_decoder import CodecLines, EncodedFrame, FrameDecoder
-from roi_node.live.msg_types import message_class
+from roi_node.live.msg_types import base_pose_class, message_class
 from roi_node.live.outgoing import live_message
-from roi_node.live.params import NodeParams, declare_and_read
+from roi_node.live.params import NodeParams, check_camera_topics, declare_and_read
 from roi_node.live.runtime_params import RuntimePolicy, declare_policy, refusal, undeclare_policy
 from roi_node.live.status_line import StatusWindow
 from roi_node.util.process_memory import prefault_heap
 from roi_node.wire import topics
+from roi_node.wire.base_pose import base_poses
 from roi_node.wire.camera_info import camera_from_msg
 from roi_node.wire.compressed_header import DeclaredSizeError
 from roi_node.wire.frame_outputs import OutputOptions, frame_outputs
@@ -89,23 +93,24 @@ FRAMES_IN_CONVERSION = 3  # beyond the pending ones: the message being taken, it
 
 
 class StreamNode(Node):
-    """The per-frame machinery of the live node: Image + JointState in; per-arm ROI images, ROI camera_info,
-    global view, metadata, diagnostics out.
+    """The per-frame machinery of the live node: Images + JointState in; per camera and arm ROI images, ROI
+    camera_info, per camera the global view and metadata, and diagnostics out.
 
     Shared by RoiNode (streams from construction to shutdown) and
     RoiLifecycleNode (live/lifecycle.py: streams between configure and cleanup,
-    publishes only while active); `_start_stream` reads `self.params`.
+    publishes only while active); `_start_stream` reads `self.params`. Each camera
+    of the rig is a CameraStream (live/camera_stream.py) with an engine and a
+    worker of its own; one lock guards every engine.
     """
 
     params: NodeParams
     policy: RuntimePolicy | None = None  # the runtime parameters, while streaming
     active = True  # False: frames are dropped and counted ("inactive") instead of processed
     _stream_entities: tuple[Any, ...] = ()  # what `_start_stream` created, for `_stop_stream`
-    _decoder: FrameDecoder | None = None  # compressed input only
     overlap_global_view = False  # True under `roi-node run`: the global view is resampled beside the ROIs (latency first)
 
     def _start_stream(self) -> None:
-        """Load the rig, build the engine, create the endpoints and start the worker thread."""
+        """Load the rig, build one engine per camera, create the endpoints and start the worker threads."""
         before = self._entities()
         # a pipeline built later (URDF from the topic) must not stall a callback on the kernels' first compile
         start_warm_up()
@@ -113,52 +118,68 @@ class StreamNode(Node):
         cv2.setNumThreads(self.params.opencv_threads)
         policy = declare_policy(self, load_rig_config(self.params.config), self.params)
         self.rig: RigConfig = policy.rig
+        check_camera_topics(self.rig, self.params)
         self._lock = threading.Condition()
         self._stop = threading.Event()
         self.failure: str | None = None  # set when the node stops because it cannot work
-        self._frame_id = ""
         self._throttle: dict[str, float] = {}
-        self._failing_since: float | None = None
-        start_ns = time.monotonic_ns()
-        self.stats = StreamStats(tuple(a.id for a in self.rig.arms), start_ns)
-        self.health = StreamHealth(start_ns, round(self.params.silence_timeout_s * NS_PER_S))
-        self._status = StatusWindow(self.stats, start_ns)
+        self._joints_health = StreamHealth(time.monotonic_ns(), round(self.params.silence_timeout_s * NS_PER_S))
         urdf_texts = None
         if self.params.robot_description_source == "parameter":
             if not self.params.robot_description:
                 raise ConfigError("parameter robot_description: empty, but robot_description_source is 'parameter'")
             urdf_texts = {robot.id: self.params.robot_description for robot in self.rig.robots}
         # a bad URDF or calibration in the rig config fails here, at start
-        self.engine = StreamEngine(
-            self.rig,
-            intrinsics_from_stream=self.params.use_camera_info,
-            urdf_texts=urdf_texts,
-            urdf_from_stream=self.params.robot_description_source == "topic",
-            max_pending=self.params.max_pending_frames,
-            stats=self.stats,
-            overlap_global_view=self.overlap_global_view,
-        )
-        if (warm_up_error := self.engine.warm_up()) is not None:  # counted; the real frames will show whether processing works
-            self.get_logger().error(f"warm-up frame failed: {warm_up_error}")
-        self._prefault_receive_heap()
+        self.streams = tuple(self._camera_stream(camera, urdf_texts) for camera in self.rig.cameras)
         self._create_endpoints()
         if self.params.status_period_s > 0:
             self.create_timer(self.params.status_period_s, self._log_status)
-        # the worker keeps its own stop event: one that outlived its join must not run on a re-configured stream
-        self._worker = threading.Thread(target=self._work, args=(self._stop,), name="roi_node_worker", daemon=True)
-        self._worker.start()
-        if self.params.image_transport == "compressed":
-            self._decoder = FrameDecoder(
-                self._decode_compressed, capacity=self.params.max_pending_frames,
-                on_frame=self._on_decoded, on_refused=self._on_decode_refused,
-                on_error=self._on_decode_error, on_overflow=self._on_decode_overflow, on_failure=self._fail,
-                capture_codec_output=True,
-            )
+        for stream in self.streams:
+            # each worker keeps its own stop event: one that outlived its join must not run on a re-configured stream
+            stream.worker = threading.Thread(target=self._work, args=(stream, self._stop), name=f"roi_node_worker_{stream.id}",
+                                             daemon=True)
+            stream.worker.start()
+            if self.params.image_transport == "compressed":
+                stream.decoder = FrameDecoder(
+                    partial(self._decode_compressed, stream), capacity=self.params.max_pending_frames,
+                    on_frame=partial(self._on_decoded, stream), on_refused=partial(self._on_decode_refused, stream),
+                    on_error=partial(self._on_decode_error, stream), on_overflow=partial(self._on_decode_overflow, stream),
+                    on_failure=self._fail, capture_codec_output=True,
+                )
         self._stream_entities = tuple(e for e in self._entities() if e not in before)
         self.policy = policy  # streaming from here on
         self._log_start()
 
-    def _prefault_receive_heap(self) -> None:
+    def _camera_stream(self, camera: CameraConfig, urdf_texts: dict[str, str] | None) -> CameraStream:
+        start_ns = time.monotonic_ns()
+        stats = StreamStats(tuple(a.id for a in self.rig.arms), start_ns)
+        engine = StreamEngine(
+            self.rig.for_camera(camera.id),
+            intrinsics_from_stream=self.params.use_camera_info,
+            urdf_texts=urdf_texts,
+            urdf_from_stream=self.params.robot_description_source == "topic",
+            max_pending=self.params.max_pending_frames,
+            stats=stats,
+            overlap_global_view=self.overlap_global_view,
+        )
+        label = f"camera {camera.id}: " if self.rig.several_cameras else ""
+        if (warm_up_error := engine.warm_up()) is not None:  # counted; the real frames will show whether processing works
+            self.get_logger().error(f"{label}warm-up frame failed: {warm_up_error}")
+        one_camera = not self.rig.several_cameras
+        image_topic = self.params.image_topic if one_camera and self.params.image_topic != topics.IMAGE else camera.image_topic
+        info_topic = (self.params.camera_info_topic if one_camera and self.params.camera_info_topic != topics.CAMERA_INFO
+                      else camera.camera_info_topic)
+        if self.params.image_transport == "compressed":
+            image_topic = image_topic.rstrip("/") + "/compressed"
+        stream = CameraStream(
+            camera, topics.output_camera(self.rig, camera.id), engine,
+            StreamHealth(start_ns, round(self.params.silence_timeout_s * NS_PER_S)), StatusWindow(stats, start_ns),
+            image_topic, info_topic, label,
+        )
+        self._prefault_receive_heap(stream)
+        return stream
+
+    def _prefault_receive_heap(self, stream: CameraStream) -> None:
         """Make the heap that raw frames arrive in resident before the first one (process_memory.py says why).
 
         The executor takes every Image on this thread (`_start_stream` runs on it, at construction or in
@@ -166,7 +187,7 @@ class StreamNode(Node):
         `max_pending_frames` of those held until their joint state comes. A compressed stream is decoded on
         the decoder's thread and a streamed calibration gives the size only with the first frames: neither
         is pre-faulted."""
-        camera = self.engine.first_camera()
+        camera = stream.engine.first_camera()
         if self.params.image_transport == "raw" and camera is not None:
             prefault_heap(camera.width_px * camera.height_px * 3,  # rgb8 or bgr8, the usual camera encodings
                           self.params.max_pending_frames + FRAMES_IN_CONVERSION)
@@ -174,175 +195,212 @@ class StreamNode(Node):
     def _entities(self) -> list[Any]:
         return [*self.subscriptions, *self.publishers, *self.timers]
 
+    def _engines(self) -> tuple[StreamEngine, ...]:
+        return tuple(stream.engine for stream in self.streams)
+
     # -- set-up ---------------------------------------------------------------------------------
 
     def _create_endpoints(self) -> None:
         p = self.params
         sub_qos, pub_qos = p.subscription_qos(), p.publisher_qos()
-        if p.image_transport == "compressed":
-            self._image_topic = p.image_topic.rstrip("/") + "/compressed"
-            self.create_subscription(CompressedImage, self._image_topic, self._on_compressed, sub_qos)
-        else:
-            self._image_topic = p.image_topic
-            self.create_subscription(Image, self._image_topic, self._on_image, sub_qos)
+        for stream in self.streams:
+            if p.image_transport == "compressed":
+                self.create_subscription(CompressedImage, stream.image_topic, partial(self._on_compressed, stream), sub_qos)
+            else:
+                self.create_subscription(Image, stream.image_topic, partial(self._on_image, stream), sub_qos)
+            if stream.engine.intrinsics_from_stream:
+                self.create_subscription(CameraInfo, stream.camera_info_topic, partial(self._on_camera_info, stream), sub_qos)
+            outputs = topics.output_topics([a.id for a in self.rig.arms], self.rig.output.global_enabled,
+                                           transport=p.output_transport, overlay=p.overlay, camera=stream.out_camera)
+            # by relative topic name, as wire/frame_outputs.py names a frame's messages
+            stream.output_pubs = {name: self.create_publisher(message_class(msgtype), name, pub_qos) for name, msgtype in outputs.items()}
         for topic in p.joint_state_topics:  # draining: see live/drain.py
             draining_subscription(self, JointState, topic, self._joint_callback(topic), p.joint_state_qos())
         if p.command_topic:
             draining_subscription(self, JointState, p.command_topic, self._on_command, p.joint_state_qos())
-        if self.engine.intrinsics_from_stream:
-            self.create_subscription(CameraInfo, p.camera_info_topic, self._on_camera_info, sub_qos)
+        for robot in self.rig.robots:
+            if robot.base_topic is not None:
+                where = self.rig.location(f"robots[{robot.id}].base_in_world")
+                draining_subscription(self, base_pose_class(robot.base_topic, where), robot.base_topic.topic,
+                                      self._base_pose_callback(robot.id, robot.base_topic), p.joint_state_qos())
         if p.robot_description_source == "topic":
             latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
             self.create_subscription(String, topics.ROBOT_DESCRIPTION, self._on_robot_description, latched)
-        outputs = topics.output_topics(
-            [a.id for a in self.rig.arms], self.rig.output.global_enabled, transport=p.output_transport, overlay=p.overlay
-        )
-        # by relative topic name, as wire/frame_outputs.py names a frame's messages
-        self._output_pubs = {name: self.create_publisher(message_class(msgtype), name, pub_qos) for name, msgtype in outputs.items()}
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
 
     def _log_start(self) -> None:
         p = self.params
         arms = ", ".join(f"{a.id} ({a.robot}:{a.ee_frame})" for a in self.rig.arms)
-        out_topics = topics.output_topics(
-            [a.id for a in self.rig.arms], self.rig.output.global_enabled, transport=p.output_transport, overlay=p.overlay
-        )
-        outputs = ", ".join(self.resolve_topic_name(t) for t in out_topics)
-        inputs = [f"{self.resolve_topic_name(self._image_topic)} ({p.image_transport})"]
+        outputs = ", ".join(self.resolve_topic_name(t) for stream in self.streams for t in stream.output_pubs)
+        inputs = [f"{self.resolve_topic_name(s.image_topic)} ({p.image_transport})" for s in self.streams]
         inputs += [self.resolve_topic_name(t) for t in p.joint_state_topics]
         if p.command_topic:
             inputs.append(f"{self.resolve_topic_name(p.command_topic)} (commands)")
-        waiting = self.engine.waiting_for()
-        pipeline = self.engine.pipeline
-        lineage = pipeline.lineage.as_dict() if pipeline is not None and pipeline.lineage is not None else "pending"
+        inputs += [f"{self.resolve_topic_name(r.base_topic.topic)} (base of {r.id})" for r in self.rig.robots if r.base_topic]
+        cameras = "; ".join(f"camera {s.id}{self._lineage_note(s)}" for s in self.streams)
         self.get_logger().info(
-            f"roi_node {__version__}: rig {self.rig.rig_id} ({self.rig.path}); camera {self.rig.camera.id}; arms {arms}; "
+            f"roi_node {__version__}: rig {self.rig.rig_id} ({self.rig.path}); {cameras}; arms {arms}; "
             f"inputs {', '.join(inputs)}; outputs {outputs}; sync {self.rig.sync.policy} "
-            f"max_skew {self.rig.sync.max_skew_ms:g} ms max_wait {self.rig.sync.max_wait_ms:g} ms; lineage {lineage}"
-            + (f"; waiting for {waiting}" if waiting else "")
+            f"max_skew {self.rig.sync.max_skew_ms:g} ms max_wait {self.rig.sync.max_wait_ms:g} ms"
         )
+
+    @staticmethod
+    def _lineage_note(stream: CameraStream) -> str:
+        waiting = stream.engine.waiting_for()
+        pipeline = stream.engine.pipeline
+        lineage = pipeline.lineage.as_dict() if pipeline is not None and pipeline.lineage is not None else "pending"
+        return f" (lineage {lineage}" + (f"; waiting for {waiting})" if waiting else ")")
 
     # -- callbacks (executor thread) ----------------------------------------------------------------
 
-    def _feed(self, event: Event) -> None:
-        """Hand one event to the engine under the lock; a refusal is logged (throttled), the engine counted it."""
+    def _feed(self, stream: CameraStream, event: Event) -> None:
+        """Hand one event to a camera's engine under the lock; a refusal is logged (throttled), the engine counted it."""
         with self._lock:
-            refusal = self.engine.feed(event)
-            self._lock.notify()
+            refusal = stream.engine.feed(event)
+            self._lock.notify_all()
+        if refusal is not None:
+            self._warn(refusal.kind, stream.label + refusal.message)
+
+    def _feed_all(self, event: Event) -> None:
+        """A joint state, command, base pose or URDF: every camera's engine pairs its frames with it."""
+        refusals = []
+        with self._lock:
+            for stream in self.streams:
+                refusals.append(stream.engine.feed(event))
+            self._lock.notify_all()
+        refusal = refusals[0] if refusals else None  # every engine judges these alike: say it once
         if refusal is not None:
             self._warn(refusal.kind, refusal.message)
 
-    def _refused(self, refusal: Refusal, *, frame: bool) -> None:
+    def _refused(self, stream: CameraStream, refusal: Refusal, *, frame: bool) -> None:
         """A message that could not even become an event (undecodable): counted by the engine like its refusals."""
         with self._lock:
             if frame:
-                self.engine.reject_frame(refusal)
+                stream.engine.reject_frame(refusal)
             else:
-                self.engine.report(refusal)
-        self._warn(refusal.kind, refusal.message)
+                stream.engine.report(refusal)
+        self._warn(refusal.kind, stream.label + refusal.message)
 
-    def _on_image(self, msg: Image) -> None:
-        self._offer_frame(msg.header, lambda: image_from_msg(msg, self._image_topic))
+    def _on_image(self, stream: CameraStream, msg: Image) -> None:
+        self._offer_frame(stream, msg.header, lambda: image_from_msg(msg, stream.image_topic))
 
-    def _on_compressed(self, msg: CompressedImage) -> None:
+    def _on_compressed(self, stream: CameraStream, msg: CompressedImage) -> None:
         """Queued for the decoder thread: a decode here would pace how many joint states the executor takes."""
-        arrival_ns = self._frame_arrived(msg.header)
-        if arrival_ns is not None and self._decoder is not None:
-            self._decoder.offer(EncodedFrame(msg.header, msg.format, msg.data, arrival_ns))
+        arrival_ns = self._frame_arrived(stream, msg.header)
+        if arrival_ns is not None and stream.decoder is not None:
+            stream.decoder.offer(EncodedFrame(msg.header, msg.format, msg.data, arrival_ns))
 
-    def _decode_compressed(self, fmt: str, data: Any) -> Any:
+    def _decode_compressed(self, stream: CameraStream, fmt: str, data: Any) -> Any:
         """Decoder thread: the size the header declares must be the calibration's before anything is decoded."""
         with self._lock:
-            camera = self.engine.first_camera()
+            camera = stream.engine.first_camera()
         expected_px = (camera.width_px, camera.height_px) if camera is not None else None
-        return image_from_compressed(fmt, data, self._image_topic, expected_px)
+        return image_from_compressed(fmt, data, stream.image_topic, expected_px)
 
-    def _on_decode_refused(self, frame: EncodedFrame, error: RoiNodeError, codec_lines: CodecLines) -> None:
+    def _on_decode_refused(self, stream: CameraStream, frame: EncodedFrame, error: RoiNodeError, codec_lines: CodecLines) -> None:
         """Undecodable data (bad_image, with what the codec said) or a declared size refused unread (declared_size)."""
         stamp = frame.header.stamp
         said = f"; the decoder said: {' / '.join(codec_lines)}" if codec_lines else ""
         kind = DeclaredSizeError.kind if isinstance(error, DeclaredSizeError) else DropKind.IMAGE
-        self._refused(Refusal(kind, f"{error} (frame stamped {stamp.sec}.{stamp.nanosec:09d}){said}"), frame=True)
+        self._refused(stream, Refusal(kind, f"{error} (frame stamped {stamp.sec}.{stamp.nanosec:09d}){said}"), frame=True)
 
-    def _on_decoded(self, frame: EncodedFrame, pixels: Any, codec_lines: CodecLines) -> None:
+    def _on_decoded(self, stream: CameraStream, frame: EncodedFrame, pixels: Any, codec_lines: CodecLines) -> None:
         """Decoder thread: the decoded frame goes to the engine with the time it arrived (unless deactivated meanwhile).
 
         A frame the codec complained about but decoded (a damaged JPEG scan) goes on, counted as `codec_warning`."""
         if codec_lines:
             stamp = frame.header.stamp
-            warning = f"{self._image_topic}: frame stamped {stamp.sec}.{stamp.nanosec:09d}: {' / '.join(codec_lines)}"
+            warning = f"{stream.image_topic}: frame stamped {stamp.sec}.{stamp.nanosec:09d}: {' / '.join(codec_lines)}"
             with self._lock:
-                self.engine.report(Refusal(DropKind.CODEC_WARNING, warning))
+                stream.engine.report(Refusal(DropKind.CODEC_WARNING, warning))
             self._warn(DropKind.CODEC_WARNING, warning)
         if not self.active:
             with self._lock:
-                self.engine.drop_frames(DropKind.INACTIVE, fed=False)
+                stream.engine.drop_frames(DropKind.INACTIVE, fed=False)
             return
-        self._offer_frame(frame.header, lambda: pixels, frame.arrival_ns)
+        self._offer_frame(stream, frame.header, lambda: pixels, frame.arrival_ns)
 
-    def _on_decode_error(self, frame: EncodedFrame, exc: Exception) -> None:
+    def _on_decode_error(self, stream: CameraStream, frame: EncodedFrame, exc: Exception) -> None:
         """Counted like a processing error; decoding that always fails stops the node after max_failure_s."""
         with self._lock:
-            line = self.engine.processing_failed(exc, fed=False)
+            line = stream.engine.processing_failed(exc, fed=False)
         stamp = frame.header.stamp
-        self._warn("processing", f"decoding the frame stamped {stamp.sec}.{stamp.nanosec:09d}: {line}", error_level=True)
-        self._check_persistent_failure(line)
+        self._warn("processing", f"{stream.label}decoding the frame stamped {stamp.sec}.{stamp.nanosec:09d}: {line}", error_level=True)
+        self._check_persistent_failure(stream, line)
 
-    def _on_decode_overflow(self) -> None:
+    def _on_decode_overflow(self, stream: CameraStream) -> None:
         with self._lock:
-            self.engine.drop_frames(DropKind.DECODE_OVERFLOW, fed=False)
+            stream.engine.drop_frames(DropKind.DECODE_OVERFLOW, fed=False)
 
-    def _frame_arrived(self, msg_header: Any) -> int | None:
+    def _frame_arrived(self, stream: CameraStream, msg_header: Any) -> int | None:
         """The arrival time of a frame to take, or None for one refused (counted) because the node is inactive.
 
         Its stamp is noted either way: the frames lost before the node are estimated from the gaps."""
         arrival_ns = time.monotonic_ns()
-        self.health.frame_seen(arrival_ns)
+        stream.health.frame_seen(arrival_ns)
         with self._lock:
-            self.engine.frame_arrived(stamp_ns(msg_header))
+            stream.engine.frame_arrived(stamp_ns(msg_header))
             if self.active:
                 return arrival_ns
-            self.engine.drop_frames(DropKind.INACTIVE, fed=False)
+            stream.engine.drop_frames(DropKind.INACTIVE, fed=False)
         return None
 
-    def _offer_frame(self, msg_header: Any, decode: Callable[[], Any], arrival_ns: int | None = None) -> None:
-        if arrival_ns is None and (arrival_ns := self._frame_arrived(msg_header)) is None:
+    def _offer_frame(self, stream: CameraStream, msg_header: Any, decode: Callable[[], Any], arrival_ns: int | None = None) -> None:
+        if arrival_ns is None and (arrival_ns := self._frame_arrived(stream, msg_header)) is None:
             return
         try:
             pixels = decode()
             stamp = stamp_ns(msg_header)
         except RoiNodeError as exc:
-            self._refused(Refusal(DropKind.IMAGE, str(exc)), frame=True)
+            self._refused(stream, Refusal(DropKind.IMAGE, str(exc)), frame=True)
             return
-        self._frame_id = msg_header.frame_id
-        self._feed(FrameEvent(stamp, pixels, arrival_ns, self._image_topic))
+        stream.frame_id = msg_header.frame_id
+        self._feed(stream, FrameEvent(stamp, pixels, arrival_ns, stream.image_topic))
 
     def _joint_callback(self, topic: str) -> Callable[[JointState], None]:
         def callback(msg: JointState) -> None:
-            self.health.joints_seen(time.monotonic_ns())
-            self._feed(JointStateEvent(stamp_ns(msg.header), list(msg.name), list(msg.position), topic))
+            self._joints_health.joints_seen(time.monotonic_ns())
+            self._feed_all(JointStateEvent(stamp_ns(msg.header), list(msg.name), list(msg.position), topic))
 
         return callback
 
     def _on_command(self, msg: JointState) -> None:
-        self._feed(CommandEvent(stamp_ns(msg.header), list(msg.name), list(msg.position), self.params.command_topic))
+        self._feed_all(CommandEvent(stamp_ns(msg.header), list(msg.name), list(msg.position), self.params.command_topic))
 
-    def _on_camera_info(self, msg: CameraInfo) -> None:
-        where = self.resolve_topic_name(self.params.camera_info_topic)
+    def _base_pose_callback(self, robot_id: str, config: BasePoseTopic) -> Callable[[Any], None]:
+        where = self.resolve_topic_name(config.topic)
+
+        def callback(msg: Any) -> None:
+            self._joints_health.base_seen(robot_id, time.monotonic_ns())
+            try:
+                samples = base_poses(msg, config, where)
+            except RoiNodeError as exc:
+                with self._lock:
+                    for engine in self._engines():
+                        engine.report(Refusal(DropKind.BASE_POSE, str(exc)))
+                self._warn(DropKind.BASE_POSE, str(exc))
+                return
+            for stamp, world_T_base in samples:
+                self._feed_all(BasePoseEvent(stamp, robot_id, world_T_base, where))
+
+        return callback
+
+    def _on_camera_info(self, stream: CameraStream, msg: CameraInfo) -> None:
+        where = self.resolve_topic_name(stream.camera_info_topic)
         try:
-            camera = camera_from_msg(msg, self.rig.camera.rectified, where)
+            camera = camera_from_msg(msg, stream.config.rectified, where)
         except RoiNodeError as exc:
-            self._refused(Refusal(DropKind.CAMERA_INFO, str(exc)), frame=False)
+            self._refused(stream, Refusal(DropKind.CAMERA_INFO, str(exc)), frame=False)
             return
-        first = self.engine.waiting_for() is not None
-        self._feed(CameraInfoEvent(stamp_ns(msg.header), camera, where))
-        if first and self.engine.waiting_for() is None:
+        first = stream.engine.waiting_for() is not None
+        self._feed(stream, CameraInfoEvent(stamp_ns(msg.header), camera, where))
+        if first and stream.engine.waiting_for() is None:
             self.get_logger().info(f"intrinsics from {where}: {camera.width_px}x{camera.height_px} {camera.content_version()}")
 
     def _on_robot_description(self, msg: String) -> None:
         where = self.resolve_topic_name(topics.ROBOT_DESCRIPTION)
-        self._feed(UrdfEvent(self.get_clock().now().nanoseconds, msg.data, where))
+        self._feed_all(UrdfEvent(self.get_clock().now().nanoseconds, msg.data, where))
         self.get_logger().info(f"URDF from {where} ({len(msg.data)} bytes)")
 
     def _warn(self, kind: str, error: str, *, error_level: bool = False) -> None:
@@ -356,57 +414,59 @@ class StreamNode(Node):
             else:
                 self.get_logger().warning(f"{kind}: {error}")
 
-    # -- worker thread --------------------------------------------------------------------------
+    # -- worker threads (one per camera) ------------------------------------------------------------
 
-    def _work(self, stop: threading.Event) -> None:
+    def _work(self, stream: CameraStream, stop: threading.Event) -> None:
+        engine = stream.engine
         try:
             while not stop.is_set():
                 with self._lock:
-                    ready = self.engine.pop_ready(time.monotonic_ns(), limit=1)
+                    ready = engine.pop_ready(time.monotonic_ns(), limit=1)
                     if not ready:
-                        self._lock.wait(PENDING_POLL_S if self.engine.pending else IDLE_WAIT_S)
+                        self._lock.wait(PENDING_POLL_S if engine.pending else IDLE_WAIT_S)
                         continue
-                    prepared = self.engine.prepare(ready[0])
-                    frame_id = self._frame_id
+                    prepared = engine.prepare(ready[0])
+                    frame_id = stream.frame_id
                 if prepared is not None:
-                    self._process(prepared, frame_id)
+                    self._process(stream, prepared, frame_id)
         except BaseException as exc:  # the worker itself must never die silently: stop the node and say why
-            self._fail(f"the processing thread failed: {type(exc).__name__}: {exc}")
+            self._fail(f"{stream.label}the processing thread failed: {type(exc).__name__}: {exc}")
 
-    def _process(self, prepared: PreparedFrame, frame_id: str) -> None:
+    def _process(self, stream: CameraStream, prepared: PreparedFrame, frame_id: str) -> None:
         start = time.perf_counter()
+        engine = stream.engine
         try:
             now_ns = self.get_clock().now().nanoseconds
             latency_ms = (now_ns - prepared.ready.capture_ns) / NS_PER_MS if now_ns > 0 else None
-            result = self.engine.process(prepared, latency_ms)
+            result = engine.process(prepared, latency_ms)
             if not self.active:  # deactivated while this frame was in hand
                 with self._lock:
-                    self.engine.drop_frames(DropKind.INACTIVE, fed=True)
+                    engine.drop_frames(DropKind.INACTIVE, fed=True)
                 return
-            self._publish(result, frame_id)
+            self._publish(stream, result, frame_id)
         except Exception as exc:  # any failure on one frame is counted and reported; the next frame is tried
             with self._lock:
-                line = self.engine.processing_failed(exc)
-            self._warn("processing", f"frame stamp {prepared.ready.payload.stamp_ns}: {line}", error_level=True)
-            self._check_persistent_failure(line)
+                line = engine.processing_failed(exc)
+            self._warn("processing", f"{stream.label}frame stamp {prepared.ready.payload.stamp_ns}: {line}", error_level=True)
+            self._check_persistent_failure(stream, line)
             return
         process_ms = (time.perf_counter() - start) * 1000
         with self._lock:
-            self._failing_since = None
-            self.engine.emit(result, latency_ms, process_ms)
+            stream.failing_since = None
+            engine.emit(result, latency_ms, process_ms)
             if latency_ms is not None:
-                self._status.note_latency(latency_ms)
+                stream.status.note_latency(latency_ms)
 
-    def _check_persistent_failure(self, line: str) -> None:
-        """Worker or decoder thread: a frame failed; stop the node if every frame failed for max_failure_s."""
+    def _check_persistent_failure(self, stream: CameraStream, line: str) -> None:
+        """Worker or decoder thread: a frame failed; stop the node if every frame of a camera failed for max_failure_s."""
         now = time.monotonic()
         with self._lock:
-            if self._failing_since is None:
-                self._failing_since = now
-            failing_s = now - self._failing_since
+            if stream.failing_since is None:
+                stream.failing_since = now
+            failing_s = now - stream.failing_since
         if failing_s >= self.params.max_failure_s:
             limit = self.params.max_failure_s
-            self._fail(f"every frame failed for {failing_s:.1f} s (max_failure_s {limit:g}); last: {line}")
+            self._fail(f"{stream.label}every frame failed for {failing_s:.1f} s (max_failure_s {limit:g}); last: {line}")
 
     def _fail(self, message: str) -> None:
         """Stop the node: one line in the log, the context shut down, `roi-node run` exits non-zero."""
@@ -417,32 +477,45 @@ class StreamNode(Node):
         self.get_logger().fatal(message)
         self.context.try_shutdown()
 
-    def _publish(self, result: FrameResult, frame_id: str) -> None:
+    def _publish(self, stream: CameraStream, result: FrameResult, frame_id: str) -> None:
         """The frame's messages in the one order both drivers send them (wire/frame_outputs.py)."""
         p = self.params
         options = OutputOptions(p.output_transport, p.output_encoding, p.jpeg_quality, p.overlay)
-        for message in frame_outputs(result, frame_id, self.rig.output.size_px, options):
-            self._output_pubs[message.topic].publish(live_message(message))
+        for message in frame_outputs(result, frame_id, self.rig.output.size_px, options, stream.out_camera):
+            stream.output_pubs[message.topic].publish(live_message(message))
 
     def _publish_diagnostics(self) -> None:
         now_ns = time.monotonic_ns()
-        with self._lock:
-            snap = self.stats.snapshot(now_ns)
-            pipeline = self.engine.pipeline
-            lineage = pipeline.lineage if pipeline is not None else None
-            waiting = self.engine.waiting_for()
-            sync = self.engine.synchronizer
-            if sync is not None:
-                snap = replace(snap, sync_counters=SyncCounters(sync.counters.epochs, sync.pending))
-        silence = self.health.silence(now_ns, self.resolve_topic_name(self._image_topic), self.params.joint_state_topics)
-        self._diagnostics_pub.publish(diagnostics_msg(self.get_clock().now().nanoseconds, snap, lineage, waiting, silence))
+        joint_topics = list(self.params.joint_state_topics)
+        statuses = []
+        for stream in self.streams:
+            engine = stream.engine
+            with self._lock:
+                snap = engine.stats.snapshot(now_ns)
+                pipeline = engine.pipeline
+                lineage = pipeline.lineage if pipeline is not None else None
+                waiting = engine.waiting_for()
+                sync = engine.synchronizer
+                if sync is not None:
+                    snap = replace(snap, sync_counters=SyncCounters(sync.counters.epochs, sync.pending))
+            silence = stream.health.silence(now_ns, self.resolve_topic_name(stream.image_topic), ())
+            joints_silence = self._joints_health.silence(now_ns, None, joint_topics, self._base_topics())
+            silent = "; ".join(s for s in (silence, joints_silence) if s) or None
+            statuses += diagnostic_statuses(snap, lineage, waiting, silent, prefix=stream.label)
+        self._diagnostics_pub.publish(diagnostics_msg(self.get_clock().now().nanoseconds, statuses))
+
+    def _base_topics(self) -> dict[str, str]:
+        """Robot id -> the resolved topic of its base pose, for the robots whose base comes from one."""
+        return {r.id: self.resolve_topic_name(r.base_topic.topic) for r in self.rig.robots if r.base_topic is not None}
 
     # -- status and runtime parameters (executor thread) ------------------------------------------
 
     def _log_status(self) -> None:
-        with self._lock:
-            line = self._status.line(self.stats, time.monotonic_ns(), self.engine.pending)
-        self.get_logger().info(f"status: {line}")
+        now_ns = time.monotonic_ns()
+        for stream in self.streams:
+            with self._lock:
+                line = stream.status.line(stream.engine.stats, now_ns, stream.engine.pending)
+            self.get_logger().info(f"status: {stream.label}{line}")
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         """`ros2 param set` while streaming: the runtime parameters (live/runtime_params.py) are validated
@@ -460,7 +533,8 @@ class StreamNode(Node):
         try:
             with self._lock:
                 rig = policy.update(changes)
-                self.engine.set_policy(rig)
+                for stream in self.streams:
+                    stream.engine.set_policy(rig.for_camera(stream.id))
                 self.rig = rig
         except ParameterError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
@@ -478,31 +552,34 @@ class StreamNode(Node):
         return super().set_parameters_atomically(parameter_list)
 
     def _crop_offset_ver(self) -> str:
-        pipeline = self.engine.pipeline
+        pipeline = self.streams[0].engine.pipeline
         lineage = pipeline.lineage if pipeline is not None else None
         return lineage.crop_offset_ver if lineage is not None else "pending"
 
     # -- shutdown -----------------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Stop the worker (it finishes the frame in hand); pending frames are counted as dropped."""
+        """Stop the workers (each finishes the frame in hand); pending frames are counted as dropped."""
         if self.policy is None:
             return  # not streaming
-        undecoded = self._decoder.close() if self._decoder is not None else 0
-        self._decoder = None
+        undecoded = {stream.id: stream.decoder_closed() for stream in self.streams}
         self._stop.set()
         with self._lock:
             self._lock.notify_all()
-        self._worker.join(timeout=5.0)
-        with self._lock:
-            self.engine.finish()
-            self.engine.drop_frames(DropKind.SHUTDOWN, self.engine.pending, fed=True)
-            self.engine.drop_frames(DropKind.SHUTDOWN, undecoded, fed=False)
-            summary = self.stats.summary_line()
-        self.get_logger().info(f"stopped: {summary}")
+        for stream in self.streams:
+            if stream.worker is not None:
+                stream.worker.join(timeout=5.0)
+        for stream in self.streams:
+            with self._lock:
+                engine = stream.engine
+                engine.finish()
+                engine.drop_frames(DropKind.SHUTDOWN, engine.pending, fed=True)
+                engine.drop_frames(DropKind.SHUTDOWN, undecoded[stream.id], fed=False)
+                summary = engine.stats.summary_line()
+            self.get_logger().info(f"stopped: {stream.label}{summary}")
 
     def _stop_stream(self) -> None:
-        """`close`, then release the engine and everything `_start_stream` created (a lifecycle cleanup)."""
+        """`close`, then release the engines and everything `_start_stream` created (a lifecycle cleanup)."""
         self.close()
         for entity in self._stream_entities:
             if isinstance(entity, Subscription):
@@ -514,7 +591,7 @@ class StreamNode(Node):
         self._stream_entities = ()
         undeclare_policy(self)
         self.policy = None
-        del self.engine
+        del self.streams
 
 
 class RoiNode(StreamNode):

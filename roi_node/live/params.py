@@ -211,6 +211,17 @@ def apply_overrides(rig: RigConfig, params: NodeParams) -> RigConfig:
     return dataclasses.replace(rig, sync=sync, output=output)
 
 
+def check_camera_topics(rig: RigConfig, params: NodeParams) -> None:
+    """`image_topic` and `camera_info_topic` rename a rig's one camera's inputs; a rig of several cameras names each
+    camera's in the rig file (cameras[].image_topic), since one parameter cannot say which camera it means."""
+    if not rig.several_cameras:
+        return
+    for name, value in (("image_topic", params.image_topic), ("camera_info_topic", params.camera_info_topic)):
+        if value != DEFAULTS[name]:
+            raise ParameterError(name, f"the rig {rig.source} has {rig.camera_count} cameras ({', '.join(rig.camera_ids)}): "
+                                 f"set each camera's cameras[].{name} in the rig file, or remap its topic")
+
+
 def _choice(values: dict[str, object], param: str, choices: tuple[str, ...]) -> str:
     value = str(values[param])
     if value not in choices:

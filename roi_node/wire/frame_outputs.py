@@ -90,9 +90,12 @@ class OutgoingOverlay:
 Outgoing = OutgoingImage | OutgoingCompressed | OutgoingCameraInfo | OutgoingText | OutgoingOverlay
 
 
-def frame_outputs(result: FrameResult, frame_id: str, size_px: tuple[int, int], options: OutputOptions) -> list[Outgoing]:
+def frame_outputs(
+    result: FrameResult, frame_id: str, size_px: tuple[int, int], options: OutputOptions, camera: str | None = None
+) -> list[Outgoing]:
     """Every message of one frame, in the order it is sent (see the module docstring); `size_px` is the rig's
-    ROI output size (width, height), which each ROI CameraInfo states."""
+    ROI output size (width, height), which each ROI CameraInfo states; `camera` names the camera's topics
+    (topics.output_camera: None in a rig of one camera)."""
     stamp = result.stamp_ns
     out_w, out_h = size_px
     out: list[Outgoing] = []
@@ -105,11 +108,11 @@ def frame_outputs(result: FrameResult, frame_id: str, size_px: tuple[int, int], 
             out.append(OutgoingCompressed(compressed_topic(topic), stamp, frame_id, fmt, encode_jpeg(pixels, options.jpeg_quality)))
 
     for roi in result.rois:
-        image(topics.roi_image(roi.arm_id), roi.image)
-        out.append(OutgoingCameraInfo(topics.roi_camera_info(roi.arm_id), stamp, frame_id, roi.camera, out_w, out_h))
+        image(topics.roi_image(roi.arm_id, camera), roi.image)
+        out.append(OutgoingCameraInfo(topics.roi_camera_info(roi.arm_id, camera), stamp, frame_id, roi.camera, out_w, out_h))
     if result.global_view is not None:
-        image(topics.GLOBAL_IMAGE, result.global_view)
-    out.append(OutgoingText(topics.METADATA, result.record_json))
+        image(topics.global_image_topic(camera), result.global_view)
+    out.append(OutgoingText(topics.metadata_topic(camera), result.record_json))
     if options.overlay:
-        out.append(OutgoingOverlay(topics.OVERLAY, frame_id, result.record))
+        out.append(OutgoingOverlay(topics.overlay_topic(camera), frame_id, result.record))
     return out

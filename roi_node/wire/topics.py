@@ -6,11 +6,12 @@ namespaces work); bags store them fully qualified in the root namespace.
 
 from __future__ import annotations
 
+from roi_node.engine.config import CAMERA_INFO_TOPIC, IMAGE_TOPIC, RigConfig
 from roi_node.wire.compressed_outputs import OutputTransport, compressed_topic
 
-IMAGE = "image_raw"
-COMPRESSED_IMAGE = "image_raw/compressed"
-CAMERA_INFO = "camera_info"
+IMAGE = IMAGE_TOPIC
+COMPRESSED_IMAGE = IMAGE_TOPIC + "/compressed"
+CAMERA_INFO = CAMERA_INFO_TOPIC
 JOINT_STATES = "joint_states"
 ROBOT_DESCRIPTION = "robot_description"
 OUTPUT_NAMESPACE = "roi/"  # every output of the node is under it (relative: the node's namespace applies)
@@ -28,12 +29,35 @@ STRING_TYPE = "std_msgs/msg/String"
 IMAGE_MARKER_TYPE = "visualization_msgs/msg/ImageMarker"
 
 
-def roi_image(arm_id: str) -> str:
-    return f"{OUTPUT_NAMESPACE}{arm_id}/image_raw"
+def outputs_of(camera: str | None) -> str:
+    """The namespace of one camera's outputs: `roi/` in a rig of one camera (the names it always had), `roi/<camera
+    id>/` in a rig of several, so every output is named by its camera, never by its place in the rig's list."""
+    return OUTPUT_NAMESPACE if camera is None else f"{OUTPUT_NAMESPACE}{camera}/"
 
 
-def roi_camera_info(arm_id: str) -> str:
-    return f"{OUTPUT_NAMESPACE}{arm_id}/camera_info"
+def output_camera(rig: RigConfig, camera_id: str) -> str | None:
+    """What `outputs_of` and the other names here take for one of the rig's cameras."""
+    return camera_id if rig.several_cameras else None
+
+
+def roi_image(arm_id: str, camera: str | None = None) -> str:
+    return f"{outputs_of(camera)}{arm_id}/image_raw"
+
+
+def roi_camera_info(arm_id: str, camera: str | None = None) -> str:
+    return f"{outputs_of(camera)}{arm_id}/camera_info"
+
+
+def global_image_topic(camera: str | None = None) -> str:
+    return f"{outputs_of(camera)}global/image_raw"
+
+
+def metadata_topic(camera: str | None = None) -> str:
+    return f"{outputs_of(camera)}metadata"
+
+
+def overlay_topic(camera: str | None = None) -> str:
+    return f"{outputs_of(camera)}overlay"
 
 
 def absolute(name: str) -> str:
@@ -47,8 +71,9 @@ def output_topics(
     *,
     transport: OutputTransport = OutputTransport.RAW,
     overlay: bool = False,
+    camera: str | None = None,
 ) -> dict[str, str]:
-    """Every output topic (relative name -> message type) of a node for these arms."""
+    """Every output topic (relative name -> message type) of one camera of a node, for these arms."""
     topics: dict[str, str] = {}
 
     def image(name: str) -> None:
@@ -58,11 +83,11 @@ def output_topics(
             topics[compressed_topic(name)] = COMPRESSED_IMAGE_TYPE
 
     for arm in arm_ids:
-        image(roi_image(arm))
-        topics[roi_camera_info(arm)] = CAMERA_INFO_TYPE
+        image(roi_image(arm, camera))
+        topics[roi_camera_info(arm, camera)] = CAMERA_INFO_TYPE
     if global_view:
-        image(GLOBAL_IMAGE)
-    topics[METADATA] = STRING_TYPE
+        image(global_image_topic(camera))
+    topics[metadata_topic(camera)] = STRING_TYPE
     if overlay:
-        topics[OVERLAY] = IMAGE_MARKER_TYPE
+        topics[overlay_topic(camera)] = IMAGE_MARKER_TYPE
     return topics

@@ -20,7 +20,7 @@ from roi_node.engine.records import FrameRecord
 from roi_node.engine.stamps import NS_PER_S
 from roi_node.engine.stream_snapshot import StreamSnapshot, SyncCounters
 from roi_node.engine.stream_stats import StreamStats
-from roi_node.live.diagnostics import diagnostics_msg
+from roi_node.live.diagnostics import diagnostic_statuses, diagnostics_msg
 from roi_node.offline.replay import replay_bag
 from roi_node.sim.bag_sink import write_sim_bag
 from test.engine.test_records_roundtrip import metadata_texts
@@ -43,7 +43,7 @@ def test_a_snapshot_of_real_records_is_what_diagnostics_publishes(bimanual_rig_p
 
     snap = stats.snapshot(NS_PER_S)
     assert isinstance(snap, StreamSnapshot)
-    array = diagnostics_msg(1, replace(snap, sync_counters=SyncCounters(epochs=1, pending=3)), None, None)
+    array = diagnostics_msg(1, diagnostic_statuses(replace(snap, sync_counters=SyncCounters(epochs=1, pending=3)), None, None))
     by_name = {s.name: s for s in array.status}
 
     for arm_id in arm_ids:
@@ -62,7 +62,7 @@ def test_a_snapshot_of_real_records_is_what_diagnostics_publishes(bimanual_rig_p
 
 def test_an_empty_window_publishes_no_summaries_and_no_sync_counters() -> None:
     stats = StreamStats(("left",), 0)
-    array = diagnostics_msg(1, stats.snapshot(NS_PER_S), None, None)
+    array = diagnostics_msg(1, diagnostic_statuses(stats.snapshot(NS_PER_S), None, None))
     by_name = {s.name: s for s in array.status}
     assert values(by_name["roi_node: input"])["latency_ms"] is None
     sync = values(by_name["roi_node: sync"])

@@ -7,7 +7,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
 from roi_node.engine.stamps import NS_PER_S
 from roi_node.engine.stream_stats import StreamStats
-from roi_node.live.diagnostics import diagnostics_msg
+from roi_node.live.diagnostics import diagnostic_statuses, diagnostics_msg
 from roi_node.live.status_line import StatusWindow
 
 PERIOD_NS = NS_PER_S // 30
@@ -15,7 +15,7 @@ T0 = 1_700_000_000 * NS_PER_S
 
 
 def input_status(stats: StreamStats, now_ns: int) -> DiagnosticStatus:
-    array: DiagnosticArray = diagnostics_msg(now_ns, stats.snapshot(now_ns), None, None)
+    array: DiagnosticArray = diagnostics_msg(now_ns, diagnostic_statuses(stats.snapshot(now_ns), None, None))
     return next(s for s in array.status if s.name == "roi_node: input")
 
 

@@ -36,7 +36,7 @@ from rclpy.signals import SignalHandlerOptions
 from roi_node.engine.errors import UsageError
 from roi_node.engine.stream_snapshot import Percentiles
 from roi_node.engine.stream_stats import StreamStats
-from roi_node.live.diagnostics import diagnostics_msg
+from roi_node.live.diagnostics import diagnostic_statuses, diagnostics_msg
 from roi_node.rostools.diagnostics_table import DiagnosticsBoard, render
 from roi_node.rostools.diagnostics_view import CLEAR_SCREEN
 from roi_node.rostools.param_client import ParameterEntry, dump_document, parse_value
@@ -346,7 +346,7 @@ def test_the_table_shows_the_rates_drops_latency_and_arms_the_node_encodes() -> 
     snap = stats.snapshot(1_000_000_000)
     snap = replace(snap, latency_ms=Percentiles(p50=12.5, p99=30.25, max=31.0))
     board = DiagnosticsBoard()
-    board.update(diagnostics_msg(1, snap, None, None))
+    board.update(diagnostics_msg(1, diagnostic_statuses(snap, None, None)))
     text = "\n".join(" ".join(line.split()) for line in render(board, "/diagnostics", 0.5))  # columns to single spaces
     assert "frames in 30.00 Hz" in text
     assert "drops since start inactive 2, overflow 3 (last window: inactive 2, overflow 3)" in text

@@ -1,0 +1,72 @@
+"""A robot base's pose in world from the message it comes in (nav_msgs/Odometry, geometry_msgs/PoseStamped,
+tf2_msgs/TFMessage), for the live node (rclpy messages) and replay (rosbags messages) alike: both have the same
+fields, so one reading serves both drivers.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from roi_node.engine.config import BasePoseSource, BasePoseTopic
+from roi_node.engine.errors import InputDataError
+from roi_node.engine.stamps import NS_PER_S
+from roi_node.engine.transforms import Transform
+from roi_node.wire import topics
+
+MESSAGE_TYPES = {
+    BasePoseSource.ODOMETRY: "nav_msgs/msg/Odometry",
+    BasePoseSource.POSE: "geometry_msgs/msg/PoseStamped",
+    BasePoseSource.TF: "tf2_msgs/msg/TFMessage",
+}
+
+
+class BasePoseMessageError(InputDataError):
+    """A base pose message that does not carry the configured frames, or whose pose is not a pose."""
+
+    def __init__(self, where: str, problem: str) -> None:
+        super().__init__(f"{where}: {problem}")
+        self.where = where
+        self.problem = problem
+
+
+def _stamp_ns(header: Any) -> int:
+    return int(header.stamp.sec) * NS_PER_S + int(header.stamp.nanosec)
+
+
+def _transform(position: Any, orientation: Any, where: str) -> Transform:
+    quat = [float(orientation.x), float(orientation.y), float(orientation.z), float(orientation.w)]
+    try:
+        return Transform.from_xyz_quat([float(position.x), float(position.y), float(position.z)], quat, where=where)
+    except Exception as exc:  # a non-unit or non-finite quaternion from the wire: the sample is refused
+        raise BasePoseMessageError(where, f"not a pose ({exc})") from exc
+
+
+def _check_frame(where: str, what: str, expected: str | None, got: str) -> None:
+    if expected is not None and got != expected:
+        raise BasePoseMessageError(where, f"{what} is {got!r}, the rig expects {expected!r}")
+
+
+def base_poses(msg: Any, config: BasePoseTopic, where: str) -> list[tuple[int, Transform]]:
+    """The (stamp ns, world_T_base) samples a message carries for the configured base: one for odometry and pose
+    messages, those of the configured transform for tf (none when the message holds only other frames)."""
+    if config.source is BasePoseSource.TF:
+        out = []
+        for stamped in msg.transforms:
+            if str(stamped.child_frame_id) != config.child_frame:
+                continue
+            _check_frame(where, "the transform's parent frame", config.parent_frame, str(stamped.header.frame_id))
+            t = stamped.transform
+            out.append((_stamp_ns(stamped.header), _transform(t.translation, t.rotation, where)))
+        return out
+    _check_frame(where, "header.frame_id", config.parent_frame, str(msg.header.frame_id))
+    if config.source is BasePoseSource.ODOMETRY:
+        _check_frame(where, "child_frame_id", config.child_frame, str(msg.child_frame_id))
+        pose = msg.pose.pose
+    else:
+        pose = msg.pose
+    return [(_stamp_ns(msg.header), _transform(pose.position, pose.orientation, where))]
+
+
+def base_pose_topic(config: BasePoseTopic) -> str:
+    """The topic as a bag names it."""
+    return topics.absolute(config.topic)
