@@ -50,14 +50,23 @@ from roi_node.bagio.rig_attachments import RIG_ATTACHMENT, RigInputs, rig_inputs
 from roi_node.bagio.writer import BagWriter, qos_profile
 from roi_node.engine.config import RigConfig, load_rig_config
 from roi_node.engine.drop_kinds import DropKind
-from roi_node.engine.engine import CameraInfoEvent, CommandEvent, Event, FrameEvent, JointStateEvent, Refusal, StreamEngine
+from roi_node.engine.engine import (
+    BasePoseEvent,
+    CameraInfoEvent,
+    CommandEvent,
+    Event,
+    FrameEvent,
+    JointStateEvent,
+    Refusal,
+    StreamEngine,
+)
 from roi_node.engine.errors import BagError, BagWriteError, CalibrationError, ConfigError, ImageError, RoiNodeError, UsageError
 from roi_node.engine.pipeline import FrameResult
-from roi_node.offline.inputs import InputSelection, check_frame_stream, decode_frame, select_inputs
+from roi_node.offline.inputs import CameraInput, InputSelection, check_frame_stream, decode_frame, select_inputs
 from roi_node.offline.outgoing import outgoing_cdr
 from roi_node.offline.stamp_audit import IMPLAUSIBLE_STAMPS_KEY, StampAudit
 from roi_node.offline.streams import BadMessages, Streams, read_streams
-from roi_node.offline.summary import ReplaySummary, summary_from_stats
+from roi_node.offline.summary import ReplaySummary, combined_summary, summary_from_stats
 from roi_node.util.progress import Progress
 from roi_node.wire import topics
 from roi_node.wire.compressed_outputs import DEFAULT_JPEG_QUALITY, JPEG_QUALITY_RANGE, OutputTransport
@@ -136,7 +145,7 @@ def replay_bag(
     if carried_rig is not None:  # extracted to a temporary folder: messages name it as the file inside the bag
         rig = dataclasses.replace(rig, source=Path(f"{source}:{RIG_ATTACHMENT}"))
     carried = carried_rig or rig_inputs(rig)
-    from_bag = rig.camera.intrinsics is None or intrinsics_from_bag or camera_info_topic is not None
+    from_bag = intrinsics_from_bag or camera_info_topic is not None  # besides the cameras the rig has no intrinsics for
     started = time.perf_counter()
     with open_bag(source) as reader:
         if reader.message_count == 0:
@@ -144,16 +153,21 @@ def replay_bag(
         selection = select_inputs(
             source,
             topic_stats(reader),
+            rig=rig,
             image_topic=image_topic,
             joint_topics=joint_topics,
             camera_info_topic=camera_info_topic,
             command_topic=command_topic,
-            need_camera_info=from_bag,
+            need_camera_info=from_bag or (not rig.several_cameras and rig.camera.intrinsics is None),
         )
         ledger = CrcLedger()  # the first pass leaves the frames' chunks for the second to check
         try:
-            streams = read_streams(reader, selection, source, rig.camera.rectified, ledger)
-            replay = _Replay(rig, source, selection, streams, ledger, from_bag, progress)
+            rectified = {c.camera_info_topic: rig.camera_by_id(c.camera_id).rectified for c in selection.cameras
+                         if c.camera_info_topic is not None and rig.several_cameras} or {
+                             c.camera_info_topic: rig.cameras[0].rectified for c in selection.cameras if c.camera_info_topic}
+            bases = {r.id: r.base_topic for r in rig.robots if r.base_topic is not None}
+            streams = read_streams(reader, selection, source, rectified, ledger, bases)
+            replay = _Replay(rig, source, selection, streams, ledger, progress)
             return replay.run(reader, target, overwrite=overwrite, include_inputs=include_inputs, started=started,
                               compression=Compression(compression), outputs=outputs, carried=carried)
         except RoiNodeError as exc:
@@ -163,114 +177,32 @@ def replay_bag(
             raise
 
 
-class _Replay:
-    """The second pass: frames in bag order through the stream engine, results into a BagWriter.
+class _CameraReplay:
+    """One camera's second pass: its frames, in bag order, through its own engine into its output topics."""
 
-    The first pass (read_streams) fed every joint state, command and camera
-    info to the engine in log order, so a frame's pairing depends on stamps
-    only; frames then go through the same release rule as live, flushed.
-    """
-
-    def __init__(
-        self, rig: RigConfig, source: Path, selection: InputSelection, streams: Streams, ledger: CrcLedger, from_bag: bool, progress: bool
-    ) -> None:
-        self.rig = rig
-        self.source = source
-        self.selection = selection
-        self.ledger = ledger
-        self.bad: BadMessages = streams.bad
-        if from_bag and not streams.cameras:
-            raise BagError(f"{source}: {selection.camera_info_topic}: no usable CameraInfo message")
-        self.from_bag = from_bag
-        self.engine = StreamEngine(rig, intrinsics_from_stream=from_bag, max_pending=selection.frame_count + 1)
+    def __init__(self, replay: _Replay, camera: CameraInput, streams: Streams) -> None:
+        self.replay = replay
+        self.input = camera
+        rig = replay.rig
+        self.camera_id = camera.camera_id or rig.cameras[0].id
+        self.from_bag = camera.camera_info_topic is not None
+        if self.from_bag and not streams.cameras.get(str(camera.camera_info_topic)):
+            raise BagError(f"{replay.source}: {camera.camera_info_topic}: no usable CameraInfo message")
+        self.engine = StreamEngine(rig.for_camera(self.camera_id), intrinsics_from_stream=self.from_bag,
+                                   max_pending=camera.frame_count + 1)
         self.stats = self.engine.stats  # read for the summary; the engine keeps every count
-        self.unreadable_messages = streams.bad.count  # joint states, commands, camera infos the first pass could not read
-        self._check_joint_names(streams)
-        self.joint_messages = len(streams.joints)
-        self.stamp_audit = StampAudit()  # what the engine refuses as implausible without returning it
-        where_info = f"{source}: {selection.camera_info_topic}"
-        for stamp, camera in streams.cameras:
-            self._feed(CameraInfoEvent(stamp, camera, where_info))
-        for sample in streams.joints:
-            self._feed(JointStateEvent(sample.stamp_ns, sample.names, sample.positions, sample.where))
-        for sample in streams.commands:
-            self._feed(CommandEvent(sample.stamp_ns, sample.names, sample.positions, sample.where))
-        self.progress = Progress(f"replay {source.name}", selection.frame_count, progress)
-        self.frame_where = f"{source}: {selection.image_topic}"
+        self.out_camera = topics.output_camera(rig, self.camera_id)
+        self.frame_where = f"{replay.source}: {camera.image_topic}"
         self._stream_checked = False
         self._size_checked = False
+        if camera.camera_info_topic is not None:
+            where_info = f"{replay.source}: {camera.camera_info_topic}"
+            for stamp, model in streams.cameras[camera.camera_info_topic]:
+                replay.feed(CameraInfoEvent(stamp, model, where_info), (self,))
 
-    def _feed(self, event: Event) -> None:
-        self.stamp_audit.see(type(event).__name__, event.where, event.stamp_ns)
-        refusal = self.engine.feed(event)
-        if refusal is not None:
-            self.bad.add(refusal.message)
-
-    def _check_joint_names(self, streams: Streams) -> None:
-        have = streams.joint_names()
-        missing = self.engine.missing_joints(have)
-        if missing:  # the engine could pair no frame of this bag: fail before any output
-            raise ConfigError(
-                f"{self.rig.source}: the rig needs joints {', '.join(missing)} that {self.source} does not have on "
-                f"{', '.join(self.selection.joint_topics)}; the bag's joint states name {', '.join(sorted(have)) or 'no joints'}"
-            )
-        if self.selection.joint_topics_detected:
-            # which topics are the inputs is the driver's choice: merging by name is right for complementary
-            # streams (one per arm), wrong for measured + commanded
-            carriers = streams.topics_by_joint()
-            pipeline = self.engine.pipeline
-            assert pipeline is not None  # the URDF comes from the rig's files offline
-            shared = [j for j in pipeline.required_joints if len(carriers[j]) > 1]
-            if shared:
-                raise BagError(
-                    f"{self.source}: joints {', '.join(shared)} are on several JointState topics "
-                    f"({', '.join(sorted(carriers[shared[0]]))}); choose the measured ones with --joint-topics "
-                    "(and a commanded one with --command-topic)"
-                )
-
-    def run(self, reader: AnyReader, target: Path, *, overwrite: bool, include_inputs: bool, started: float,
-            compression: Compression, outputs: OutputOptions, carried: RigInputs) -> ReplaySummary:
-        wanted = {self.selection.image_topic, *(self.selection.stream_topics if include_inputs else ())}
-        connections = [c for c in reader.connections if c.topic in wanted]
-        with DeferredInterrupt() as interrupt:
-            try:
-                # atomic: the output appears only finalized; interrupted, it is kept as <out>.interrupted
-                writer = BagWriter(target, overwrite=overwrite, compression=compression, rig=carried)
-                with writer:
-                    out = _OutputTopics(writer, self.rig, self.engine.pipeline.arm_ids() if self.engine.pipeline else (), outputs)
-                    if include_inputs:
-                        _add_input_topics(writer, connections, out.names, self.source)
-                    try:
-                        for connection, log_ns, raw in read_messages(reader, connections, self.source, ledger=self.ledger):
-                            interrupt.check()
-                            if include_inputs:
-                                writer.write_cdr(connection.topic, log_ns, raw)
-                            if connection.topic == self.selection.image_topic:
-                                self._frame(reader, raw, out)
-                    except KeyboardInterrupt:
-                        self._check_before_keeping()
-                        raise
-                    self.engine.finish()  # frames still held behind an unconfirmed stamp jump are refused
-                    for refused in self.stamp_audit.finish():
-                        self.bad.add(refused.line())
-                    writer.custom_data[IMPLAUSIBLE_STAMPS_KEY] = str(len(self.stamp_audit.refused))
-                    if self.stats.frames_out == 0:
-                        first = self.bad.examples[0] if self.bad.examples else "no frame was released"
-                        raise ImageError(
-                            f"{self.frame_where}: none of the {self.stats.frames_in} frames could be used; first problem: {first}"
-                        )
-            except KeyboardInterrupt:
-                self.progress.finish()
-                raise ReplayInterrupted(self._summary(writer.final_path, BagStatus.INTERRUPTED, started)) from None
-        self.progress.finish()
-        summary = self._summary(target, BagStatus.COMPLETE, started)
-        if interrupt.requested:  # Ctrl-C while the finished bag was being closed: it is complete; still stop
-            raise ReplayInterrupted(summary)
-        return summary
-
-    def _frame(self, reader: AnyReader, raw: Cdr, outputs: _OutputTopics) -> None:
+    def frame(self, reader: AnyReader, raw: Cdr, outputs: _OutputTopics) -> None:
         index = self.stats.frames_in  # every image message read is counted in, so this is the message's position
-        msgtype = self.selection.image_type
+        msgtype = self.input.image_type
         try:
             msg: Any = deserialize(reader, raw, msgtype)
         except DESERIALIZE_ERRORS as exc:
@@ -291,11 +223,151 @@ class _Replay:
             self._check_size(image.shape[1], image.shape[0])
         refusal = self.engine.feed(FrameEvent(stamp, image, where=self.frame_where))
         if refusal is not None:
-            self.bad.add(refusal.message)
+            self.replay.bad.add(refusal.message)
         # offline every joint sample is loaded: release at once; each written frame is counted by the engine
         for result in self.engine.release_all(time.perf_counter):
-            outputs.write(result, msg.header.frame_id)
-        self.progress.update(self.stats.frames_in)
+            outputs.write(result, msg.header.frame_id, self.out_camera)
+        self.replay.progress.update(self.replay.frames_in())
+
+    def _check_size(self, width: int, height: int) -> None:
+        """The first frame decides whether this stream fits the rig's camera at all (the engine says whether it fits)."""
+        camera = self.engine.misfit_camera(width, height)
+        if camera is not None:
+            source = "the bag's camera info" if self.from_bag else f"the rig config {self.replay.rig.source}"
+            raise CalibrationError(
+                f"{self.frame_where}: frames are {width}x{height} but the intrinsics from {source} are for "
+                f"{camera.width_px}x{camera.height_px}; use the rig config that matches this camera"
+            )
+        self._size_checked = True
+
+    def _reject_frame(self, message: str) -> None:
+        """An image message that cannot be deserialized or decoded: counted by the engine, as live, and quoted."""
+        self.engine.reject_frame(Refusal(DropKind.IMAGE, message))
+        self.replay.bad.add(message)
+        self.replay.progress.update(self.replay.frames_in())
+
+    def summary(self, target: Path, status: BagStatus, started: float) -> ReplaySummary:
+        replay = self.replay
+        intrinsics = f"{self.input.camera_info_topic} in the bag" if self.from_bag else f"the rig config {replay.rig.source}"
+        return summary_from_stats(
+            self.stats,
+            input_path=replay.source,
+            output_path=target,
+            status=status,
+            image_topic=self.input.image_topic,
+            joint_topics=replay.selection.joint_topics,
+            intrinsics_source=intrinsics,
+            joint_messages=replay.joint_messages,
+            unreadable_messages=replay.unreadable_messages,
+            problems=tuple(replay.bad.examples),
+            elapsed_s=time.perf_counter() - started,
+        )
+
+
+class _Replay:
+    """The second pass: frames in bag order through their camera's stream engine, results into a BagWriter.
+
+    The first pass (read_streams) fed every joint state, command, camera info
+    and base pose to each camera's engine in log order, so a frame's pairing
+    depends on stamps only; frames then go through the same release rule as
+    live, flushed.
+    """
+
+    def __init__(self, rig: RigConfig, source: Path, selection: InputSelection, streams: Streams, ledger: CrcLedger,
+                 progress: bool) -> None:
+        self.rig = rig
+        self.source = source
+        self.selection = selection
+        self.ledger = ledger
+        self.bad: BadMessages = streams.bad
+        self.unreadable_messages = streams.bad.count  # joint states, commands, camera infos the first pass could not read
+        self.joint_messages = len(streams.joints)
+        self.stamp_audit = StampAudit()  # what the engine refuses as implausible without returning it
+        self.progress = Progress(f"replay {source.name}", sum(c.frame_count for c in selection.cameras), progress)
+        self.cameras = {c.image_topic: _CameraReplay(self, c, streams) for c in selection.cameras}
+        self._check_joint_names(streams)
+        events: list[Event] = [JointStateEvent(j.stamp_ns, j.names, j.positions, j.where) for j in streams.joints]
+        events += [CommandEvent(c.stamp_ns, c.names, c.positions, c.where) for c in streams.commands]
+        events += [BasePoseEvent(b.stamp_ns, b.robot_id, b.world_T_base, b.where) for b in streams.bases]
+        for event in events:
+            self.feed(event, tuple(self.cameras.values()))
+
+    def feed(self, event: Event, cameras: tuple[_CameraReplay, ...]) -> None:
+        """One input to these cameras' engines (every camera pairs with the joint states), audited and quoted once."""
+        self.stamp_audit.see(type(event).__name__, event.where, event.stamp_ns)
+        refusals = [camera.engine.feed(event) for camera in cameras]
+        if refusals and refusals[0] is not None:  # every engine judges an input alike
+            self.bad.add(refusals[0].message)
+
+    def frames_in(self) -> int:
+        return sum(c.stats.frames_in for c in self.cameras.values())
+
+    def _check_joint_names(self, streams: Streams) -> None:
+        have = streams.joint_names()
+        for camera in self.cameras.values():
+            missing = camera.engine.missing_joints(have)
+            if missing:  # the engine could pair no frame of this bag: fail before any output
+                whose = f" (camera {camera.camera_id})" if self.rig.several_cameras else ""
+                raise ConfigError(
+                    f"{self.rig.source}: the rig{whose} needs joints {', '.join(missing)} that {self.source} does not have on "
+                    f"{', '.join(self.selection.joint_topics)}; the bag's joint states name {', '.join(sorted(have)) or 'no joints'}"
+                )
+        if self.selection.joint_topics_detected:
+            # which topics are the inputs is the driver's choice: merging by name is right for complementary
+            # streams (one per arm), wrong for measured + commanded
+            carriers = streams.topics_by_joint()
+            required = {j for c in self.cameras.values() if c.engine.pipeline is not None for j in c.engine.pipeline.required_joints}
+            shared = sorted(j for j in required if len(carriers[j]) > 1)
+            if shared:
+                raise BagError(
+                    f"{self.source}: joints {', '.join(shared)} are on several JointState topics "
+                    f"({', '.join(sorted(carriers[shared[0]]))}); choose the measured ones with --joint-topics "
+                    "(and a commanded one with --command-topic)"
+                )
+
+    def run(self, reader: AnyReader, target: Path, *, overwrite: bool, include_inputs: bool, started: float,
+            compression: Compression, outputs: OutputOptions, carried: RigInputs) -> ReplaySummary:
+        wanted = {*self.cameras, *(self.selection.stream_topics if include_inputs else ())}
+        connections = [c for c in reader.connections if c.topic in wanted]
+        arm_ids = tuple(a.id for a in self.rig.arms)
+        with DeferredInterrupt() as interrupt:
+            try:
+                # atomic: the output appears only finalized; interrupted, it is kept as <out>.interrupted
+                writer = BagWriter(target, overwrite=overwrite, compression=compression, rig=carried)
+                with writer:
+                    out = _OutputTopics(writer, self.rig, arm_ids, outputs, [c.out_camera for c in self.cameras.values()])
+                    if include_inputs:
+                        _add_input_topics(writer, connections, out.names, self.source)
+                    try:
+                        for connection, log_ns, raw in read_messages(reader, connections, self.source, ledger=self.ledger):
+                            interrupt.check()
+                            if include_inputs:
+                                writer.write_cdr(connection.topic, log_ns, raw)
+                            camera = self.cameras.get(connection.topic)
+                            if camera is not None:
+                                camera.frame(reader, raw, out)
+                    except KeyboardInterrupt:
+                        self._check_before_keeping()
+                        raise
+                    for camera in self.cameras.values():
+                        camera.engine.finish()  # frames still held behind an unconfirmed stamp jump are refused
+                    for refused in self.stamp_audit.finish():
+                        self.bad.add(refused.line())
+                    writer.custom_data[IMPLAUSIBLE_STAMPS_KEY] = str(len(self.stamp_audit.refused))
+                    for camera in self.cameras.values():
+                        if camera.stats.frames_out == 0:
+                            first = self.bad.examples[0] if self.bad.examples else "no frame was released"
+                            raise ImageError(
+                                f"{camera.frame_where}: none of the {camera.stats.frames_in} frames could be used; first problem: {first}"
+                            )
+            except KeyboardInterrupt:
+                self.progress.finish()
+                raise ReplayInterrupted(self._summary(writer.final_path, BagStatus.INTERRUPTED, started)) from None
+        self.progress.finish()
+        summary = self._summary(target, BagStatus.COMPLETE, started)
+        if interrupt.requested:  # Ctrl-C while the finished bag was being closed: it is complete; still stop
+            raise ReplayInterrupted(summary)
+        return summary
 
     def _check_before_keeping(self) -> None:
         """A partial output is kept only if every chunk the first pass left unchecked is intact.
@@ -313,38 +385,9 @@ class _Replay:
                 f"{self.source}: interrupted again while checking the bag's remaining chunks; no partial output kept"
             ) from None
 
-    def _check_size(self, width: int, height: int) -> None:
-        """The first frame decides whether this stream fits the rig's camera at all (the engine says whether it fits)."""
-        camera = self.engine.misfit_camera(width, height)
-        if camera is not None:
-            source = "the bag's camera info" if self.from_bag else f"the rig config {self.rig.source}"
-            raise CalibrationError(
-                f"{self.frame_where}: frames are {width}x{height} but the intrinsics from {source} are for "
-                f"{camera.width_px}x{camera.height_px}; use the rig config that matches this camera"
-            )
-        self._size_checked = True
-
-    def _reject_frame(self, message: str) -> None:
-        """An image message that cannot be deserialized or decoded: counted by the engine, as live, and quoted."""
-        self.engine.reject_frame(Refusal(DropKind.IMAGE, message))
-        self.bad.add(message)
-        self.progress.update(self.stats.frames_in)
-
     def _summary(self, target: Path, status: BagStatus, started: float) -> ReplaySummary:
-        intrinsics = f"{self.selection.camera_info_topic} in the bag" if self.from_bag else f"the rig config {self.rig.source}"
-        return summary_from_stats(
-            self.stats,
-            input_path=self.source,
-            output_path=target,
-            status=status,
-            image_topic=self.selection.image_topic,
-            joint_topics=self.selection.joint_topics,
-            intrinsics_source=intrinsics,
-            joint_messages=self.joint_messages,
-            unreadable_messages=self.unreadable_messages,
-            problems=tuple(self.bad.examples),
-            elapsed_s=time.perf_counter() - started,
-        )
+        summaries = {c.camera_id: c.summary(target, status, started) for c in self.cameras.values()}
+        return combined_summary(summaries) if self.rig.several_cameras else next(iter(summaries.values()))
 
 
 def _output_options(transport: OutputTransport | str, jpeg_quality: int, overlay: bool) -> OutputOptions:
@@ -359,21 +402,24 @@ def _output_options(transport: OutputTransport | str, jpeg_quality: int, overlay
 class _OutputTopics:
     """The live node's output topics in one bag; every message logged at the source frame's stamp."""
 
-    def __init__(self, writer: BagWriter, rig: RigConfig, arm_ids: Sequence[str], options: OutputOptions) -> None:
+    def __init__(self, writer: BagWriter, rig: RigConfig, arm_ids: Sequence[str], options: OutputOptions,
+                 cameras: Sequence[str | None]) -> None:
+        """`cameras`: each camera's part of the output names (topics.output_camera)."""
         self.writer = writer
         self.factory = MessageFactory(writer.typestore)
         self.size = rig.output.size_px
         self.options = options
         self.names: set[str] = set()
-        outputs = topics.output_topics(list(arm_ids), rig.output.global_enabled, transport=options.transport,
-                                       overlay=options.overlay)
-        for name, msgtype in outputs.items():
-            writer.add_topic(topics.absolute(name), msgtype)
-            self.names.add(topics.absolute(name))
+        for camera in cameras:
+            outputs = topics.output_topics(list(arm_ids), rig.output.global_enabled, transport=options.transport,
+                                           overlay=options.overlay, camera=camera)
+            for name, msgtype in outputs.items():
+                writer.add_topic(topics.absolute(name), msgtype)
+                self.names.add(topics.absolute(name))
 
-    def write(self, result: FrameResult, frame_id: str) -> None:
+    def write(self, result: FrameResult, frame_id: str, camera: str | None) -> None:
         """The frame's messages in the one order both drivers send them (wire/frame_outputs.py)."""
-        for message in frame_outputs(result, frame_id, self.size, self.options):
+        for message in frame_outputs(result, frame_id, self.size, self.options, camera):
             data = outgoing_cdr(self.factory, self.writer.typestore, message)
             self.writer.write_cdr(topics.absolute(message.topic), result.stamp_ns, data)
 

@@ -6,6 +6,8 @@ back to the parent; `lines()` is what `roi-node replay` prints.
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -109,3 +111,33 @@ def summary_from_stats(
         sync_status=dict(stats.status),
         elapsed_s=elapsed_s,
     )
+
+
+def combined_summary(by_camera: Mapping[str, ReplaySummary]) -> ReplaySummary:
+    """One summary of a replay of several cameras: counts added, each camera's arms named `<camera>/<arm>`, the
+    sync residuals the worst camera's (each figure its largest), the inputs listed per camera."""
+    first = next(iter(by_camera.values()))
+    residuals = [s.residual_ms for s in by_camera.values() if s.residual_ms is not None]
+    return dataclasses.replace(
+        first,
+        image_topic=", ".join(s.image_topic for s in by_camera.values()),
+        intrinsics_source="; ".join(f"camera {c}: {s.intrinsics_source}" for c, s in by_camera.items()),
+        frames_in=sum(s.frames_in for s in by_camera.values()),
+        frames_out=sum(s.frames_out for s in by_camera.values()),
+        frames_bad=sum(s.frames_bad for s in by_camera.values()),
+        frames_dropped=_added(s.frames_dropped for s in by_camera.values()),
+        frames_missing=sum(s.frames_missing for s in by_camera.values()),
+        arms={f"{camera}/{arm}": stats for camera, s in by_camera.items() for arm, stats in s.arms.items()},
+        residual_ms={key: max(r[key] for r in residuals) for key in residuals[0]} if residuals else None,
+        sync_status=_added(s.sync_status for s in by_camera.values()),
+        elapsed_s=max(s.elapsed_s for s in by_camera.values()),
+    )
+
+
+def _added(counts: Iterable[Mapping[str, int]]) -> dict[str, int]:
+    """Counts by key added up, every key kept (a zero too)."""
+    out: dict[str, int] = {}
+    for one in counts:
+        for key, n in one.items():
+            out[key] = out.get(key, 0) + n
+    return out
