@@ -21,7 +21,7 @@ from roi_node.engine.stamps import NS_PER_S
 from roi_node.quality.figures import figures
 from roi_node.quality.figures.contact_sheet import contact_row, contact_sheet, unresize_global
 from roi_node.quality.gates import GateSet, format_value
-from roi_node.quality.roibag import GLOBAL_TOPIC, RoiBag, roi_image_topic
+from roi_node.quality.roibag import RoiBag
 from roi_node.wire import topics
 
 if TYPE_CHECKING:
@@ -64,9 +64,13 @@ def thresholds(gates: GateSet) -> dict[str, list[tuple[str, float]]]:
 
 
 def input_image_topic(scan: BagScan) -> str | None:
-    """The recorded camera topic, when the ROI bag carries its inputs (replay --include-inputs)."""
+    """The recorded camera topic, when the ROI bag carries its inputs (replay --include-inputs); for one camera of
+    several, its default topic /<camera>/image_raw."""
     names = [t.name for t in scan.topics.values() if t.msgtype == topics.IMAGE_TYPE]
     candidates = sorted(n for n in names if not n.startswith(topics.BAG_OUTPUT_PREFIX))
+    if scan.camera is not None:
+        own = topics.absolute(f"{scan.camera}/{topics.IMAGE}")
+        return own if own in candidates else None
     return candidates[0] if candidates else None
 
 
@@ -75,19 +79,19 @@ def _sample_images(scan: BagScan) -> list[tuple[Sample, np.ndarray, list[np.ndar
     full frame when the bag carries its inputs, else the global view with its letterbox removed."""
     source = input_image_topic(scan)
     out = []
-    with RoiBag(scan.path) as bag:
+    with RoiBag(scan.path, scan.camera) as bag:
         for sample in scan.samples:
             record = sample.record
             stamp = record.stamp_ns
             frame = bag.image(source, sample.log_ns, stamp) if source is not None else None
             if frame is None:
-                view = bag.image(GLOBAL_TOPIC, sample.log_ns, stamp)
+                view = bag.image(bag.global_topic, sample.log_ns, stamp)
                 if view is None:
                     continue
                 frame = unresize_global(view, record.image_size, record.lineage.resize_policy)
             rois = []
             for arm in record.arms:
-                roi = bag.image(roi_image_topic(arm.arm_id), sample.log_ns, stamp)
+                roi = bag.image(bag.roi_image_topic(arm.arm_id), sample.log_ns, stamp)
                 rois.append(roi if roi is not None else np.zeros((256, 256, 3), np.uint8))
             out.append((sample, frame, rois))
     return out

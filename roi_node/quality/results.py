@@ -30,11 +30,13 @@ class BagScan:
     end_ns: int
     summary: BagSummary
     samples: list[Sample]
+    camera: str | None = None  # the camera of a bag of several (its outputs under /roi/<camera>/); None: a rig of one
 
     @classmethod
     def of(cls, path: Path, bag: RoiBag, stats: BagStats, samples: list[Sample]) -> BagScan:
         """The scan of a bag whose records `stats` has seen (the recorded status finishes its summary)."""
         return cls(
+            camera=bag.camera,
             path=path,
             topics=bag.topics,
             information=bag.information,

@@ -10,6 +10,7 @@ handful of frames a contact sheet shows, by seeking to their log time.
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Iterator
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -41,13 +42,30 @@ from roi_node.wire.compressed_outputs import compressed_topic
 
 METADATA_TOPIC = topics.absolute(topics.METADATA)
 GLOBAL_TOPIC = topics.absolute(topics.GLOBAL_IMAGE)
+_CAMERA_METADATA = re.compile(rf"^{re.escape(topics.BAG_OUTPUT_PREFIX)}([^/]+)/metadata$")
 # where to look for a frame's images around its metadata's log time: outputs share it exactly; recorded
 # inputs (replay --include-inputs) trail their header stamp by the recorder's latency
 IMAGE_SEARCH_NS = (1, 100_000_000, 2_000_000_000)
 
 
-def roi_image_topic(arm_id: str) -> str:
-    return topics.absolute(topics.roi_image(arm_id))
+def roi_image_topic(arm_id: str, camera: str | None = None) -> str:
+    return topics.absolute(topics.roi_image(arm_id, camera))
+
+
+def metadata_topic(camera: str | None = None) -> str:
+    return topics.absolute(topics.metadata_topic(camera))
+
+
+def global_topic(camera: str | None = None) -> str:
+    return topics.absolute(topics.global_image_topic(camera))
+
+
+def cameras_in(bag_topics: dict[str, TopicStats] | set[str]) -> list[str | None]:
+    """The cameras whose outputs a bag holds: [None] for a rig of one camera (/roi/metadata), else the ids of
+    /roi/<camera>/metadata in name order; [] when it holds no ROI outputs."""
+    if METADATA_TOPIC in bag_topics:
+        return [None]
+    return sorted(m.group(1) for name in bag_topics if (m := _CAMERA_METADATA.match(name)))
 
 
 def image_topic_in(bag_topics: dict[str, TopicStats], topic: str) -> str | None:
@@ -69,24 +87,27 @@ def _no_constants(name: str) -> float:
     raise ValueError(f"non-finite number {name}")
 
 
-def _frame_name(position: int, record: object) -> str:
+def _frame_name(position: int, record: object, topic: str) -> str:
     index = record.get("frame_index") if isinstance(record, dict) else None
     if isinstance(index, int) and not isinstance(index, bool):
-        return f"frame_index {index} (message {position} on {METADATA_TOPIC})"
-    return f"message {position} on {METADATA_TOPIC}"
+        return f"frame_index {index} (message {position} on {topic})"
+    return f"message {position} on {topic}"
 
 
 class RoiBag:
-    """An open ROI bag: topics, bag information, validated metadata records, sample images."""
+    """An open ROI bag: topics, bag information, validated metadata records, sample images; of one camera (`camera`
+    None: a rig of one camera's /roi/metadata; else that camera's /roi/<camera>/metadata)."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, camera: str | None = None) -> None:
         self.path = Path(path)
+        self.camera = camera
+        self.metadata_topic = metadata_topic(camera)
         self._stack = ExitStack()
         self.reader: AnyReader = self._stack.enter_context(open_bag(self.path))
         try:
             self.topics: dict[str, TopicStats] = topic_stats(self.reader)
             self.information: dict[str, Any] = bag_information(self.path)
-            self._metadata = [c for c in self.reader.connections if c.topic == METADATA_TOPIC]
+            self._metadata = [c for c in self.reader.connections if c.topic == self.metadata_topic]
             self._check_metadata_topic()
         except BaseException:
             self.close()
@@ -102,21 +123,29 @@ class RoiBag:
         self._stack.close()
 
     def _check_metadata_topic(self) -> None:
+        topic = self.metadata_topic
         if not self._metadata:
             listing = ", ".join(sorted(self.topics)) or "no topics"
             raise BagError(
-                f"{self.path}: no {METADATA_TOPIC} topic, so this is not an ROI bag (write one with `roi-node replay`); "
+                f"{self.path}: no {topic} topic, so this is not an ROI bag (write one with `roi-node replay`); "
                 f"the bag has {listing}"
             )
-        stats = self.topics[METADATA_TOPIC]
+        stats = self.topics[topic]
         if stats.msgtype != topics.STRING_TYPE:
-            raise BagError(f"{self.path}: {METADATA_TOPIC} has type {stats.msgtype}, expected {topics.STRING_TYPE}")
+            raise BagError(f"{self.path}: {topic} has type {stats.msgtype}, expected {topics.STRING_TYPE}")
         if stats.count == 0:
-            raise BagError(f"{self.path}: {METADATA_TOPIC} has no messages")
+            raise BagError(f"{self.path}: {topic} has no messages")
+
+    def roi_image_topic(self, arm_id: str) -> str:
+        return roi_image_topic(arm_id, self.camera)
+
+    @property
+    def global_topic(self) -> str:
+        return global_topic(self.camera)
 
     @property
     def metadata_count(self) -> int:
-        return self.topics[METADATA_TOPIC].count
+        return self.topics[self.metadata_topic].count
 
     @property
     def start_ns(self) -> int:
@@ -135,8 +164,8 @@ class RoiBag:
                 text: str = deserialize(self.reader, raw, connection.msgtype).data
                 record = json.loads(text, parse_constant=_no_constants)
             except DESERIALIZE_ERRORS as exc:  # json.JSONDecodeError is a ValueError
-                raise BagError(f"{self.path}: message {position} on {METADATA_TOPIC} is not a JSON metadata record ({exc})") from exc
-            where = _frame_name(position, record)
+                raise BagError(f"{self.path}: message {position} on {self.metadata_topic} is not a JSON metadata record ({exc})") from exc
+            where = _frame_name(position, record, self.metadata_topic)
             version = record.get("schema") if isinstance(record, dict) else None
             if first_version is None:
                 first_version = str(version)

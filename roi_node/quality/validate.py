@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from roi_node.bagio.reader import open_bag, topic_stats
 from roi_node.engine.config import RigConfig
 from roi_node.engine.errors import BagError
 from roi_node.offline.stamp_audit import IMPLAUSIBLE_STAMPS_KEY
@@ -19,7 +20,7 @@ from roi_node.quality.drift import baseline_drift, window_drift
 from roi_node.quality.gates import IMPLAUSIBLE_STAMPS_METRIC, GateParams, GateSet, evaluate
 from roi_node.quality.report import JSON_NAME, prepare_report_dir, write_bag_figures, write_report
 from roi_node.quality.results import BagScan, BagValidation, ValidationRun
-from roi_node.quality.roibag import RoiBag
+from roi_node.quality.roibag import RoiBag, cameras_in
 from roi_node.quality.rollout import RolloutSummary, analyse_rollout
 from roi_node.quality.rollout_commands import CommandTopic, command_log_times
 from roi_node.quality.samples import SampleChooser
@@ -38,9 +39,12 @@ from roi_node.util.atomic_output import atomic_output
 from roi_node.util.progress import Progress
 
 
-def scan_bag(path: Path, params: GateParams, *, with_samples: bool = False, progress: bool = False) -> BagScan:
-    """Read every metadata record of an ROI bag once (BagError on unusable input); `progress` on stderr."""
-    with RoiBag(path) as bag:
+def scan_bag(
+    path: Path, params: GateParams, *, with_samples: bool = False, progress: bool = False, camera: str | None = None
+) -> BagScan:
+    """Read every metadata record of an ROI bag (of one camera: `camera`, in a bag of several) once (BagError on
+    unusable input); `progress` on stderr."""
+    with RoiBag(path, camera) as bag:
         stats = BagStats(stamp_gap_factor=params.stamp_gap_factor)
         chooser = SampleChooser(bag.metadata_count) if with_samples else None
         shown = Progress(f"validate {path.name}", bag.metadata_count, progress, unit="records")
@@ -115,6 +119,13 @@ def judge(
     return BagValidation(scan.path, name, results, result)
 
 
+def bag_cameras(path: Path) -> list[str | None]:
+    """The cameras an ROI bag holds outputs of ([None] for a rig of one camera); BagError when it holds none."""
+    with open_bag(path) as reader:
+        cameras = cameras_in(topic_stats(reader))
+    return cameras or [None]  # RoiBag then says what the bag lacks
+
+
 def unique_names(paths: list[Path]) -> list[str]:
     """A folder-safe name per bag (its own name, numbered when two bags share one)."""
     names: list[str] = []
@@ -172,11 +183,13 @@ def _validate(
         prepare_report_dir(report_dir)
     base = scan_bag(baseline, gates.params) if baseline is not None else None
     run = ValidationRun(gates, baseline, [])
-    for path, name in zip(paths, unique_names(paths), strict=True):
-        scan = scan_bag(path, gates.params, with_samples=report_dir is not None, progress=progress)
+    units = [(path, camera) for path in paths for camera in bag_cameras(path)]  # a bag of several cameras: one unit each
+    names = unique_names([path if camera is None else path.with_name(f"{path.name}_{camera}") for path, camera in units])
+    for (path, camera), name in zip(units, names, strict=True):
+        scan = scan_bag(path, gates.params, with_samples=report_dir is not None, progress=progress, camera=camera)
         calibration = None
         if rig is not None and carries_inputs(scan.topics):
-            calibration = check_calibration(path, rig, Tolerances.from_gates(gates))
+            calibration = check_calibration(path, rig if camera is None else rig.for_camera(camera), Tolerances.from_gates(gates))
         validation = judge(scan, gates, name, base, calibration, rollout_of(scan, gates, command))
         if report_dir is not None:
             validation.figures = write_bag_figures(scan, validation, gates, report_dir)

@@ -82,7 +82,9 @@ def check_calibration(
     with open_bag(path) as reader:
         if reader.message_count == 0:
             raise BagError(f"{path}: the bag is empty (no messages)")
-        selection = select_inputs(path, topic_stats(reader), need_camera_info=rig.camera.intrinsics is None)
+        # a camera of a rig of several (narrowed to it: RigConfig.for_camera) is read from its own topics
+        selection = select_inputs(path, topic_stats(reader), rig=rig if rig.several_cameras else None,
+                                  need_camera_info=rig.camera.intrinsics is None)
         unmeasured = partial(
             CalibrationCheck, path, selection.image_topic, arm_ids=arm_ids, configured_delay_ms=rig.camera.delay_ms, tolerances=tolerances
         )
