@@ -10,13 +10,16 @@ bimanual rig (test/rig/test_foxglove_layout.py keeps it so).
 Arrangement: the camera image with `roi/overlay` drawn on it on the left
 (60%); on the right, the arms' ROI images side by side on top, and the global
 view (when the rig has it), the metadata record and the /diagnostics summary
-below.
+below. A rig of several cameras gets each camera's image stacked on the left,
+a row of ROI panels per camera, and a global view per camera below (the
+metadata panel shows the first camera's record).
 """
 
 from __future__ import annotations
 
 import json
 from collections.abc import Sequence
+from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
@@ -41,8 +44,24 @@ class ImageTransport(StrEnum):
         return compressed_topic(name) if self is ImageTransport.COMPRESSED else name
 
 
-def roi_panel_id(arm_id: str) -> str:
-    return f"Image!roi_{arm_id}"
+@dataclass(frozen=True)
+class CameraTopics:
+    """One camera as the layout shows it: its part of the output names (topics.output_camera) and its input image."""
+
+    camera: str | None = None  # None: a rig of one camera (its outputs under roi/)
+    image_topic: str = topics.IMAGE
+
+
+def roi_panel_id(arm_id: str, camera: str | None = None) -> str:
+    return f"Image!roi_{arm_id}" if camera is None else f"Image!roi_{camera}_{arm_id}"
+
+
+def _camera_panel_id(camera: str | None) -> str:
+    return CAMERA_PANEL if camera is None else f"Image!camera_{camera}"
+
+
+def _global_panel_id(camera: str | None) -> str:
+    return GLOBAL_PANEL if camera is None else f"Image!global_{camera}"
 
 
 def foxglove_layout(
@@ -51,33 +70,41 @@ def foxglove_layout(
     *,
     outputs: ImageTransport = ImageTransport.RAW,
     camera: ImageTransport = ImageTransport.RAW,
+    cameras: Sequence[CameraTopics] = (CameraTopics(),),
 ) -> dict[str, Any]:
-    """The layout document for a node with these arms (and its global view when `global_view`)."""
-    config: dict[str, Any] = {
-        CAMERA_PANEL: {
+    """The layout document for a node with these arms (and its global view when `global_view`), for each of its
+    cameras: a camera panel with its overlay, and a row of ROI panels per camera."""
+    config: dict[str, Any] = {}
+    for cam in cameras:
+        config[_camera_panel_id(cam.camera)] = {
             "imageMode": {
-                "imageTopic": camera.topic(topics.IMAGE),
-                "annotations": {topics.absolute(topics.OVERLAY): {"visible": True}},
+                "imageTopic": camera.topic(cam.image_topic),
+                "annotations": {topics.absolute(topics.overlay_topic(cam.camera)): {"visible": True}},
                 "synchronize": True,
             }
         }
-    }
-    for arm in arm_ids:
-        config[roi_panel_id(arm)] = {"imageMode": {"imageTopic": outputs.topic(topics.roi_image(arm))}}
-    lower = [METADATA_PANEL, DIAGNOSTICS_PANEL]
+    for cam in cameras:
+        for arm in arm_ids:
+            config[roi_panel_id(arm, cam.camera)] = {"imageMode": {"imageTopic": outputs.topic(topics.roi_image(arm, cam.camera))}}
+    lower: list[str | dict[str, Any]] = []
     if global_view:
-        config[GLOBAL_PANEL] = {"imageMode": {"imageTopic": outputs.topic(topics.GLOBAL_IMAGE)}}
-        lower.insert(0, GLOBAL_PANEL)
-    config[METADATA_PANEL] = {"topicPath": topics.absolute(topics.METADATA) + ".data", "diffEnabled": False, "expansion": "all"}
+        for cam in cameras:
+            config[_global_panel_id(cam.camera)] = {"imageMode": {"imageTopic": outputs.topic(topics.global_image_topic(cam.camera))}}
+            lower.append(_global_panel_id(cam.camera))
+    metadata = topics.absolute(topics.metadata_topic(cameras[0].camera))
+    config[METADATA_PANEL] = {"topicPath": metadata + ".data", "diffEnabled": False, "expansion": "all"}
     config[DIAGNOSTICS_PANEL] = {"topicToRender": topics.DIAGNOSTICS, "minLevel": 0, "pinnedIds": [], "hardwareIdFilter": "",
                                  "sortByLevel": True}
-    side = _split("column", [_split("row", [roi_panel_id(a) for a in arm_ids]), _split("row", lower)])
+    lower += [METADATA_PANEL, DIAGNOSTICS_PANEL]
+    roi_rows = [_split("row", [roi_panel_id(a, cam.camera) for a in arm_ids]) for cam in cameras]
+    side = _split("column", [*roi_rows, _split("row", lower)])
+    camera_column = _split("column", [_camera_panel_id(cam.camera) for cam in cameras])
     return {
         "configById": config,
         "globalVariables": {},
         "userNodes": {},
         "playbackConfig": {"speed": 1},
-        "layout": {"direction": "row", "first": CAMERA_PANEL, "second": side, "splitPercentage": CAMERA_SPLIT_PERCENT},
+        "layout": {"direction": "row", "first": camera_column, "second": side, "splitPercentage": CAMERA_SPLIT_PERCENT},
     }
 
 

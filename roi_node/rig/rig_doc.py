@@ -125,14 +125,23 @@ def _branch_requirements(node: JsonSchema) -> dict[str, str]:
     """
     branches = node.get("oneOf", ())
     conditions: dict[str, str] = {}
-    alternatives = [key for branch in branches for key in branch.get("required", ())]
+    groups = [branch.get("required", ()) for branch in branches]
+    alternatives = [key for group in groups for key in group]
+    if any(len(group) > 1 for group in groups):  # "either translation and rotation_xyzw, or topic"
+        either = "either " + ", or ".join(" and ".join(f"`{name}`" for name in group) for group in groups)
+    else:
+        either = "exactly one of " + ", ".join(f"`{name}`" for name in alternatives)
     for branch in branches:
         mode = branch.get("properties", {}).get("mode", {}).get("const")
         for key in branch.get("required", ()):
             if mode is not None:
                 conditions.setdefault(key, f"required (mode `{mode}`)")
             else:
-                conditions[key] = "exactly one of " + ", ".join(f"`{name}`" for name in alternatives)
+                conditions[key] = either
+    if_node, then = node.get("if", {}), node.get("then", {})
+    for condition_key, spec in if_node.get("properties", {}).items():  # required when another key has one value
+        for key in then.get("required", ()):
+            conditions[key] = f"required ({condition_key} `{spec['const']}`)"
     return conditions
 
 

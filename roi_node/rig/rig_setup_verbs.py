@@ -22,12 +22,14 @@ def _cmd_camera_pose(args: argparse.Namespace) -> int:
 def _cmd_foxglove_layout(args: argparse.Namespace) -> int:
     from roi_node.engine.config import load_rig_config
     from roi_node.engine.resources import default_rig_path
-    from roi_node.rig.foxglove_layout import ImageTransport, foxglove_layout, layout_text
+    from roi_node.rig.foxglove_layout import CameraTopics, ImageTransport, foxglove_layout, layout_text
     from roi_node.util.atomic_output import atomic_output
+    from roi_node.wire import topics
 
     rig = load_rig_config(args.config or default_rig_path())
-    layout = foxglove_layout([arm.id for arm in rig.arms], rig.output.global_enabled,
-                             outputs=ImageTransport(args.transport), camera=ImageTransport(args.camera_transport))
+    cameras = [CameraTopics(topics.output_camera(rig, c.id), c.image_topic) for c in rig.cameras]
+    layout = foxglove_layout([arm.id for arm in rig.arms], rig.output.global_enabled, outputs=ImageTransport(args.transport),
+                             camera=ImageTransport(args.camera_transport), cameras=cameras)
     text = layout_text(layout)
     if args.output is None:
         print(text, end="")
@@ -36,7 +38,8 @@ def _cmd_foxglove_layout(args: argparse.Namespace) -> int:
     with atomic_output(output, overwrite=args.overwrite) as partial:
         partial.write_text(text, encoding="utf-8")
     panels = len(layout["configById"])
-    print(f"roi-node foxglove-layout: wrote {output}: {panels} panels for rig {rig.rig_id} (arms {', '.join(a.id for a in rig.arms)})")
+    print(f"roi-node foxglove-layout: wrote {output}: {panels} panels for rig {rig.rig_id} (cameras {', '.join(rig.camera_ids)}; "
+          f"arms {', '.join(a.id for a in rig.arms)})")
     return 0
 
 
@@ -81,7 +84,8 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="a Foxglove layout for a rig's topics: camera with the overlay, each arm's ROI, global view, metadata, diagnostics",
         description="Write a Foxglove layout (Layouts, Import from file) for the topics a node running a rig publishes: "
         "/image_raw with /roi/overlay drawn on it, an image panel per arm (/roi/<arm>/image_raw), the global view when the "
-        "rig has one, the /roi/metadata record and the /diagnostics summary. The bundled config/foxglove_layout.json is "
+        "rig has one, the /roi/metadata record and the /diagnostics summary; for a rig of several cameras, each camera's "
+        "image and its /roi/<camera>/... topics. The bundled config/foxglove_layout.json is "
         "this verb's output for the bundled bimanual rig. Without -o the layout is printed.",
     )
     layout.add_argument("--config", metavar="RIG", help="rig config (default: the bundled demo_bimanual rig)")

@@ -10,9 +10,12 @@ and `tip.frame` can take. Bad input is one line naming the file and key (exit 2)
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
+
+if TYPE_CHECKING:
+    from roi_node.engine.config import CameraConfig
 
 
 def _cmd_check_config(args: argparse.Namespace) -> int:
@@ -33,20 +36,33 @@ def _cmd_check_config(args: argparse.Namespace) -> int:
             "chain": [robot.joint_prefix + j for j in joints.chain],
             "gripper": [robot.joint_prefix + j for j in joints.gripper],
         }
-    camera = rig.camera.intrinsics
+    intrinsics = {c.id: _intrinsics(c) for c in rig.cameras}
+    mounts: dict[str, Any] = {}
+    for camera in rig.cameras:
+        if camera.mount is not None:
+            kin, robot = kinematics[camera.mount.robot], rig.robot(camera.mount.robot)
+            kin.check_frame(camera.mount.link, f"{rig.camera_location(camera.id)}.extrinsics.parent")
+            mounts[camera.id] = [robot.joint_prefix + j for j in kin.chain_joints(camera.mount.link)]
     report: dict[str, Any] = {
         "rig": str(rig.path),
         "valid": True,
         "config": resolved_rig(rig),
-        "intrinsics": "from the camera_info topic at run time" if camera is None else {
-            "width_px": camera.width_px, "height_px": camera.height_px, "fx_px": camera.fx_px,
-            "distortion_model": camera.distortion_model,
-        },
+        # a rig of one camera shows its intrinsics; a rig of several, each camera's by id
+        "intrinsics": next(iter(intrinsics.values())) if not rig.several_cameras else intrinsics,
         "arm_joints": arms,
     }
+    if mounts:
+        report["camera_joints"] = mounts  # the joints that move each camera on a link: required from JointState too
     print(f"# {rig.path}: valid. Defaults filled in; arm_joints are JointState names (chain: required; gripper: recorded)")
     print(yaml.safe_dump(report, sort_keys=False, default_flow_style=None, width=120), end="")
     return 0
+
+
+def _intrinsics(camera: CameraConfig) -> Any:
+    model = camera.intrinsics
+    if model is None:
+        return "from the camera_info topic at run time"
+    return {"width_px": model.width_px, "height_px": model.height_px, "fx_px": model.fx_px, "distortion_model": model.distortion_model}
 
 
 def _cmd_frames(args: argparse.Namespace) -> int:

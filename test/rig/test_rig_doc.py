@@ -44,7 +44,9 @@ def test_a_key_added_to_the_schema_makes_the_page_stale_and_appears_in_the_table
 def test_rows_say_when_a_key_is_required() -> None:
     rows = {row.path: row for row in key_rows(SCHEMA)}
     assert rows["rig_id"].default == "required"
-    assert rows["robots[].base_in_world.translation"].default == "required in `robots[].base_in_world`"
+    assert rows["robots[].base_in_world.translation"].default == rows["robots[].base_in_world.topic"].default == (
+        "either `translation` and `rotation_xyzw`, or `topic`")
+    assert rows["robots[].base_in_world.child_frame"].default == "required (type `tf`)"
     assert rows["arms[].tip.frame"].default == rows["arms[].tip.position_m"].default == (
         "exactly one of `position_m`, `frame`")
     assert rows["arms[].scale.alpha"].default == "required (mode `depth`)"
