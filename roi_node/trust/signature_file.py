@@ -53,7 +53,7 @@ class SignedStatement:
 
 
 def certificate_names(certificate: x509.Certificate) -> list[str]:
-    """The subject's common name and every subject alternative name (email, DNS, URI): what `identities` may list."""
+    """The subject's common name and every subject alternative name (email, DNS, URI), each once: what `identities` may list."""
     names = [str(a.value) for a in certificate.subject.get_attributes_for_oid(NameOID.COMMON_NAME)]
     try:
         alternatives = certificate.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
@@ -61,7 +61,7 @@ def certificate_names(certificate: x509.Certificate) -> list[str]:
         return names
     for kind in (x509.RFC822Name, x509.DNSName, x509.UniformResourceIdentifier):
         names.extend(str(v) for v in alternatives.get_values_for_type(kind))
-    return names
+    return list(dict.fromkeys(names))
 
 
 def _field(doc: Any, *keys: str) -> Any:

@@ -151,7 +151,7 @@ def test_a_certificate_signature_verifies_by_its_ca_and_identity(
     shutil.copytree(trip.dataset, copy)
     chain = trip.chain
     out = _run(capsys, "sign", copy, "--key", chain.key, "--certificate", chain.certificate, "--certificate-chain", chain.ca)
-    assert f"as certificate {IDENTITY}, {IDENTITY}" in out
+    assert f"as certificate {IDENTITY} -> " in out
     assert f"signed by lab CA (certificate {IDENTITY}" in _run(capsys, "verify", copy, "--trust", trip.trust)
     signature = copy.with_name("dataset.sig")
     model_signing.verifying.Config().use_certificate_verifier(certificate_chain=[chain.ca]).verify(copy, signature)
