@@ -51,7 +51,8 @@ class SignResult:
 
 def default_signature(path: Path) -> Path:
     """`<folder>.sig` beside the folder: a detached signature, so signing never changes the folder's data."""
-    return path.with_name(path.name + SIGNATURE_SUFFIX)
+    folder = path if path.name else path.resolve()  # `.` has no name of its own
+    return folder.with_name(folder.name + SIGNATURE_SUFFIX)
 
 
 def signature_path(path: Path, given: Path | None) -> Path:

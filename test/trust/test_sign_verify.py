@@ -144,6 +144,16 @@ def test_signing_again_needs_overwrite_and_writes_the_same_claims(
     assert (copy / "roi_node_claims.json").read_bytes() == claims
 
 
+def test_the_current_folder_is_signed_beside_itself(
+    trip: RoundTrip, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    copy = tmp_path / "session"
+    shutil.copytree(trip.session, copy)
+    monkeypatch.chdir(copy)
+    _run(capsys, "sign", ".", "--key", trip.lab.private)
+    assert (tmp_path / "session.sig").is_file() and _run(capsys, "verify", ".", "--key", trip.lab.public).startswith(".: verified")
+
+
 def test_a_certificate_signature_verifies_by_its_ca_and_identity(
     trip: RoundTrip, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
