@@ -26,6 +26,7 @@ import yaml
 from mcap.reader import make_reader
 
 from roi_node.bagio.bag_files import sha256_file
+from roi_node.cli import main
 from roi_node.offline.replay import replay_bag
 from roi_node.sim.bag_sink import write_sim_bag
 from test.support.cli_run import run_cli
@@ -49,13 +50,8 @@ class World:
     extra: dict[str, Path] = field(default_factory=dict)
 
 
-def _sign(path: Path, key: Path) -> None:
-    assert run_cli_plain("sign", path, "--key", key) == 0
-
-
 def run_cli_plain(*args: str | Path) -> int:
-    from roi_node.cli import main
-
+    """`roi-node ARGS` for building the data, its output not under test."""
     return main([str(a) for a in args])
 
 
@@ -74,7 +70,7 @@ def world(tmp_path_factory: pytest.TempPathFactory) -> World:
     impostor = root / "impostor" / "session_roi"  # the other session's ROIs with its inputs: no episode's source
     replay_bag(second, impostor, DEFAULT_RIG, include_inputs=True)
     for path in (first, second, roi, data / "dataset", data / "dataset_other", impostor):
-        _sign(path, lab.private)
+        assert run_cli_plain("sign", path, "--key", lab.private) == 0
     return World(root, lab, stranger, trust, first, second, roi, other_roi, data / "dataset", data / "dataset_other", impostor)
 
 
