@@ -5,7 +5,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-roi-node
-EXTRAS := ros,bag,robots,export,cluster,dev
+EXTRAS := ros,bag,robots,export,sign,cluster,dev
 DEMO_OUT ?= demo_out
 
 # Everything that starts DDS keeps it on this machine, on its own domain.

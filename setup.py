@@ -43,6 +43,8 @@ setup(
         "robots": ["example-robot-data>=4.1"],
         # `roi-node export lerobot`: parquet + video without torch (PyAV's wheels bundle SVT-AV1 and x264)
         "export": ["av>=14", "pyarrow>=15"],
+        # `roi-node sign` / `verify`: OpenSSF model-signing; its certificate verifier imports pyOpenSSL, which 1.1 does not declare
+        "sign": ["model-signing>=1.1,<2", "pyOpenSSL>=24"],
         # `--ray`: one task per bag on a Ray cluster; 2.52 is the first with token authentication (RAY_AUTH_TOKEN)
         "cluster": ["ray>=2.52,<3"],
         "dev": [

@@ -152,6 +152,7 @@ FLOORS = {
     "sim": 3,
     "rig": 3,
     "quality": 4,
+    "trust": 4,
     "datasets": 5,
     "rostools": 5,
     "tools": 6,

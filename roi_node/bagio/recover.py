@@ -34,6 +34,7 @@ from rosbags.interfaces import Qos
 from rosbags.rosbag2 import ReaderError
 from rosbags.rosbag2.metadata import parse_qos
 
+from roi_node.bagio.bag_files import sharing_policy_bytes
 from roi_node.bagio.bag_metadata import BagMetadataError
 from roi_node.bagio.bag_status import BagStatus
 from roi_node.bagio.integrity import storage_files
@@ -300,7 +301,8 @@ def recover_bag(source: Path, output: Path | None = None, *, overwrite: bool = F
         raise BagError(f"{target}: the output would overwrite the input {source}; choose another path")
     results: list[FileRecovery] = []
     rig, rig_line = _carried_rig(inputs[0])
-    with BagWriter(target, overwrite=overwrite, compression=compression, numbered=len(inputs) > 1, rig=rig) as writer:
+    with BagWriter(target, overwrite=overwrite, compression=compression, numbered=len(inputs) > 1, rig=rig,
+                   sharing_policy=sharing_policy_bytes(source)) as writer:
         for i, path in enumerate(inputs):
             if i:
                 writer.split()

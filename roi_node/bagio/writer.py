@@ -36,6 +36,7 @@ from rosbags.rosbag2.metadata import dump_qos_v9
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
+from roi_node.bagio.bag_files import SHARING_POLICY_FILE
 from roi_node.bagio.bag_status import BagStatus
 from roi_node.bagio.mcap_file import Compression, McapFileWriter, TopicSpec
 from roi_node.bagio.storage_io import StorageOpener, open_storage, reserve_space
@@ -122,12 +123,14 @@ class BagWriter:
         open_file: StorageOpener | None = None,
         rig: RigInputs | None = None,
         chunk_bytes: int | None = None,
+        sharing_policy: bytes | None = None,
     ) -> None:
         """`open_file` opens each storage file (default `open_storage`); tests pass one whose writes fail.
 
         `rig`: the rig's files, attached to every storage file (bagio/rig_attachments.py) so each file
         can be replayed on its own; `chunk_bytes`: the uncompressed size at which a chunk is written
-        (None: McapFileWriter's default).
+        (None: McapFileWriter's default); `sharing_policy`: the session's sharing policy file, as written,
+        put beside the storage (bagio/bag_files.py) before the first message.
         """
         self.path = Path(path)
         check_target(self.path, overwrite)
@@ -140,6 +143,7 @@ class BagWriter:
         self._open_storage = open_file or open_storage
         self.rig = rig
         self._chunk_bytes = chunk_bytes
+        self._sharing_policy = sharing_policy
         self._dir = self.path if in_place else temporary_sibling(self.path)
         self._topics: dict[str, _Topic] = {}
         self.counts: dict[str, int] = {}
@@ -177,6 +181,8 @@ class BagWriter:
             remove_path(self._dir)
         try:
             self._dir.mkdir()
+            if self._sharing_policy is not None:
+                (self._dir / SHARING_POLICY_FILE).write_bytes(self._sharing_policy)
             if self._in_place:
                 reserve_space(self._dir / RESERVE_NAME, RESERVE_BYTES)
             self._open_file()

@@ -15,6 +15,7 @@ later export to the same output removes the one a killed run left behind.
 
 from __future__ import annotations
 
+import datetime
 import hashlib
 import os
 import shutil
@@ -26,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from roi_node.bagio.bag_files import hash_files
 from roi_node.bagio.rig_attachments import read_rig_inputs
 from roi_node.datasets.actions import Actions, CommandStream, next_state_actions
 from roi_node.datasets.dataset import DatasetWriter, EpisodeInput
@@ -44,9 +46,9 @@ from roi_node.engine.resources import resolve_config_file
 from roi_node.engine.sync import NS_PER_MS
 from roi_node.offline.replay import replay_bag
 from roi_node.quality.gates import GateSet, load_gates
-from roi_node.quality.manifest import hash_files
 from roi_node.quality.roibag import METADATA_TOPIC
 from roi_node.quality.validate import judge
+from roi_node.trust.sharing import Audience, SharingPolicy, admit, read_dataset_sharing, write_dataset_sharing
 from roi_node.util.atomic_output import commit, ensure_parent, remove_orphaned_partials, remove_path, temporary_sibling
 
 
@@ -62,6 +64,8 @@ class ExportOptions:
     command_topic: str | None = None
     gates: Path | None = None
     progress: bool = False  # video frames encoded, rate and ETA on stderr (util/progress.py)
+    audience: Audience | None = None  # None: the appended dataset's, else internal (trust/sharing.py)
+    leave_out_disallowed: bool = False  # export the sources whose sharing policy allows the audience, leave out the rest
 
     def __post_init__(self) -> None:
         check_fps(self.fps)
@@ -104,6 +108,7 @@ class ExportResult:
     codec: Codec
     action: ActionOrigin
     elapsed_s: float
+    left_out: tuple[tuple[Path, str], ...] = ()  # sources whose sharing policy does not allow the audience, and why
 
     @property
     def frames_written(self) -> int:
@@ -127,6 +132,8 @@ def export_lerobot(
     if not bags:
         raise BagError("no bags given")
     state = _existing(output, options)
+    existing = read_dataset_sharing(output) if state.spec is not None else None
+    admission = admit(bags, options.audience, leave_out=options.leave_out_disallowed, existing=existing, today=datetime.date.today())
     ensure_parent(output)
     provenance = _provenance(state, options)
     gates = load_gates(options.gates)
@@ -134,23 +141,25 @@ def export_lerobot(
         writer: DatasetWriter | None = None
         reports: list[EpisodeReport] = []
         try:
-            for bag in bags:
+            for bag in admission.admitted:
                 with _roi_bag(bag, options, work, (regenerated or {}).get(bag)) as roi:
                     source = read_source(roi, gates.params)
                     writer = writer or _writer(work, output, source, state, options, provenance.codec)
-                    report = _episode(writer, bag, source, options, provenance, gates)
+                    report = _episode(writer, bag, source, options, provenance, gates, admission.policies[bag])
                     copy_rig_files(work, output, report.episode_index, read_rig_inputs(roi))
                 reports.append(report)
                 if on_episode is not None:
                     on_episode(report)
             assert writer is not None
             writer.finish(provenance)
+            write_dataset_sharing(work, output.name, admission.sharing)
         except BaseException:
             if writer is not None:
                 writer.abort()
             raise
     return ExportResult(
-        output, reports, writer.state.episodes, writer.state.frames, provenance.codec, provenance.action, time.perf_counter() - started
+        output, reports, writer.state.episodes, writer.state.frames, provenance.codec, provenance.action, time.perf_counter() - started,
+        admission.left_out,
     )
 
 
@@ -189,7 +198,8 @@ def _writer(work: Path, output: Path, source: RoiSource, state: DatasetState, op
 
 
 def _episode(
-    writer: DatasetWriter, bag: Path, source: RoiSource, options: ExportOptions, provenance: Provenance, gates: GateSet
+    writer: DatasetWriter, bag: Path, source: RoiSource, options: ExportOptions, provenance: Provenance, gates: GateSet,
+    sharing: SharingPolicy | None,
 ) -> EpisodeReport:
     if not writer.spec.fits(source.spec):
         raise DatasetError(
@@ -227,6 +237,7 @@ def _episode(
                 "max_offset_ms": plan.worst_offset_ns / NS_PER_MS,
             },
             "action": {"command_topic": options.command_topic, "held_frames": actions.held_frames},
+            "sharing": None if sharing is None else sharing.as_dict(),
         }
     )
     return EpisodeReport(

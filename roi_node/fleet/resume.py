@@ -13,8 +13,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from roi_node.bagio.bag_files import fingerprint
 from roi_node.fleet.tasks import ReplayJob
-from roi_node.quality.bagfiles import fingerprint
 from roi_node.quality.manifest import load_manifest
 
 MANIFEST_NAME = "manifest.json"

@@ -142,7 +142,7 @@ def _guarded(job: ReplayJob, *, with_entry: bool) -> TaskResult:
 
 def output_entry(job: ReplayJob) -> dict[str, Any]:
     """The output's manifest entry (every file hashed), with what made it, so a rerun can tell whether it still fits."""
-    from roi_node.quality.bagfiles import fingerprint
+    from roi_node.bagio.bag_files import fingerprint
     from roi_node.quality.manifest import bag_entry, rig_config_entry
 
     entry = bag_entry(job.target, job.target.name, job.manifest_dir, gates=None, validation=None,

@@ -31,6 +31,7 @@ from typing import Any
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection
 
+from roi_node.bagio.bag_files import sharing_policy_bytes
 from roi_node.bagio.bag_status import BagStatus
 from roi_node.bagio.indexed_mcap import CrcLedger
 from roi_node.bagio.interrupt import DeferredInterrupt
@@ -333,7 +334,8 @@ class _Replay:
         with DeferredInterrupt() as interrupt:
             try:
                 # atomic: the output appears only finalized; interrupted, it is kept as <out>.interrupted
-                writer = BagWriter(target, overwrite=overwrite, compression=compression, rig=carried)
+                writer = BagWriter(target, overwrite=overwrite, compression=compression, rig=carried,
+                                   sharing_policy=sharing_policy_bytes(self.source))
                 with writer:
                     out = _OutputTopics(writer, self.rig, arm_ids, outputs, [c.out_camera for c in self.cameras.values()])
                     if include_inputs:

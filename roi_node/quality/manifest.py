@@ -23,13 +23,13 @@ from jsonschema import Draft202012Validator
 from jsonschema.exceptions import best_match
 
 from roi_node import __version__
+from roi_node.bagio.bag_files import bag_files, fingerprint, hash_files, relative_name, sha256_file
 from roi_node.bagio.reader import check_bag_path
 from roi_node.bagio.writer import ROSBAG2_VERSION
 from roi_node.engine.config import load_rig_config
 from roi_node.engine.errors import BagError, ConfigError
 from roi_node.engine.metadata import METADATA_SCHEMA
 from roi_node.engine.resources import config_dir
-from roi_node.quality.bagfiles import bag_files, fingerprint, relative_name, sha256_file
 from roi_node.quality.gates import GATES_SCHEMA, GateParams, GateSet, load_gates
 from roi_node.quality.results import VALIDATION_SCHEMA, BagScan, BagValidation
 from roi_node.quality.schema_check import error_path
@@ -69,17 +69,6 @@ def find_bags(inputs: list[Path]) -> list[Path]:
     for bag in found:
         unique.setdefault(bag.resolve(), bag)
     return list(unique.values())
-
-
-def hash_files(bag: Path) -> tuple[list[dict[str, Any]], str, int]:
-    """(files with size and sha256, digest over them in `sha256sum` format, total bytes)."""
-    paths = bag_files(bag)
-    names = [relative_name(bag, f) for f in paths]
-    sizes = [f.stat().st_size for f in paths]
-    digests = [sha256_file(f) for f in paths]
-    listing = "".join(f"{digest}  {name}\n" for digest, name in zip(digests, names, strict=True))
-    files = [{"path": n, "size": s, "sha256": d} for n, s, d in zip(names, sizes, digests, strict=True)]
-    return files, hashlib.sha256(listing.encode()).hexdigest(), sum(sizes)
 
 
 def rig_config_entry(path: Path) -> dict[str, Any]:

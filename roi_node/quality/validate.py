@@ -10,11 +10,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from roi_node.bagio.bag_files import fingerprint
 from roi_node.bagio.reader import open_bag, topic_stats
 from roi_node.engine.config import RigConfig
 from roi_node.engine.errors import BagError
 from roi_node.offline.stamp_audit import IMPLAUSIBLE_STAMPS_KEY
-from roi_node.quality.bagfiles import fingerprint
 from roi_node.quality.calibration.check import CalibrationCheck, Tolerances, carries_inputs, check_calibration
 from roi_node.quality.drift import baseline_drift, window_drift
 from roi_node.quality.gates import IMPLAUSIBLE_STAMPS_METRIC, GateParams, GateSet, evaluate

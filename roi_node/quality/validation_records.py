@@ -315,7 +315,7 @@ class BagResult:
 
     path: str  # resolved
     name: str
-    fingerprint: dict[str, Any]  # bagfiles.fingerprint: compared whole, to tell whether the bag changed
+    fingerprint: dict[str, Any]  # bagio/bag_files.fingerprint: compared whole, to tell whether the bag changed
     log_time_range_ns: tuple[int, int]
     topics: tuple[TopicCount, ...]
     custom_data: dict[str, Any]

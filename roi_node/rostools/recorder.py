@@ -78,6 +78,7 @@ class RecordOptions:
     jpeg_quality: int = 90
     chunk_bytes: int | None = None  # None: the storage writer's default (`--preset fast`)
     rig: RigInputs | None = None  # `--config`: the rig's files, carried in every storage file
+    sharing_policy: bytes | None = None  # `--sharing`: the policy file as written, stored as the bag's sharing.yaml
 
 
 @dataclass(frozen=True)
@@ -103,7 +104,8 @@ class Recorder(Node):
         self.wanted = {t if t.startswith("/") else "/" + t for t in topics}
         self.record_all = record_all
         self.writer = BagWriter(out, overwrite=overwrite, on_error="finalize", compression=options.compression,
-                                split=options.split, in_place=True, rig=options.rig, chunk_bytes=options.chunk_bytes)
+                                split=options.split, in_place=True, rig=options.rig, chunk_bytes=options.chunk_bytes,
+                                sharing_policy=options.sharing_policy)
         self.writer.custom_data[RECORDED_BY_KEY] = f"roi_node {__version__}"  # with or without --config
         self.writer.__enter__()
         self.transcoder = (None if options.image_transport is ImageTransport.RAW

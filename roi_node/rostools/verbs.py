@@ -37,15 +37,17 @@ def _cmd_record(args: argparse.Namespace) -> int:
     from roi_node.engine.config import load_rig_config
     from roi_node.rostools.recorder import RecordOptions, record
     from roi_node.rostools.transcode import ImageTransport
+    from roi_node.trust.sharing import checked_policy_bytes
 
     split = None
     if args.max_duration is not None or args.max_size is not None:
         split = SplitPolicy(None if args.max_duration is None else int(args.max_duration * 1e9), args.max_size)
     storage = preset_settings(StoragePreset(args.preset), None if args.compression is None else Compression(args.compression))
     rig = None if args.config is None else rig_inputs(load_rig_config(args.config))
+    sharing = None if args.sharing is None else checked_policy_bytes(Path(args.sharing))
     options = RecordOptions(duration_s=args.duration_s, split=split, compression=storage.compression,
                             image_transport=ImageTransport(args.image_transport), jpeg_quality=args.jpeg_quality,
-                            chunk_bytes=storage.chunk_bytes, rig=rig)
+                            chunk_bytes=storage.chunk_bytes, rig=rig, sharing_policy=sharing)
     return record(Path(args.out), args.topics or [], record_all=args.all, overwrite=args.overwrite, options=options,
                   ros_args=args.ros_args)
 
@@ -127,6 +129,8 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
                      help="per-chunk compression of the MCAP storage, replacing the preset's (fast: none, rosbag2: zstd)")
     rec.add_argument("--config", metavar="RIG_YAML",
                      help="store this rig's config, URDFs and calibration in the bag, so `replay BAG` needs no --config")
+    rec.add_argument("--sharing", metavar="POLICY_YAML",
+                     help="the session's sharing policy (license, consent scope, audiences, embargo), stored as sharing.yaml")
     rec.add_argument("--image-transport", choices=("raw", "jpeg", "png"), default="raw",
                      help="store sensor_msgs/Image topics as they come (raw) or re-encoded as <topic>/compressed (default: raw)")
     rec.add_argument("--jpeg-quality", type=_quality, default=90, metavar="N", help="JPEG quality 1..100 (default: 90)")

@@ -54,16 +54,19 @@ def write_sim_bag(
     chunk_compression: Compression | str = Compression.NONE,
     look: Look | None = None,
     progress: bool = False,
+    sharing_policy: bytes | None = None,
 ) -> SimBagSummary:
     """Simulate `duration_s` seconds of the rig into an MCAP bag at `out_path` (a bag directory).
 
     `compressed`: False for raw rgb8 images; True or "png" for lossless PNG,
     "jpeg" for JPEG (quality 90) on `/image_raw/compressed`. `chunk_compression`:
     none, lz4 or zstd chunks. The bag appears only once finalized (atomic).
-    `progress`: frames rendered, rate and ETA on stderr (util/progress.py).
+    `progress`: frames rendered, rate and ETA on stderr (util/progress.py). `sharing_policy`: the
+    session's sharing policy file, stored as the bag's sharing.yaml (bagio/bag_files.py).
     """
     fmt = _compression(compressed)
-    bag = BagWriter(Path(out_path), overwrite=overwrite, compression=chunk_compression)  # refuses an existing output before the slow setup
+    # refuses an existing output before the slow setup
+    bag = BagWriter(Path(out_path), overwrite=overwrite, compression=chunk_compression, sharing_policy=sharing_policy)
     sim = SimRig(
         rig_config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms, start_ns=start_ns, look=look
     )

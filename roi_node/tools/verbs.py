@@ -42,14 +42,18 @@ def _cmd_sim(args: argparse.Namespace) -> int:
         if args.follow_commands is not None:
             raise UsageError("sim: --follow-commands applies to live runs; --bag writes the scripted trajectory")
         from roi_node.sim.bag_sink import write_sim_bag
+        from roi_node.trust.sharing import checked_policy_bytes
 
         summary = write_sim_bag(
             config, Path(args.bag), duration_s=args.duration, rate_hz=args.rate_hz, joint_rate_hz=args.joint_rate_hz,
             seed=args.seed, overwrite=args.overwrite, compressed=args.compressed or False, chunk_compression=args.compression,
             camera_delay_ms=args.camera_delay_ms, progress=True,
+            sharing_policy=None if args.sharing is None else checked_policy_bytes(Path(args.sharing)),
         )
         print(f"roi-node sim: wrote {summary.path}: {summary.frames} frames on {summary.image_topic}, {summary.joint_states} joint states")
         return 0
+    if args.sharing is not None:
+        raise UsageError("sim: --sharing applies to --bag (a live run publishes; `record --sharing` stores the policy)")
     from roi_node.rostools.sim_publisher import LateFrames, run_live
 
     budget = DEFAULT_RENDER_BUDGET_MIB if args.render_budget_mb is None else args.render_budget_mb
@@ -103,6 +107,7 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     sim.add_argument("--overwrite", action="store_true", help="replace an existing --bag output")
     sim.add_argument("--compression", choices=("none", "lz4", "zstd"), default="none",
                      help="--bag: per-chunk compression of the MCAP storage (default: none)")
+    sim.add_argument("--sharing", metavar="POLICY_YAML", help="--bag: the session's sharing policy, stored as sharing.yaml")
     sim.add_argument("--compressed", nargs="?", const="png", choices=["png", "jpeg"], help="--bag: CompressedImage (png or jpeg)")
     sim.add_argument("--duration", type=SIM_DURATION_S, default=20.0, help="seconds (default: 20)")
     sim.add_argument("--rate-hz", type=SIM_RATE_HZ, default=30.0, help="camera rate (default: 30)")

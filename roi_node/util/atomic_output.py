@@ -160,6 +160,13 @@ def atomic_output(target: Path, *, overwrite: bool) -> Iterator[Path]:
         raise OutputExistsError(f"{target}: cannot move the finished output into place ({exc.strerror or exc})") from exc
 
 
+def replace_file(path: Path, data: bytes) -> None:
+    """Write `data` through a new sibling renamed over `path`: no reader sees half a file, no hard link to it is written through."""
+    fresh = path.with_name(f".{path.name}.new")
+    fresh.write_bytes(data)
+    os.replace(fresh, path)
+
+
 def interrupted_name(target: Path) -> Path:
     """Where a finalized partial output is kept: a name that says it is not complete."""
     return target.with_name(target.name + INTERRUPTED_SUFFIX)

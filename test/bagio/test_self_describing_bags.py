@@ -277,15 +277,18 @@ def test_every_file_of_a_split_bag_carries_the_rig(tmp_path: Path, single_rig_pa
 
 @pytest.mark.dds
 def test_a_recorded_bag_replays_from_its_own_rig_byte_identical(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """`record --config --preset rosbag2`: the recording carries the rig; replay without --config equals replay with it."""
+    """`record --config --preset rosbag2 --sharing`: the recording carries the rig and the sharing policy; replay without --config
+    equals replay with it, and carries the policy on."""
     from test.dds.harness import next_domain, process, ros_env
 
     env = ros_env(next_domain())
     spec = {"rig": str(BIMANUAL), "frames": 8, "min_subscribers": 1, "settle_s": 1.0, "linger_s": 1.0}
     (tmp_path / "spec.json").write_text(json.dumps(spec))
     bag = tmp_path / "session"
+    policy = tmp_path / "policy.yaml"
+    policy.write_text("license: cc-by-4.0  # as written\nconsent_scope: lab members\naudiences: [internal]\n")
     record = ["-m", "roi_node.cli", "record", "-o", str(bag), "--topics", "image_raw", "joint_states", "--config", str(BIMANUAL),
-              "--preset", "rosbag2"]
+              "--preset", "rosbag2", "--sharing", str(policy)]
     with process(record, env, tmp_path / "rec.log") as rec:
         pub = subprocess.run([sys.executable, "-m", "test.dds.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
                              cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
@@ -303,5 +306,6 @@ def test_a_recorded_bag_replays_from_its_own_rig_byte_identical(tmp_path: Path, 
     assert f"replay: using the rig stored in {bag} (rig.yaml, 1 URDF, 1 calibration)" in capsys.readouterr().err
     outputs = folder_bytes(tmp_path / "b" / "roi")
     assert outputs == folder_bytes(tmp_path / "a" / "roi")
+    assert (bag / "sharing.yaml").read_bytes() == policy.read_bytes() == (tmp_path / "b" / "roi" / "sharing.yaml").read_bytes()
     with AnyReader([tmp_path / "b" / "roi"], default_typestore=typestore()) as reader:
         assert sum(1 for c in reader.connections if c.topic == "/roi/metadata") == 1 and reader.message_count > 0
