@@ -310,3 +310,48 @@ def test_the_live_latency_section_shows_each_bench_with_flags_it_takes_and_the_a
     assert runs["720p"] and runs["1080p"]
     assert (f"within ±0.5 ms: shown in {within['720p']} of {len(runs['720p'])} runs at 720p and "
             f"{within['1080p']} of {len(runs['1080p'])} at 1080p") in " ".join(section.split())
+
+
+def test_the_python_api_pages_refusals_are_what_process_does() -> None:
+    """docs/python-api.md's table of what `process` refuses: each row's case, run, ends as the row says."""
+    import numpy as np
+
+    import roi_node
+
+    rows = _table_rows(DOCS / "python-api.md", "given to `process`")
+    assert len(rows) == 4
+    rig = load_rig_config("rig_panda_single.yaml")
+    assert rig.camera.intrinsics is not None
+    pipeline = roi_node.RoiPipeline(rig)
+    image = np.zeros((rig.camera.intrinsics.height_px, rig.camera.intrinsics.width_px, 3), np.uint8)
+    home = {"panda_joint1": 0.0, "panda_joint2": -0.785, "panda_joint3": 0.0, "panda_joint4": -2.356,
+            "panda_joint5": 0.0, "panda_joint6": 1.571, "panda_joint7": 0.785}
+
+    def sync(**positions: object) -> roi_node.SyncResult:
+        return roi_node.SyncResult("interpolate", "ok", {**home, **positions}, 0.0, 0)
+
+    cases = [(np.dstack([image, image[:, :, :1]]), 0, sync()), (image, 0, sync(panda_joint2=float("nan"))),
+             (image, 2**64, sync())]
+    for (frame, stamp, positions), row in zip(cases, rows[:3], strict=True):
+        with pytest.raises(roi_node.RoiNodeError) as info:
+            pipeline.process(frame, stamp, 0, positions)
+        assert row[1].startswith(f"`{type(info.value).__name__}`"), (row, info.value)
+    flags = pipeline.process(image, 0, 0, sync(panda_joint2=9.0)).rois[0].record.flags
+    assert [f"`{flag}`" for flag in flags] == re.findall(r"`[a-z_]+`", rows[3][1])
+
+
+def test_the_global_view_warning_on_the_rig_page_is_what_check_config_prints(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """docs/rig-config.md quotes the warning for a rig with the default global view and the bundled 1280x720 camera."""
+    from roi_node.cli import main
+
+    quoted = _text(DOCS / "rig-config.md").split("roi-node check-config: warning: ")[1].split("\n")[0]
+    doc = yaml.safe_load(_text(CONFIG / "rig_demo_bimanual.yaml"))
+    del doc["output"]
+    (tmp_path / "my_rig.yaml").write_text(yaml.safe_dump(doc))
+    (tmp_path / "front_intrinsics.yaml").write_text(_text(CONFIG / "front_intrinsics.yaml"))
+    monkeypatch.chdir(tmp_path)
+    assert main(["check-config", "my_rig.yaml"]) == 0
+    assert capsys.readouterr().err == f"roi-node check-config: warning: {quoted}\n"
+    assert load_rig_config("my_rig.yaml").output.global_size_px == (256, 256)  # the default, kept

@@ -9,6 +9,7 @@ never projected: the distortion polynomials happily map them to plausible pixels
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -222,8 +223,9 @@ def camera_from_info(
     return CameraModel(int(width_px), int(height_px), k_m, d_v, model, r_m, p_m, bool(rectified))
 
 
-def load_calibration_yaml(path: Path, *, rectified: bool = False) -> CameraModel:
+def load_calibration_yaml(path: str | os.PathLike[str], *, rectified: bool = False) -> CameraModel:
     """Read a ROS camera_calibration YAML (the file `camera_calibration` writes)."""
+    path = Path(path)
     data = read_yaml(path, "calibration file", CalibrationError)
     if not isinstance(data, Mapping):
         raise CalibrationError(f"{path}: expected a mapping with image_width, image_height, camera_matrix, ...")

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -28,6 +29,7 @@ from roi_node.engine.resources import resolve_config_file
 from roi_node.engine.robot_models import EXAMPLE_ROBOT_DATA_PREFIX, resolve_robot_reference
 from roi_node.engine.short_repr import short_repr
 from roi_node.engine.sync import SyncPolicy
+from roi_node.engine.topic_token import topic_token_problem
 from roi_node.engine.transforms import Transform
 from roi_node.engine.yaml_file import read_yaml
 
@@ -282,6 +284,14 @@ class _Node:
             raise self.fail(key, f"{len(value)} characters; expected at most {MAX_TEXT_CHARS}")
         return value
 
+    def token(self, key: str) -> str:
+        """An id that becomes part of topic names and dataset keys (engine/topic_token.py)."""
+        value = self.text(key)
+        problem = topic_token_problem(value)
+        if problem is not None:
+            raise self.fail(key, problem)
+        return value
+
     def number(
         self,
         key: str,
@@ -379,7 +389,7 @@ def _resolve_path(base: Path, value: str) -> Path:
     return path if path.is_absolute() else (base / path)
 
 
-def load_rig_config(path: str | Path) -> RigConfig:
+def load_rig_config(path: str | os.PathLike[str]) -> RigConfig:
     """Load and validate a rig config; raises ConfigError naming file, key and problem.
 
     A relative path that does not exist in the working directory is looked up
@@ -439,7 +449,7 @@ def _load_cameras(root: _Node, base_dir: Path, robot_ids: set[str]) -> tuple[Cam
 
 def _load_camera(node: _Node, base_dir: Path, robot_ids: set[str], *, several: bool) -> CameraConfig:
     node.check_keys(("id", "intrinsics", "extrinsics", "rectified", "delay_ms", "z_min_m", "image_topic", "camera_info_topic"))
-    camera_id = node.text("id")
+    camera_id = node.token("id")
     rectified = node.boolean("rectified", False)
     intrinsics: CameraModel | None = None
     intrinsics_path = None
@@ -512,7 +522,7 @@ def _load_robot(node: _Node, base_dir: Path, sync: SyncConfig) -> RobotConfig:
     prefix = node.data.get("joint_prefix", "")
     if not isinstance(prefix, str) or len(prefix) > MAX_TEXT_CHARS:
         raise node.fail("joint_prefix", f"expected a string of at most {MAX_TEXT_CHARS} characters, got {short_repr(prefix)}")
-    return RobotConfig(node.text("id"), urdf_path, world_T_base, prefix, base_raw, base_topic)
+    return RobotConfig(node.token("id"), urdf_path, world_T_base, prefix, base_raw, base_topic)
 
 
 def _base_pose_topic(node: _Node, sync: SyncConfig) -> BasePoseTopic:
@@ -585,7 +595,7 @@ def _load_arm(node: _Node, robot_ids: set[str]) -> ArmConfig:
     if largest_px > MAX_WINDOW_SIDE_PX:
         raise node.fail("aspect", f"the largest window side would be {largest_px:g} px; scale x aspect must be <= {MAX_WINDOW_SIDE_PX} px")
     return ArmConfig(
-        id=node.text("id"),
+        id=node.token("id"),
         robot=robot,
         ee_frame=node.text("ee_frame"),
         tip=tip,

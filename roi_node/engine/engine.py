@@ -52,6 +52,7 @@ from roi_node.engine.camera import CameraModel
 from roi_node.engine.config import RigConfig
 from roi_node.engine.drop_kinds import DropKind
 from roi_node.engine.errors import ImageError, JointStateError, RoiNodeError
+from roi_node.engine.joint_limits import beyond_limits
 from roi_node.engine.metadata import M_DECIMALS, MS_DECIMALS, rnd
 from roi_node.engine.pipeline import FrameResult, GlobalViewThread, RoiPipeline
 from roi_node.engine.records import TeleopRecord
@@ -64,8 +65,6 @@ from roi_node.engine.transforms import Transform
 
 EARLY_JOINT_STATES = 2000  # joint states kept while waiting for a URDF (2 s at 1 kHz)
 REFUSED_STAMPS_KEPT = 2000  # per joint: stamps of out-of-limit samples, for flagging the frames near them
-LIMIT_MARGIN_FRACTION = 0.05  # of the joint's range
-LIMIT_MARGIN_MIN = 0.02  # radians or metres: encoder noise at a hard stop stays inside
 
 
 @dataclass(frozen=True)
@@ -362,7 +361,7 @@ class StreamEngine:
         assert isinstance(pipeline, RoiPipeline)
         if len(names) != len(positions):
             return Refusal(DropKind.JOINT_STATE, f"{where}: {len(names)} names but {len(positions)} positions")
-        out_of_limits = self._out_of_limits(pipeline, names, positions)
+        out_of_limits = beyond_limits(pipeline.joint_limits, names, positions)
         if out_of_limits:
             for name, _value, _limits in out_of_limits:
                 stamps = self._limit_refusals.setdefault((epoch, name), [])
@@ -391,22 +390,6 @@ class StreamEngine:
                 f"{where}: none of {names[:3]}... is a joint of this rig (expected names like {list(pipeline.required_joints[:3])})",
             )
         return None
-
-    @staticmethod
-    def _out_of_limits(
-        pipeline: RoiPipeline, names: Sequence[str], positions: Sequence[float]
-    ) -> list[tuple[str, float, tuple[float, float]]]:
-        out = []
-        for name, value in zip(names, positions, strict=False):
-            limits = pipeline.joint_limits.get(name)
-            if limits is None:
-                continue
-            v = float(value)
-            lo, hi = limits
-            margin = max(LIMIT_MARGIN_MIN, LIMIT_MARGIN_FRACTION * (hi - lo))
-            if math.isfinite(v) and not lo - margin <= v <= hi + margin:
-                out.append((name, v, limits))
-        return out
 
     def _use_command(self, event: CommandEvent) -> Refusal | None:
         if self.commands is None or not len(event.names) or not len(event.positions):

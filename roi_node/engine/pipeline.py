@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
+import numbers
 import os
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -24,7 +26,8 @@ from roi_node.engine.arm_joints import arm_joints, check_joint_names_distinct
 from roi_node.engine.base_poses import BaseSync
 from roi_node.engine.camera import CameraModel
 from roi_node.engine.config import ArmConfig, RigConfig
-from roi_node.engine.errors import ImageError
+from roi_node.engine.errors import ConfigError, ImageError, InputDataError, JointStateError
+from roi_node.engine.joint_limits import beyond_limits
 from roi_node.engine.kinematics import RobotKinematics, unique_in_order
 from roi_node.engine.metadata import (
     HASH_PREFIX,
@@ -44,6 +47,8 @@ from roi_node.engine.quality import confidence, in_frame_ratio, padding_ratio
 from roi_node.engine.records import ArmFlag, ArmRecord, BaseRecord, FrameRecord, PoseRecord, SyncRecord, TeleopRecord
 from roi_node.engine.resample import crop_resize, place_in_output
 from roi_node.engine.roi_policy import roi_geometry
+from roi_node.engine.short_repr import short_repr
+from roi_node.engine.stamps import MAX_STAMP_NS
 from roi_node.engine.sync import SyncPolicy, SyncResult, SyncStatus
 from roi_node.engine.transforms import Transform
 
@@ -108,6 +113,12 @@ class _FramePoses:
     world_T_cam: Transform | None = None  # the moving camera's pose, for the record
 
 
+def _check_count(name: str, value: object) -> None:
+    """A stamp (ns) or frame index: what an int64 holds from 0, as a ROS stamp and a bag's log time do."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 0 <= int(value) <= MAX_STAMP_NS:
+        raise InputDataError(f"{name}: expected an integer from 0 to {MAX_STAMP_NS} (int64), got {short_repr(value)}")
+
+
 def _crop_offset_version(rig: RigConfig) -> str:
     """The version of what places and shapes the crops: the arm policies, output settings and z_min."""
     return content_hash(
@@ -135,6 +146,8 @@ class RoiPipeline:
         With `global_view_thread` the global view is resampled on that thread beside the ROIs; without it,
         inline. The bytes are the same either way (see GlobalViewThread for who wants which).
         """
+        if not isinstance(rig, RigConfig):
+            raise ConfigError(f"RoiPipeline: expected a RigConfig (roi_node.load_rig_config(path)), got {type(rig).__name__}")
         self.rig = rig
         self._global_view_thread = global_view_thread
         texts = urdf_texts or {}
@@ -267,8 +280,9 @@ class RoiPipeline:
     def check_image(self, image: np.ndarray, where: str = "image") -> None:
         if not isinstance(image, np.ndarray) or image.dtype != np.uint8:
             raise ImageError(f"{where}: expected a uint8 array, got {getattr(image, 'dtype', type(image).__name__)}")
-        if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] not in (1, 3, 4)):
-            raise ImageError(f"{where}: expected HxW or HxWx{{1,3,4}} pixels, got shape {image.shape}")
+        if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] != 3):
+            raise ImageError(f"{where}: expected HxWx3 RGB or HxW grey pixels, got shape {image.shape}; the node turns "
+                             "rgba8 and bgra8 images into RGB: convert such a frame likewise (cv2.cvtColor)")
         if self.camera is None or self.lineage is None:
             raise ImageError(f"{where}: no intrinsics are known yet")
         h, w = image.shape[:2]
@@ -292,10 +306,16 @@ class RoiPipeline:
         """Run the ROI policy on one frame (uint8, calibrated size) for every arm.
 
         `flagged_joints` are joints whose samples near this frame were refused
-        (beyond their URDF limits): the arms they move are flagged. `bases` are the
+        (beyond their URDF limits): the arms they move are flagged. A position
+        in `sync` beyond its URDF limits is refused here as the node refuses
+        the sample (so the Python API gets what the node would publish). `bases` are the
         poses of the bases that come from a topic, paired at the frame's capture time.
         """
         self.check_image(image)
+        _check_count("stamp_ns", stamp_ns)
+        _check_count("frame_index", frame_index)
+        sync, beyond = self._within_limits(sync)
+        flagged_joints |= beyond
         poses = None if self.cam_T_world is not None and not self._moving_bases else self._frame_poses(sync, bases)
         camera, lineage = self.camera, self.lineage
         assert camera is not None and lineage is not None
@@ -326,6 +346,21 @@ class RoiPipeline:
             bases=tuple(_base_record(b) for b in bases),
         )
         return FrameResult(int(stamp_ns), int(frame_index), rois, global_view, record, record.to_json())
+
+    def _within_limits(self, sync: SyncResult) -> tuple[SyncResult, frozenset[str]]:
+        """`sync` without its positions beyond their URDF limits, and their names; every position read must be a
+        finite number (JointStateError names it). Samples the engine resolved never are beyond: it refused them."""
+        if not isinstance(sync, SyncResult) or not isinstance(sync.positions, Mapping):
+            raise InputDataError(f"sync: expected a SyncResult with a positions mapping, got {short_repr(sync)}")
+        used = [name for name in self.state_joints if name in sync.positions]
+        for name in used:
+            value = sync.positions[name]
+            if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+                raise JointStateError(f"sync.positions[{name!r}]: expected a finite number (rad or m), got {short_repr(value)}")
+        beyond = frozenset(name for name, _, _ in beyond_limits(self.joint_limits, used, [sync.positions[n] for n in used]))
+        if not beyond:
+            return sync, beyond
+        return dataclasses.replace(sync, positions={n: v for n, v in sync.positions.items() if n not in beyond}), beyond
 
     def _process_arm(
         self,

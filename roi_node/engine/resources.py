@@ -43,7 +43,7 @@ def default_rig_path(name: str = "demo_bimanual") -> Path:
     return path
 
 
-def resolve_config_file(value: str | Path) -> Path:
+def resolve_config_file(value: str | os.PathLike[str]) -> Path:
     """A config path as given (absolute or relative to the working directory), else the bundled one of that name.
 
     So `-p config:=rig_demo_bimanual.yaml` works from any directory of a

@@ -23,6 +23,7 @@ An interrupt (Ctrl-C) finalizes the output with what was done.
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -109,9 +110,9 @@ def check_output_path(source: Path, target: Path, overwrite: bool) -> None:
 
 
 def replay_bag(
-    input_path: Path,
-    output_path: Path,
-    config_path: Path,
+    input_path: str | os.PathLike[str],
+    output_path: str | os.PathLike[str],
+    config_path: str | os.PathLike[str],
     *,
     overwrite: bool = False,
     include_inputs: bool = False,
@@ -142,6 +143,8 @@ def replay_bag(
     check_bag_path(source)
     check_output_path(source, target, overwrite)
     outputs = _output_options(output_transport, jpeg_quality, overlay)
+    if compression not in tuple(Compression):
+        raise UsageError(f"compression {compression!r} is not one of {', '.join(Compression)}")
     rig = load_rig_config(config_path)
     if carried_rig is not None:  # extracted to a temporary folder: messages name it as the file inside the bag
         rig = dataclasses.replace(rig, source=Path(f"{source}:{RIG_ATTACHMENT}"))
@@ -396,7 +399,7 @@ def _output_options(transport: OutputTransport | str, jpeg_quality: int, overlay
     if transport not in tuple(OutputTransport):
         raise UsageError(f"output transport {transport!r} is not one of {', '.join(OutputTransport)}")
     low, high = JPEG_QUALITY_RANGE
-    if not low <= jpeg_quality <= high:
+    if isinstance(jpeg_quality, bool) or not isinstance(jpeg_quality, int) or not low <= jpeg_quality <= high:
         raise UsageError(f"JPEG quality must be in {low}..{high}, got {jpeg_quality}")
     return OutputOptions(OutputTransport(transport), jpeg_quality=jpeg_quality, overlay=overlay)
 

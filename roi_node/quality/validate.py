@@ -15,6 +15,7 @@ from roi_node.bagio.reader import open_bag, topic_stats
 from roi_node.engine.config import RigConfig
 from roi_node.engine.errors import BagError
 from roi_node.offline.stamp_audit import IMPLAUSIBLE_STAMPS_KEY
+from roi_node.quality.bag_rig import rig_for_bag
 from roi_node.quality.calibration.check import CalibrationCheck, Tolerances, carries_inputs, check_calibration
 from roi_node.quality.drift import baseline_drift, window_drift
 from roi_node.quality.gates import IMPLAUSIBLE_STAMPS_METRIC, GateParams, GateSet, evaluate
@@ -150,7 +151,8 @@ def validate_bags(
 ) -> ValidationRun:
     """Validate every bag (in order); with `report_dir`, also draw figures and write REPORT.md + validation.json.
 
-    With `rig`, bags that carry their inputs also get the image-based calibration check (check-calibration).
+    Bags that carry their inputs also get the image-based calibration check (check-calibration), with `rig`, or
+    without it with the rig each bag carries (a bag that carries none gets none).
     Bags that recorded `command` (default: /joint_commands, if present) are also judged as rollouts (rollout.py).
     The report folder is built in a temporary sibling and replaces `report_dir` only when complete.
     """
@@ -188,8 +190,11 @@ def _validate(
     for (path, camera), name in zip(units, names, strict=True):
         scan = scan_bag(path, gates.params, with_samples=report_dir is not None, progress=progress, camera=camera)
         calibration = None
-        if rig is not None and carries_inputs(scan.topics):
-            calibration = check_calibration(path, rig if camera is None else rig.for_camera(camera), Tolerances.from_gates(gates))
+        if carries_inputs(scan.topics):
+            with rig_for_bag(path, rig) as judged_by:
+                if judged_by is not None:
+                    calibration = check_calibration(path, judged_by if camera is None else judged_by.for_camera(camera),
+                                                    Tolerances.from_gates(gates))
         validation = judge(scan, gates, name, base, calibration, rollout_of(scan, gates, command))
         if report_dir is not None:
             validation.figures = write_bag_figures(scan, validation, gates, report_dir)

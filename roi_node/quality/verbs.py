@@ -40,6 +40,8 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         if rig is not None and bag.result.calibration is None:
             print(f"note {bag.name}: the bag has no camera stream and joint states (replay --include-inputs): calibration not checked",
                   file=out)
+        elif rig is None and bag.result.calibration is not None:
+            print(f"note {bag.name}: calibration checked with the rig stored in {bag.path} (--config RIG for another)", file=out)
     if report_dir is not None:
         print(f"report: {report_dir / REPORT_NAME}", file=out)
     if args.json:
@@ -66,12 +68,21 @@ def _rig(path: str) -> RigConfig:
 
 
 def _cmd_check_calibration(args: argparse.Namespace) -> int:
+    from roi_node.bagio.reader import check_bag_path
+    from roi_node.quality.bag_rig import carried_rig
     from roi_node.quality.calibration.check import check_calibration
     from roi_node.quality.calibration.verdict import Tolerances, Verdict
     from roi_node.quality.gates import load_gates
 
     tolerances = Tolerances.from_gates(load_gates(Path(args.gates) if args.gates else None))
-    check = check_calibration(Path(args.bag), _rig(args.config), tolerances)
+    bag = Path(args.bag)
+    if args.config is not None:
+        check = check_calibration(bag, _rig(args.config), tolerances)
+    else:
+        check_bag_path(bag)
+        with carried_rig(bag) as rig:
+            print(f"check-calibration: using the rig stored in {bag} (--config RIG for another)", file=sys.stderr)
+            check = check_calibration(bag, rig, tolerances)
     if args.json:
         print(json.dumps(check.as_dict(), indent=2, allow_nan=False))
     else:
@@ -125,8 +136,8 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     validate.add_argument("--json", action="store_true", help="print the validation result as JSON on stdout")
     validate.add_argument("--baseline", metavar="BAG", help="compare ROI statistics against this ROI bag (calibration drift)")
     validate.add_argument(
-        "--config", metavar="RIG", help="the rig config: also check camera delay and reprojection from the images of bags that carry "
-        "their inputs (replay --include-inputs), as the calibration_* gates"
+        "--config", metavar="RIG", help="the rig config: check camera delay and reprojection from the images of bags that carry "
+        "their inputs (replay --include-inputs), as the calibration_* gates (default: with the rig each such bag carries, if any)"
     )
     validate.add_argument(
         "--command-topic", metavar="TOPIC", help="the policy's position commands (sensor_msgs/JointState) in a recorded rollout: "
@@ -138,14 +149,16 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     check = verbs.add_parser(
         "check-calibration",
         help="camera delay and reprojection offsets measured from a bag's images and joint states",
-        description="From the bag alone (images, joint states) and the rig config, measure how late the image stamps are "
-        "relative to the joint clock (the camera delay, with a 95% interval) and, per arm, the mean image offset between where the "
-        "images show the arm and where FK + calibration project it. Each is judged against the calibration_* gates of the gates file. "
+        description="From the bag alone (images, joint states) and the rig config (--config, else the rig the bag carries), "
+        "measure how late the image stamps are relative to the joint clock (the camera delay, with a 95% interval) and, "
+        "per arm, the mean image offset between where the images show the arm and where FK + calibration project it. "
+        "Each is judged against the calibration_* gates of the gates file. "
         "Works on input bags and on ROI bags written with replay --include-inputs. Exit 0 when both are within tolerance (or there "
         "was not enough motion to tell), 1 when one is not, 2 when an input cannot be used.",
     )
     check.add_argument("bag", metavar="BAG", help="bag folder or .mcap/.db3 file with an image topic and joint states")
-    check.add_argument("--config", required=True, metavar="RIG", help="rig config the bag was recorded with")
+    check.add_argument("--config", metavar="RIG",
+                       help="rig config the bag was recorded with (default: the rig the bag carries, as replay uses it)")
     check.add_argument("--gates", metavar="FILE", help="gates YAML whose calibration_* gates are the tolerances (default: bundled)")
     check.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     check.set_defaults(func=_cmd_check_calibration)

@@ -80,9 +80,11 @@ def look_at(position_m: Float64Array, target_m: Float64Array, up: Float64Array) 
         raise LookAtError("--look-at", f"is {distance_m:.3g} m from --position; the target must be at least "
                           f"{MIN_LOOK_DISTANCE_M:g} m away to give a viewing direction")
     up_vector = np.asarray(up, dtype=np.float64)
-    up_norm = float(np.linalg.norm(up_vector))
-    if up_norm == 0.0:
+    largest = float(np.max(np.abs(up_vector)))
+    if largest == 0.0:
         raise LookAtError("--up", "is the zero vector; expected a direction (the world's up, e.g. 0 0 1)")
+    up_vector = up_vector / largest  # only the direction counts: its norm neither overflows nor underflows
+    up_norm = float(np.linalg.norm(up_vector))
     z_axis = forward / distance_m
     right = np.cross(z_axis, up_vector / up_norm)
     sine = float(np.linalg.norm(right))

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from roi_node.engine.config import MAX_DISTANCE_M, RigConfig, load_rig_config
+from roi_node.engine.config import MAX_DISTANCE_M, MAX_TEXT_CHARS, RigConfig, load_rig_config
 from roi_node.engine.errors import ConfigError, UsageError
 from roi_node.engine.resources import resolve_config_file
 from roi_node.engine.transforms import Transform
@@ -48,6 +48,8 @@ class MeasuredPose:
 
 
 def run_camera_pose(args: argparse.Namespace) -> int:
+    if args.version is not None and not 0 < len(args.version) <= MAX_TEXT_CHARS:  # what camera.extrinsics.version holds
+        raise UsageError(f"--version: expected 1..{MAX_TEXT_CHARS} characters, got {len(args.version)}")
     rig_path = _rig_path(args)
     rig = load_rig_config(rig_path) if rig_path is not None else None
     measured = _measured_pose(args)
@@ -183,8 +185,9 @@ def _write_rig(rig: Path, block: ExtrinsicsBlock) -> None:
         shutil.copymode(rig, partial)
         try:
             load_rig_config(partial)
-        except ConfigError as exc:
-            raise RigEditError(str(rig), "camera.extrinsics", f"the updated rig would not load ({exc}); left unchanged") from exc
+        except ConfigError as exc:  # named as the rig, not as its temporary sibling, which is gone by the time this is read
+            problem = str(exc).replace(str(partial), str(rig))
+            raise RigEditError(str(rig), "camera.extrinsics", f"the updated rig would not load ({problem}); left unchanged") from exc
 
 
 def _vector(values: object) -> str:

@@ -76,7 +76,8 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     pose.add_argument("--write", metavar="RIG",
                       help="replace camera.extrinsics in this rig file (atomically; other keys and comments kept)")
     pose.add_argument("--child", metavar="NAME", help="the block's child frame name (default: the rig's, else camera_optical_frame)")
-    pose.add_argument("--version", metavar="TEXT", help="the block's version, recorded with every frame (default: today's date)")
+    pose.add_argument("--version", metavar="TEXT", help="the block's version, recorded with every frame (1..256 characters, as a rig "
+                      "holds it; default: today's date)")
     pose.set_defaults(func=_cmd_camera_pose)
 
     layout = verbs.add_parser(

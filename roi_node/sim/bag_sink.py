@@ -19,6 +19,7 @@ from roi_node.engine.config import RigConfig
 from roi_node.engine.errors import ConfigError
 from roi_node.sim.look import Look
 from roi_node.sim.rig_sim import CameraInfoEvent, ImageEvent, JointStateEvent, SimRig
+from roi_node.sim.truth import Visibility
 from roi_node.util.progress import Progress
 from roi_node.wire import topics
 from roi_node.wire.image_codec import encode_compressed
@@ -37,6 +38,7 @@ class SimBagSummary:
     first_stamp_ns: int
     last_stamp_ns: int
     image_topic: str
+    unseen_arms: tuple[str, ...]  # arms no frame shows any part of: the camera looks away from them
 
 
 def write_sim_bag(
@@ -89,6 +91,7 @@ def _drain(sim: SimRig, bag: BagWriter, duration_s: float, fmt: str | None, prog
     width, height = sim.camera.width_px, sim.camera.height_px
     frames = joint_states = 0
     first = last = None
+    unseen = [arm.id for arm in sim.arms]
     bag.rig = rig_inputs(sim.rig)  # the bag carries the rig it was simulated from (bagio/rig_attachments.py)
     with bag:
         factory = MessageFactory(bag.typestore)
@@ -109,6 +112,7 @@ def _drain(sim: SimRig, bag: BagWriter, duration_s: float, fmt: str | None, prog
                     msg = factory.image(event.stamp_ns, event.frame_id, event.image)
                 bag.write(image_topic, event.stamp_ns, msg)
                 frames += 1
+                unseen = [arm for arm in unseen if event.truth.gripper(arm).visibility is Visibility.OUT]
                 if progress is not None:
                     progress.update(frames)
             first = event.stamp_ns if first is None else first
@@ -117,7 +121,7 @@ def _drain(sim: SimRig, bag: BagWriter, duration_s: float, fmt: str | None, prog
     if progress is not None:
         progress.finish()
     assert first is not None and last is not None  # a positive duration always yields joint states
-    return SimBagSummary(bag.path, counts, frames, joint_states, first, last, image_topic)
+    return SimBagSummary(bag.path, counts, frames, joint_states, first, last, image_topic, tuple(unseen))
 
 
 def _compression(compressed: bool | str) -> str | None:

@@ -136,7 +136,8 @@ class SimRig:
             raise ConfigError(f"sim: camera_delay_ms and joint_phase_ms must be >= 0, got {delay_ms} and {joint_phase_ms}")
         camera = intrinsics or self.rig.camera.intrinsics
         if camera is None:
-            raise ConfigError(f"{self.rig.location('camera.intrinsics')}: the simulator needs a calibration file (or pass intrinsics)")
+            raise ConfigError(f"{self.rig.location('camera.intrinsics')}: the rig takes its intrinsics from the camera_info topic, "
+                              "but the simulator renders at a calibrated image size: set it to a ROS camera_calibration YAML")
         self.seed = seed
         self.rate_hz = rate_hz
         self.joint_rate_hz = joint_rate_hz

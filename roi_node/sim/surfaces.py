@@ -106,8 +106,10 @@ def _noise_textures(seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _sample(texture: np.ndarray, x: Float64Array, y: Float64Array, cell_m: float) -> Float64Array:
-    """Tile `texture` over the plane with `cell_m` per texel, bilinear, wrapping."""
+    """Tile `texture` over the plane with `cell_m` per texel, bilinear, wrapping (no points: a surface out of view)."""
     n = len(x)
+    if n == 0:
+        return np.zeros(0)
     rows = -(-n // _REMAP_ROW)  # cv2.remap maps must stay below SHRT_MAX per side
     maps = np.zeros((2, rows * _REMAP_ROW), np.float32)
     maps[0, :n] = np.mod(x / cell_m, _NOISE_SIZE)

@@ -51,6 +51,11 @@ def _cmd_sim(args: argparse.Namespace) -> int:
             sharing_policy=None if args.sharing is None else checked_policy_bytes(Path(args.sharing)),
         )
         print(f"roi-node sim: wrote {summary.path}: {summary.frames} frames on {summary.image_topic}, {summary.joint_states} joint states")
+        if summary.unseen_arms:
+            arms = f"arm{'s' if len(summary.unseen_arms) > 1 else ''} {', '.join(summary.unseen_arms)}"
+            print(f"roi-node sim: warning: no frame of {summary.path} shows {arms}; does the camera look away? Check "
+                  f"camera.extrinsics in {config} (roi-node camera-pose --config prints where each robot base lands)",
+                  file=sys.stderr)
         return 0
     if args.sharing is not None:
         raise UsageError("sim: --sharing applies to --bag (a live run publishes; `record --sharing` stores the policy)")

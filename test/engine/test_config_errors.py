@@ -258,7 +258,8 @@ def test_urdf_path_not_found_names_resolved_path(tmp_path: Path) -> None:
 def test_unknown_example_robot_data_reference_is_kinematics_error(tmp_path: Path) -> None:
     path = _rig_with(tmp_path, ("robots", 0, "urdf"), "example-robot-data:nonexistent")
     message = _load_error(path, KinematicsError)
-    _assert_error(message, path, "<file>: robots[panda].urdf: ", "'example-robot-data:nonexistent'", "not found", "short names: ", "panda")
+    _assert_error(message, path, "<file>: robots[panda].urdf: ", "'example-robot-data:nonexistent' is not in example-robot-data",
+                  "give a short name (baxter, panda,", "or the path of a URDF under its robots/ folder", "frames --list")
 
 
 def test_unknown_ee_frame_fails_pipeline_construction_with_similar_frames(tmp_path: Path) -> None:

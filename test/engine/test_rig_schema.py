@@ -338,3 +338,24 @@ def test_every_string_length_is_the_same(judge: Judge) -> None:
                     assert not ok and key in message, message
                     probed += 1
     assert probed >= 20
+
+
+def test_every_id_that_names_topics_is_judged_alike(judge: Judge) -> None:
+    """The schema's pattern for ids (camera, robots, arms) and the loader's rule (engine/topic_token.py) agree on ids
+    at and beyond each part of the rule, a newline after a valid id included."""
+    values = ["left", "L2_", "a" * 64, "le ft", "linké", "1left", "_left", "le__ft", "le-ft", "left\n", "a" * 65, "le\x00ft"]
+    probed = 0
+    for site in SITES:
+        for key, sub in site.node["properties"].items():
+            if sub.get("$ref") != "#/$defs/token":
+                continue
+            for value in values:
+                doc = copy.deepcopy(BASES["bimanual"])
+                if site.path == ("robots", 0):  # the arms name their robot by its id
+                    for arm in doc["arms"]:
+                        arm["robot"] = value if arm["robot"] == doc["robots"][0]["id"] else arm["robot"]
+                _get(doc, site.path)[key] = value
+                ok, message = judge.agree(doc, f"{_name((*site.path, key))} = {value!r}")
+                assert ok == (value in values[:3]), message
+                probed += 1
+    assert probed == 3 * len(values)

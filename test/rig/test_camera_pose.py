@@ -24,6 +24,7 @@ import yaml
 
 from roi_node.cli import main
 from roi_node.engine.config import load_rig_config
+from roi_node.rig import camera_pose_verb
 from test.conftest import CONFIG
 
 BUNDLED_RIGS = sorted(CONFIG.glob("rig_*.yaml"))
@@ -254,16 +255,52 @@ def test_easy_handeye_ros1_yaml_and_a_moveit_calibration_launch_give_the_same_po
         assert np.abs(matrix_of(block["rotation_xyzw"]) - rotation).max() < tolerance
 
 
-def test_write_keeps_the_old_rig_when_the_new_one_would_not_load(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_write_keeps_the_old_rig_when_the_new_one_would_not_load(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An edit that breaks the rig (injected: a key renamed beside the new block) leaves the file as it was, and the
+    line names the rig the user gave, not the temporary copy that failed to load."""
     rig = _copy_rig(tmp_path)
     before = rig.read_bytes()
-    code, out, err = run(capsys, "--position", "1", "0", "1", "--look-at", "0", "0", "0", "--write", str(rig),
-                         "--version", "v" * 300)
-    assert "wrote" not in out  # longer than a rig's strings may be
+    edit = camera_pose_verb.replace_camera_extrinsics
+    monkeypatch.setattr(camera_pose_verb, "replace_camera_extrinsics",
+                        lambda text, block, where: edit(text, block, where).replace("rig_id:", "rig_idd:"))
+    code, out, err = run(capsys, "--position", "1", "0", "1", "--look-at", "0", "0", "0", "--write", str(rig))
+    assert "wrote" not in out
     assert code == 2
-    assert err.count("\n") == 1 and "camera.extrinsics" in err and str(rig) in err
+    assert err == (f"roi-node camera-pose: error: {rig}: camera.extrinsics: the updated rig would not load ({rig}: rig_idd: "
+                   "unknown key; expected one of schema, rig_id, camera, robots, arms, output, sync); left unchanged\n")
     assert rig.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["front_intrinsics.yaml", "rig.yaml"]
+
+
+def test_a_version_the_rig_cannot_hold_is_one_line_and_writes_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rig = _copy_rig(tmp_path)
+    before = rig.read_bytes()
+    look_at = ["--position", "1", "0", "1", "--look-at", "0", "0", "0"]
+    for version in ("", "v" * 257):
+        for target in ([], ["--write", str(rig)]):
+            code, out, err = run(capsys, *look_at, "--version", version, *target)
+            assert (code, out) == (2, "")
+            assert err == f"roi-node camera-pose: error: --version: expected 1..256 characters, got {len(version)}\n"
+    assert rig.read_bytes() == before
+    code, out, err = run(capsys, *look_at, "--version", "v" * 256, "--write", str(rig))
+    assert code == 0, err
+    assert load_rig_config(rig).camera.extrinsics_version == "v" * 256
+
+
+@pytest.mark.parametrize(("up", "direction"), [(("1e200", "1e200", "1e200"), ("1", "1", "1")),
+                                              (("1e-200", "0", "1e-200"), ("1", "0", "1")),
+                                              (("1e308", "0", "1.7e308"), ("1", "0", "1.7"))])
+def test_an_up_of_any_magnitude_is_its_direction(up: tuple[str, ...], direction: tuple[str, ...],
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """Only the direction of --up counts: a vector whose norm overflows (or underflows) a float gives the pose its
+    direction gives, with nothing on stderr."""
+    look_at = ["--position", "2", "0", "1", "--look-at", "0", "0", "0.5"]
+    code, out, err = run(capsys, *look_at, "--up", *up)
+    assert (code, err) == (0, "")
+    expected_code, expected, _ = run(capsys, *look_at, "--up", *direction)
+    assert expected_code == 0 and printed_block(out) == printed_block(expected)
 
 
 def _bad(tmp_path: Path) -> list[tuple[list[str], str]]:

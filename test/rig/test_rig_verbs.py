@@ -8,14 +8,22 @@ joints below the wrist).
 
 from __future__ import annotations
 
+import os
+import re
 import xml.etree.ElementTree as ET
+from importlib.metadata import files
 from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
 
-from roi_node.engine.robot_models import EXAMPLE_ROBOT_DATA_PREFIX, resolve_robot_reference
+from roi_node.engine.robot_models import (
+    EXAMPLE_ROBOT_DATA_PREFIX,
+    EXAMPLE_ROBOT_URDFS,
+    example_robot_data_root,
+    resolve_robot_reference,
+)
 from test.conftest import CONFIG
 from test.support.cli_run import run_cli
 from test.support.rigs import write_rig
@@ -187,7 +195,7 @@ def test_frames_prints_every_link_under_its_parent(reference: str, capfd: pytest
 @pytest.mark.parametrize(
     ("content", "expected"),
     [
-        (None, "not found in example-robot-data"),
+        (None, "'example-robot-data:no_such_robot' is not in example-robot-data"),
         ("absent", "URDF file not found"),
         ("<robot name='r'><link name='a'/><link name='b'/><joint name='j' type='fixed'><parent link='a'/></joint></robot>",
          "has no <child"),
@@ -210,3 +218,70 @@ def test_frames_on_a_bad_urdf_is_one_line_and_exit_2(
     assert result.returncode == 2 and result.stdout == ""
     lines = result.stderr.splitlines()
     assert len(lines) == 1 and expected in lines[0], result.stderr
+
+
+def test_frames_list_is_every_installed_urdf_and_each_reference_it_prints_resolves(capfd: pytest.CaptureFixture[str]) -> None:
+    """The oracle is the example-robot-data wheel's own file list (its RECORD, read by importlib.metadata)."""
+    shipped = sorted(str(f).split("/robots/", 1)[1] for f in files("example-robot-data") or () if str(f).endswith(".urdf"))
+    assert len(shipped) > len(EXAMPLE_ROBOT_URDFS)
+    short = {relative: name for name, relative in EXAMPLE_ROBOT_URDFS.items()}
+    listed = run_cli(capfd, "frames", "--list")
+    assert listed.returncode == 0 and listed.stderr == ""
+    assert listed.stdout.splitlines() == [f"{EXAMPLE_ROBOT_DATA_PREFIX}{short.get(path, path)}" for path in shipped]
+    for reference in listed.stdout.splitlines():
+        assert resolve_robot_reference(reference, "test").as_posix().endswith("/robots/" + EXAMPLE_ROBOT_URDFS.get(
+            reference.removeprefix(EXAMPLE_ROBOT_DATA_PREFIX), reference.removeprefix(EXAMPLE_ROBOT_DATA_PREFIX)))
+
+
+@pytest.mark.parametrize("name", ["g1", "talos", "pr2", "z1", "tiago_pro"])
+def test_a_model_beyond_the_short_names_is_refused_offering_its_path_form_which_works(
+    name: str, tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """The models a new user tried: the one line shows the path form and the installed URDFs that name means; each
+    offered reference works, in frames and in a rig."""
+    refused = run_cli(capfd, "frames", f"{EXAMPLE_ROBOT_DATA_PREFIX}{name}")
+    assert refused.returncode == 2 and refused.stdout == "" and refused.stderr.count("\n") == 1
+    assert "the path of a URDF under its robots/ folder" in refused.stderr and "roi-node frames --list" in refused.stderr
+    offered = re.findall(r"(example-robot-data:[\w./-]+\.urdf)", refused.stderr.split("did you mean ")[1])
+    assert offered and all(o.split(":")[1].split("/")[0].startswith(name) for o in offered), refused.stderr
+    for reference in offered:
+        shown = run_cli(capfd, "frames", reference)
+        assert shown.returncode == 0 and "links" in shown.stdout.splitlines()[0], shown.stderr
+    doc = yaml.safe_load((CONFIG / "rig_panda_single.yaml").read_text())
+    doc["robots"][0]["urdf"] = f"{EXAMPLE_ROBOT_DATA_PREFIX}{name}"
+    in_rig = run_cli(capfd, "check-config", str(write_rig(tmp_path, doc)))
+    assert in_rig.returncode == 2 and f"robots[panda].urdf: '{EXAMPLE_ROBOT_DATA_PREFIX}{name}' is not in" in in_rig.stderr
+    assert offered[0] in in_rig.stderr
+
+
+def test_a_path_that_leads_out_of_example_robot_data_is_refused(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    outside = tmp_path / "outside.urdf"
+    outside.write_text("<robot name='r'><link name='a'/></robot>")
+    reference = EXAMPLE_ROBOT_DATA_PREFIX + os.path.relpath(outside, example_robot_data_root())
+    assert run_cli(capfd, "frames", str(outside)).returncode == 0  # the file itself is a URDF
+    refused = run_cli(capfd, "frames", reference)
+    assert refused.returncode == 2 and f"{reference!r} is not in example-robot-data" in refused.stderr
+
+
+def test_check_config_warns_in_one_line_when_the_global_view_stretches_the_image(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """The default global view is 256x256, a 16:9 image stretched into it (kept as the default: outputs stay as they
+    are); check-config names the key and the size that keeps the aspect, and that size silences it."""
+    doc = yaml.safe_load((CONFIG / "rig_demo_bimanual.yaml").read_text())
+    rig = write_rig(tmp_path, doc)
+    warned = run_cli(capfd, "check-config", str(rig))
+    assert warned.returncode == 0 and "valid: true" in warned.stdout
+    assert warned.stderr == (f"roi-node check-config: warning: {rig}: output.global_view.size: 256x256 has another aspect "
+                             "than the 1280x720 image, which is stretched into it; set output.global_view.size: [256, 144] "
+                             "to keep the image's aspect\n")
+    suggested = yaml.safe_load(warned.stderr.split("set output.global_view.size: ")[1].split(" to keep")[0])
+    assert suggested[0] / suggested[1] == pytest.approx(1280 / 720, rel=1 / 144)
+    for size in (suggested, [455, 256], [64, 36]):  # the aspect kept to a pixel, from either side
+        doc["output"]["global_view"]["size"] = size
+        assert run_cli(capfd, "check-config", str(write_rig(tmp_path, doc))).stderr == "", size
+    doc["output"]["global_view"] = {"enabled": False, "size": [256, 256]}
+    assert run_cli(capfd, "check-config", str(write_rig(tmp_path, doc))).stderr == ""
+    doc["output"]["global_view"] = {"size": [256, 256]}
+    del doc["camera"]["intrinsics"]  # from camera_info at run time: no image size to compare with
+    assert run_cli(capfd, "check-config", str(write_rig(tmp_path, doc))).stderr == ""

@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from roi_node.engine.engine import LIMIT_MARGIN_FRACTION, LIMIT_MARGIN_MIN
+from roi_node.engine.joint_limits import limit_margin
 from roi_node.quality.calibration.arm_tracks import JointSeries
 from roi_node.quality.calibration.motion_evidence import moving_share
 from roi_node.quality.calibration.verdict import MIN_MOVING_FRAMES, CannotTell, Reason
@@ -35,7 +35,7 @@ def screen_joint_limits(joints: JointSeries, limits: Mapping[str, tuple[float, f
     for name, (lo, hi) in limits.items():
         if name not in values:
             continue
-        margin = max(LIMIT_MARGIN_MIN, LIMIT_MARGIN_FRACTION * (hi - lo))
+        margin = limit_margin(lo, hi)
         v = values[name]
         outside = (v < lo - margin) | (v > hi + margin)
         if not outside.any():

@@ -43,6 +43,9 @@ DEFAULT_OFFSET_TOLERANCE_PX = 8.0
 # `ok` needs the 95% uncertainty (half the delay interval, the offset radius) within this share of the tolerance;
 # `off` needs it within the tolerance (see the module docstring)
 RESOLVED_SHARE = 0.5
+MAX_SETTLING_FACTOR = 100.0  # a bag this many times as long is no advice: the estimate sits on the tolerance's edge
+DELAY_EVIDENCE = "with an arm moving across the view"  # the delay fit's moving_frames
+OFFSET_EVIDENCE = "that show the arm against the known background"  # an offset fit's frames
 
 
 class Verdict(StrEnum):
@@ -155,13 +158,14 @@ class CalibrationCheck:
             if d.half_width_ms <= RESOLVED_SHARE * tol:
                 return Finding(Verdict.OK)
             detail = f"{interval} lies within {band} but is too wide to call it ok (at most +-{RESOLVED_SHARE * tol:g} ms)"
-            return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, detail))
-        if high < -tol or low > tol:
+        elif high < -tol or low > tol:
             if d.half_width_ms <= tol:
                 return Finding(Verdict.OFF)
             detail = f"{interval} lies outside {band} but is too wide to say what to set (at most +-{tol:g} ms)"
-            return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, detail))
-        return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, f"{interval} reaches across {band}"))
+        else:
+            detail = f"{interval} reaches across {band}"
+        settling = _settling(abs(d.delay_ms - self.configured_delay_ms), tol, d.half_width_ms, d.moving_frames, DELAY_EVIDENCE, "ms")
+        return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, f"{detail}; {settling}"))
 
     # --- the offsets -------------------------------------------------------------------------
     def offset_fit(self, arm_id: str) -> OffsetFit | None:
@@ -198,13 +202,14 @@ class CalibrationCheck:
             if radius <= RESOLVED_SHARE * tol:
                 return Finding(Verdict.OK)
             detail = f"{estimate} lies within the tolerance of {tol:g} px, too uncertain to call it ok (at most +-{RESOLVED_SHARE * tol:g})"
-            return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, detail))
-        if size - radius > tol:
+        elif size - radius > tol:
             if radius <= tol:
                 return Finding(Verdict.OFF)
             detail = f"{estimate} lies beyond the tolerance of {tol:g} px but is too uncertain to say how far (at most +-{tol:g} px)"
-            return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, detail))
-        return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, f"{estimate} reaches across the tolerance of {tol:g} px"))
+        else:
+            detail = f"{estimate} reaches across the tolerance of {tol:g} px"
+        settling = _settling(size, tol, radius, fit.frames, OFFSET_EVIDENCE, "px")
+        return Finding(Verdict.UNKNOWN, Reason(CannotTell.UNCERTAIN, f"{detail}; {settling}"))
 
     # --- the bag -----------------------------------------------------------------------------
     @property
@@ -315,6 +320,25 @@ class CalibrationCheck:
             f"arm {arm_id}: reprojection offset ({dx:+.1f}, {dy:+.1f}) px (95% within {fit.ci_radius_px:.1f} px; per-frame spread "
             f"{sx:.1f}, {sy:.1f}; {fit.frames} frames): {judged}"
         )
+
+
+def _settling(distance: float, tolerance: float, half_width: float, frames: int, evidence: str, unit: str) -> str:
+    """What would settle an uncertain estimate `distance` from what is configured (within `tolerance` is ok), whose
+    95% uncertainty is +-`half_width` over `frames` frames of evidence.
+
+    The verdict needs the uncertainty within RESOLVED_SHARE of the tolerance and clear of its edge for ok, within the
+    tolerance and clear of its edge for off. The block bootstrap resamples the frames of evidence, so the uncertainty
+    narrows about as 1/sqrt of their number: a bag with `factor` times as many gets there.
+    """
+    inside = distance <= tolerance
+    needed = min(RESOLVED_SHARE * tolerance, tolerance - distance) if inside else min(tolerance, distance - tolerance)
+    factor = (half_width / needed) ** 2 if needed > 0 else math.inf
+    if factor > MAX_SETTLING_FACTOR:
+        return (f"the estimate lies {abs(tolerance - distance):.2g} {unit} from the tolerance's edge: it would take over "
+                f"{MAX_SETTLING_FACTOR:g} times this bag's {frames} frames {evidence} to settle it")
+    more = math.ceil(frames * factor)
+    return (f"to settle it: about {more} frames {evidence} (this bag has {frames}; the uncertainty narrows about as "
+            f"1/sqrt of them), i.e. a session about {more / frames:.1f}x as long with as much motion, or more motion in the same time")
 
 
 def _judged(finding: Finding, tolerance: str) -> str:

@@ -31,12 +31,14 @@ from roi_node.cli import main
 from roi_node.engine.config import load_rig_config
 from roi_node.engine.pipeline import RoiPipeline
 from roi_node.offline.replay import replay_bag
+from roi_node.quality.bag_rig import rig_for_bag
 from roi_node.quality.calibration.check import check_calibration
 from roi_node.quality.calibration.verdict import CalibrationCheck, CannotTell, Tolerances, Verdict
 from roi_node.sim.bag_sink import write_events
 from roi_node.sim.look import Look
 from roi_node.sim.rig_sim import ImageEvent, JointStateEvent, SimRig
 from test.conftest import CONFIG
+from test.support.bagtools import write_bag
 from test.support.rigs import ok_sync
 from test.support.simrig import scaled_camera_rig
 
@@ -271,9 +273,34 @@ def test_validate_passes_the_calibration_gates_with_the_right_delay_and_fails_th
     assert float(failed.split()[0].rstrip(",;")) == pytest.approx(spec.delay_ms, abs=DELAY_TOLERANCE_MS), out
     report = (tmp_path / "report" / "REPORT.md").read_text()
     assert "### Calibration from the images" in report and "- hint: set camera.delay_ms: " in report
-    # without --config the bags have no calibration gates at all
-    main(["validate", str(roi), "--json"])
-    assert not [g for g in json.loads(capsys.readouterr().out)["bags"][0]["gates"] if g["gate"].startswith("calibration")]
+    # without --config, the rig the ROI bag carries (the one replay used: configuring 40 ms) judges it, as with --config
+    assert main(["validate", str(roi), "--json"]) == 0
+    out, err = capsys.readouterr()
+    carried = json.loads(out)["bags"][0]
+    assert carried["gates"] == passed["gates"] and carried["calibration"] == passed["calibration"]
+    assert err.splitlines()[-1] == f"note roi_bimanual: calibration checked with the rig stored in {roi} (--config RIG for another)"
+
+
+def test_check_calibration_without_config_uses_the_rig_the_bag_carries(
+    sim_bags: SimBags, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A sim bag carries the rig it was made from: check-calibration of it alone is the check with that rig; a bag
+    that carries none is one line asking for --config."""
+    bag = sim_bags.bag(CLEAN_XARM)
+    code = main(["check-calibration", str(bag), "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert json.loads(out) == json.loads(json.dumps(sim_bags.check(CLEAN_XARM).as_dict()))
+    assert err == f"check-calibration: using the rig stored in {bag} (--config RIG for another)\n"
+    bare = tmp_path / "bare"
+    write_bag(bare, RoiPipeline(load_rig_config(sim_bags.rigs["bimanual"])), frames=10)
+    code = main(["check-calibration", str(bare)])
+    out, err = capsys.readouterr()
+    assert (code, out) == (2, "")
+    assert err == (f"roi-node check-calibration: error: {bare}: the bag holds no rig (it was not written with one); "
+                   "pass --config RIG_YAML\n")
+    with rig_for_bag(bare, None) as judged_by:  # what validate judges such a bag with: nothing, so no calibration gates
+        assert judged_by is None
 
 
 # --- what cannot be measured ------------------------------------------------------------------------------------
