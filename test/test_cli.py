@@ -23,7 +23,8 @@ def test_bad_config_is_one_clear_line_and_exit_2(tmp_path: Path) -> None:
     bad.write_text("schema: roi_node/rig/v1\nrig_id: x\n")
     result = _roi_node("demo", "--config", str(bad), "--out", str(tmp_path / "o"), cwd=tmp_path)
     assert result.returncode == 2
-    assert result.stderr.strip() == f"roi-node demo: error: {bad}: camera: missing"
+    expected = "cameras: give exactly one of camera: (the rig's one camera) or cameras: (a list of cameras)"
+    assert result.stderr.strip() == f"roi-node demo: error: {bad}: {expected}"
     missing = _roi_node("demo", "--config", str(tmp_path / "nope.yaml"), cwd=tmp_path)
     assert missing.returncode == 2 and "nope.yaml: rig config not found" in missing.stderr
 

@@ -237,8 +237,8 @@ def _episode(
                 "max_offset_ms": plan.worst_offset_ns / NS_PER_MS,
             },
             "action": {"command_topic": options.command_topic, "held_frames": actions.held_frames},
-            "sharing": None if sharing is None else sharing.as_dict(),
         }
+        | ({} if sharing is None else {"sharing": sharing.as_dict()})  # absent without a policy: older exports keep their bytes
     )
     return EpisodeReport(
         index, bag, options.config is not None, len(source.columns), source.incomplete, plan, actions.held_frames, not failed, len(failed)

@@ -405,6 +405,8 @@ def load_rig_config(path: str | os.PathLike[str]) -> RigConfig:
         raise root.fail("schema", f"expected {RIG_SCHEMA!r}, got {schema!r}")
     base_dir = file.resolve().parent
 
+    if root.has("camera") == root.has("cameras"):  # before the robots: a rig's camera comes first in its file
+        raise root.fail("cameras", "give exactly one of camera: (the rig's one camera) or cameras: (a list of cameras)")
     sync = _load_sync(root.child("sync") if root.has("sync") else _Node({}, "sync", file))
     robots = tuple(_load_robot(node, base_dir, sync) for node in root.items("robots"))
     _unique([r.id for r in robots], root, "robots", "id")
@@ -437,8 +439,6 @@ def _unique(ids: list[str], root: _Node, key: str, field_name: str) -> None:
 
 def _load_cameras(root: _Node, base_dir: Path, robot_ids: set[str]) -> tuple[CameraConfig, ...]:
     """`camera:` (one camera) or `cameras:` (a list); ids and input topics unique across cameras."""
-    if root.has("camera") == root.has("cameras"):
-        raise root.fail("cameras", "give exactly one of camera: (the rig's one camera) or cameras: (a list of cameras)")
     nodes = [root.child("camera")] if root.has("camera") else root.items("cameras")
     cameras = tuple(_load_camera(node, base_dir, robot_ids, several=len(nodes) > 1) for node in nodes)
     key = "camera" if root.has("camera") else "cameras"

@@ -27,7 +27,7 @@ from roi_node.engine.config import load_rig_config
 from roi_node.engine.errors import BagError, CalibrationError
 from roi_node.engine.pipeline import RoiPipeline
 from roi_node.offline.batch import replay_bags
-from roi_node.offline.replay import PartialOutputDiscardedError, ReplayInterrupted, _Replay, replay_bag
+from roi_node.offline.replay import PartialOutputDiscardedError, ReplayInterrupted, _CameraReplay, replay_bag
 from roi_node.sim.bag_sink import write_sim_bag
 from roi_node.wire.messages import MessageFactory
 from test.support.bagtools import small_rig, write_bag
@@ -223,14 +223,14 @@ def test_an_interrupted_replay_keeps_its_output_only_if_the_chunks_it_left_unche
     """Its frames were paired with joint samples read from chunks the frame pass had not reached: those are checked first."""
     bag = write_sim_bag(rig, tmp_path / "sim", duration_s=1.0, seed=3).path
     frame_chunks = _frame_chunks(bag / "sim.mcap")
-    original = _Replay._frame
+    original = _CameraReplay.frame
 
-    def stop_after_five_frames(self: _Replay, reader: Any, raw: Any, outputs: Any) -> None:
+    def stop_after_five_frames(self: _CameraReplay, reader: Any, raw: Any, outputs: Any) -> None:
         original(self, reader, raw, outputs)
         if self.stats.frames_out == 5:
             raise KeyboardInterrupt  # a second Ctrl-C, which interrupts at once
 
-    monkeypatch.setattr(_Replay, "_frame", stop_after_five_frames)
+    monkeypatch.setattr(_CameraReplay, "frame", stop_after_five_frames)
     with pytest.raises(ReplayInterrupted) as stopped:
         replay_bag(bag, tmp_path / "out_clean", rig)
     assert stopped.value.summary.frames_out == 5 and (tmp_path / "out_clean.interrupted").is_dir()

@@ -350,7 +350,7 @@ def test_every_id_that_names_topics_is_judged_alike(judge: Judge) -> None:
             if sub.get("$ref") != "#/$defs/token":
                 continue
             for value in values:
-                doc = copy.deepcopy(BASES["bimanual"])
+                doc = copy.deepcopy(next(base for base in BASES.values() if _has(base, site.path)))
                 if site.path == ("robots", 0):  # the arms name their robot by its id
                     for arm in doc["arms"]:
                         arm["robot"] = value if arm["robot"] == doc["robots"][0]["id"] else arm["robot"]
@@ -358,4 +358,5 @@ def test_every_id_that_names_topics_is_judged_alike(judge: Judge) -> None:
                 ok, message = judge.agree(doc, f"{_name((*site.path, key))} = {value!r}")
                 assert ok == (value in values[:3]), message
                 probed += 1
-    assert probed == 3 * len(values)
+    token_sites = [s for s in SITES for sub in s.node["properties"].values() if sub.get("$ref") == "#/$defs/token"]
+    assert probed == len(token_sites) * len(values) and len(token_sites) == 4  # robots, arms, camera, cameras

@@ -125,7 +125,8 @@ def _content(sent: list[tuple[str, bytes]]) -> list[tuple[str, bytes]]:
 def _live_run(node: RoiNode, bag: BagSpec) -> list[tuple[str, bytes]]:
     sent: list[tuple[str, bytes]] = []
     lock = threading.Lock()
-    node._output_pubs = {name: _NotingPublisher(name, sent, lock) for name in node._output_pubs}  # type: ignore[misc]
+    (stream,) = node.streams
+    stream.output_pubs = {name: _NotingPublisher(name, sent, lock) for name in stream.output_pubs}  # type: ignore[misc]
     recorded = _recorded(bag.path)
     on_joints = node._joint_callback(JOINT_TOPIC)
     for topic, raw in recorded:  # every joint sample first, as replay's first pass feeds them
@@ -133,8 +134,8 @@ def _live_run(node: RoiNode, bag: BagSpec) -> list[tuple[str, bytes]]:
             on_joints(deserialize_message(raw, JointState))
     for topic, raw in recorded:
         if topic == IMAGE_TOPIC:
-            node._on_image(deserialize_message(raw, Image))
-    stats = node.stats
+            node._on_image(stream, deserialize_message(raw, Image))
+    stats = stream.engine.stats
     deadline = time.monotonic() + WAIT_S
     settled = False
     while not settled and time.monotonic() < deadline:
@@ -159,7 +160,7 @@ def test_live_and_replay_send_the_same_messages_in_the_same_order_and_count_fram
     assert len(offline) == good * len(set(t for t, _ in offline)), "every output topic once per usable frame"
     assert _content(live) == _content(offline), "the same content, byte for byte up to CDR padding"
 
-    stats = node.stats
+    stats = node.streams[0].engine.stats
     assert (summary.frames_in, summary.frames_out, summary.frames_bad) == (FRAMES, good, len(BAD_FRAMES))
     assert (stats.frames_in, stats.frames_out, stats.drops[DropKind.BAD_IMAGE]) == (FRAMES, good, len(BAD_FRAMES))
     assert summary.bad_messages == stats.other_bad_messages == 0
