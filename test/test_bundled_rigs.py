@@ -7,7 +7,9 @@ simulator writes 1.5 s of it into a bag, `roi-node replay` crops it,
 simulator's own ground truth: the joint positions it posed at each capture
 time, through the simulator's arm model (`roi_node/sim/arms.py`, built from
 the rig and the URDF, not from the pipeline's arms), give where each tip
-lands in the image; every crop box the contact sheet draws must hold it.
+lands in the image; every crop box the contact sheet draws must hold it. A rig
+of several cameras is held per camera (its own records, stamps and pose, a
+head camera's moving with the joints that carry it).
 
 The bag is rendered at a quarter of the rig's resolution, with every pixel
 length of the rig (the inward offset, the window clips) scaled alike, so the
@@ -18,6 +20,7 @@ the module's CPU low. check-config runs on the bundled file itself.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,10 +30,11 @@ import pytest
 import yaml
 
 from roi_node.cli import main
-from roi_node.engine.camera import calibration_yaml_text, camera_from_info
 from roi_node.engine.config import load_rig_config
 from roi_node.sim.rig_sim import SimRig
+from roi_node.wire import topics
 from test.conftest import CONFIG
+from test.support.rigs import scaled_rig
 from test.support.roibags import read_records
 
 BUNDLED_RIGS = sorted(CONFIG.glob("rig_*.yaml"))
@@ -48,47 +52,9 @@ class RigRun:
     bundled: Path
     scaled: Path
     sim: SimRig
-    records: list[dict[str, Any]]
+    records: dict[str, list[dict[str, Any]]]  # by camera id
     validate_exit: int
     report_dir: Path
-
-
-def scaled_rig(bundled: Path, folder: Path, scale: float) -> Path:
-    """The bundled rig seen at `scale` of its resolution: intrinsics and every pixel length of its arms scaled.
-
-    Distortion coefficients act on normalised coordinates and stay; K and P
-    scale about pixel centres (u + 0.5 is the distance from the image's
-    left edge). Depth windows keep their alpha and radius (l follows f_x),
-    and their px clips, the inward offset and fixed sizes scale, so each
-    window covers what it covers at full size.
-    """
-    rig = load_rig_config(bundled)
-    source = rig.camera.intrinsics
-    assert source is not None, f"{bundled.name}: the bundled rigs carry a calibration file"
-    k, p = source.k.copy(), source.p.copy()
-    for matrix in (k, p):
-        matrix[:2, :2] *= scale
-        matrix[:2, 2] = (matrix[:2, 2] + 0.5) * scale - 0.5
-    p[:2, 3] *= scale  # a stereo camera's baseline term, in px
-    small = camera_from_info(
-        width_px=round(source.width_px * scale), height_px=round(source.height_px * scale),
-        distortion_model=source.distortion_model, d=source.d, k=k, r=source.r, p=p, rectified=rig.camera.rectified,
-    )
-    (folder / "intrinsics.yaml").write_text(calibration_yaml_text(small, rig.camera.id))
-    doc = yaml.safe_load(bundled.read_text())
-    doc["camera"]["intrinsics"] = "intrinsics.yaml"
-    for robot in doc["robots"]:  # a relative URDF path stays the bundled file
-        if not robot["urdf"].startswith("example-robot-data:"):
-            robot["urdf"] = str((bundled.parent / robot["urdf"]).resolve())
-    for arm in doc["arms"]:
-        if "offset_px" in arm:
-            arm["offset_px"] = round(arm["offset_px"] * scale)
-        for key in ("min_px", "max_px", "size_px"):
-            if key in arm["scale"]:
-                arm["scale"][key] = max(1, round(arm["scale"][key] * scale))
-    path = folder / bundled.name
-    path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    return path
 
 
 @pytest.fixture(scope="module", params=BUNDLED_RIGS, ids=[p.stem for p in BUNDLED_RIGS])
@@ -102,7 +68,9 @@ def rig_run(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFac
     assert main(["replay", str(bag), "-o", str(roi), "--config", str(scaled)]) == 0
     validate_exit = main(["validate", str(roi), "--report", str(report)])
     sim = SimRig(scaled, seed=SEED, rate_hz=RATE_HZ)
-    return RigRun(bundled, scaled, sim, read_records(roi), validate_exit, report)
+    rig = sim.rig
+    records = {c.id: read_records(roi, topics.absolute(topics.metadata_topic(topics.output_camera(rig, c.id)))) for c in rig.cameras}
+    return RigRun(bundled, scaled, sim, records, validate_exit, report)
 
 
 @pytest.mark.parametrize("rig", BUNDLED_RIGS, ids=[p.stem for p in BUNDLED_RIGS])
@@ -115,20 +83,35 @@ def test_check_config_passes_and_names_every_arm(rig: Path, capsys: pytest.Captu
 
 
 def test_the_sim_bag_replays_every_frame_paired_with_the_simulated_joints(rig_run: RigRun) -> None:
-    sim, records = rig_run.sim, rig_run.records
-    assert [r["frame_index"] for r in records] == list(range(sim.frame_count(DURATION_S)))
-    for record in records:
-        assert record["sync"]["status"] == "ok", record["frame_index"]
-        truth = sim.ground_truth(record["stamp_ns"] - sim.delay_ns)
-        recorded = record["joint_positions"]
-        for name, position in truth.positions.items():
-            assert abs(recorded[name] - position) <= JOINT_MATCH_RAD, (record["frame_index"], name)
+    """Each camera's frames, paired at that camera's own stamp (the cameras capture out of phase)."""
+    sim = rig_run.sim
+    for camera in sim.cameras:
+        records = rig_run.records[camera.id]
+        assert [r["frame_index"] for r in records] == list(range(sim.frame_count(DURATION_S)))
+        assert [r["stamp_ns"] for r in records] == [sim.capture_ns(k, camera.index) + camera.delay_ns for k in range(len(records))]
+        for record in records:
+            assert record["sync"]["status"] == "ok" and record["camera_id"] == camera.id, record["frame_index"]
+            truth = sim.ground_truth(record["stamp_ns"] - camera.delay_ns, camera.index)
+            recorded = record["joint_positions"]
+            for name, position in truth.positions.items():
+                assert abs(recorded[name] - position) <= JOINT_MATCH_RAD, (camera.id, record["frame_index"], name)
 
 
 def test_validate_passes_every_gate_and_draws_the_contact_sheet(rig_run: RigRun) -> None:
-    assert rig_run.validate_exit == 0
+    """Each camera is judged alone: every gate passes but those of an arm the camera never shows (a head camera that
+    looks at one arm), which fail and make validate exit 1."""
+    sim = rig_run.sim
+    report = json.loads((rig_run.report_dir / "validation.json").read_text())
+    unit_camera = {"sim_roi": sim.cameras[0].id} if len(sim.cameras) == 1 else {f"sim_roi_{c.id}": c.id for c in sim.cameras}
+    assert sorted(unit["name"] for unit in report["bags"]) == sorted(unit_camera)
+    failed = {(unit_camera[unit["name"]], gate["arm"]) for unit in report["bags"] for gate in unit["gates"] if gate["status"] == "fail"}
+    never_shown = {(camera_id, arm.id) for camera_id, records in rig_run.records.items() for arm in sim.arms
+                   if all(a["in_frame_ratio"] == 0 for r in records for a in r["arms"] if a["arm_id"] == arm.id)}
+    assert failed == never_shown
+    assert all(any((c.id, arm.id) not in never_shown for c in sim.cameras) for arm in sim.arms), never_shown
+    assert rig_run.validate_exit == (1 if failed else 0)
     sheets = list(rig_run.report_dir.rglob("contact_sheet.png"))
-    assert len(sheets) == 1 and sheets[0].stat().st_size > 0
+    assert len(sheets) == len(sim.cameras) and all(sheet.stat().st_size > 0 for sheet in sheets)
 
 
 def test_every_crop_box_holds_its_simulated_tip(rig_run: RigRun) -> None:
@@ -137,34 +120,46 @@ def test_every_crop_box_holds_its_simulated_tip(rig_run: RigRun) -> None:
     The tip is the far end of the gripper (`tip.frame` or `tip.position_m`),
     so a box that holds it and is centred near the ee frame holds the
     gripper's length; the oracle is the simulator's arm model at the posed
-    joint positions, projected by the rig's camera.
+    joint positions, projected by the camera where it was at the capture (a
+    head camera moves with the head, a base from a topic drives).
     """
     sim = rig_run.sim
-    width_px, height_px = sim.camera.width_px, sim.camera.height_px
-    tips_checked = {arm.id: 0 for arm in sim.arms}
-    for record in rig_run.records:
-        truth = sim.ground_truth(record["stamp_ns"] - sim.delay_ns)
-        arms = {arm["arm_id"]: arm for arm in record["arms"]}
-        for sim_arm in sim.arms:
-            pose = sim_arm.pose(np.array([truth.positions[n] for n in sim_arm.joint_names]))
-            tip_cam = (sim.view.cam_T_world @ sim_arm.world_T_base).apply(pose.base_T_ee.apply(pose.tip_in_ee_m))
-            uv, valid = sim.camera.project(tip_cam[None, :], sim.view.z_near_m)
-            u, v = uv[0]
-            arm = arms[sim_arm.id]
-            where = f"{rig_run.bundled.name} frame {record['frame_index']} arm {sim_arm.id}"
-            if valid[0] and -0.5 <= u <= width_px - 0.5 and -0.5 <= v <= height_px - 0.5:
-                assert arm["projection_valid"], where
-                x0, y0, x1, y1 = arm["crop_box"]
-                inside = x0 - 0.5 <= u <= x1 - 0.5 and y0 - 0.5 <= v <= y1 - 0.5  # pixel centres: box edges at x0 - 0.5, x1 - 0.5
-                assert inside, f"{where}: tip at ({u:.1f}, {v:.1f}) outside {arm['crop_box']}"
-                tips_checked[sim_arm.id] += 1
-    assert min(tips_checked.values()) >= len(rig_run.records) // 2, tips_checked  # the rig's camera sees its grippers
+    tips_checked = {(camera.id, arm.id): 0 for camera in sim.cameras for arm in sim.arms}
+    for camera in sim.cameras:
+        width_px, height_px = camera.model.width_px, camera.model.height_px
+        for record in rig_run.records[camera.id]:
+            capture_ns = record["stamp_ns"] - camera.delay_ns
+            truth = sim.ground_truth(capture_ns, camera.index)
+            view = sim.camera_view(capture_ns, camera.index)
+            world_T_bases = sim.world_T_bases(capture_ns)
+            arms = {arm["arm_id"]: arm for arm in record["arms"]}
+            for sim_arm in sim.arms:
+                pose = sim_arm.pose(np.array([truth.positions[n] for n in sim_arm.joint_names]))
+                world_T_base = world_T_bases[sim.rig.arms[sim_arm.index].robot]
+                tip_cam = (view.cam_T_world @ world_T_base).apply(pose.base_T_ee.apply(pose.tip_in_ee_m))
+                uv, valid = camera.model.project(tip_cam[None, :], view.z_near_m)
+                u, v = uv[0]
+                arm = arms[sim_arm.id]
+                where = f"{rig_run.bundled.name} camera {camera.id} frame {record['frame_index']} arm {sim_arm.id}"
+                if valid[0] and -0.5 <= u <= width_px - 0.5 and -0.5 <= v <= height_px - 0.5:
+                    assert arm["projection_valid"], where
+                    x0, y0, x1, y1 = arm["crop_box"]
+                    inside = x0 - 0.5 <= u <= x1 - 0.5 and y0 - 0.5 <= v <= y1 - 0.5  # pixel centres: box edges at x0 - 0.5, x1 - 0.5
+                    assert inside, f"{where}: tip at ({u:.1f}, {v:.1f}) outside {arm['crop_box']}"
+                    tips_checked[camera.id, sim_arm.id] += 1
+    frames = sim.frame_count(DURATION_S)
+    for arm in sim.arms:  # the rig's cameras see every gripper (a head camera may look at one arm) ...
+        assert max(tips_checked[c.id, arm.id] for c in sim.cameras) >= frames // 2, tips_checked
+    for camera in sim.cameras:  # ... and every camera sees a gripper
+        assert max(tips_checked[camera.id, a.id] for a in sim.arms) >= frames // 2, tips_checked
 
 
 def test_the_scaled_rig_differs_from_the_bundled_one_only_in_pixels(rig_run: RigRun) -> None:
     bundled, scaled = load_rig_config(rig_run.bundled), load_rig_config(rig_run.scaled)
-    assert bundled.camera.intrinsics is not None and scaled.camera.intrinsics is not None
-    assert scaled.camera.intrinsics.width_px == round(bundled.camera.intrinsics.width_px * IMAGE_SCALE)
-    np.testing.assert_array_equal(scaled.camera.world_T_cam.matrix(), bundled.camera.world_T_cam.matrix())
+    for big, small in zip(bundled.cameras, scaled.cameras, strict=True):
+        assert big.intrinsics is not None and small.intrinsics is not None
+        assert small.intrinsics.width_px == round(big.intrinsics.width_px * IMAGE_SCALE)
+        np.testing.assert_array_equal(small.parent_T_cam.matrix(), big.parent_T_cam.matrix())
+        assert small.mount == big.mount
     assert [(a.id, a.ee_frame, a.tip) for a in scaled.arms] == [(a.id, a.ee_frame, a.tip) for a in bundled.arms]
     assert scaled.sync == bundled.sync and scaled.output == bundled.output

@@ -34,10 +34,11 @@ class CommandTopic:
         return self.name if self.name.startswith("/") else "/" + self.name
 
 
-def command_log_times(path: Path, command: CommandTopic) -> np.ndarray | None:
-    """Log times (ns) of every message on the command topic; None when the bag has no such topic and none was asked for."""
+def command_log_times(path: Path, command: CommandTopic, camera: str | None = None) -> np.ndarray | None:
+    """Log times (ns) of every message on the command topic; None when the bag has no such topic and none was asked for.
+    `camera`: which camera's outputs make the bag an ROI bag (None in a rig of one camera)."""
     name = command.full_name
-    with RoiBag(path) as bag:
+    with RoiBag(path, camera) as bag:
         stats = bag.topics.get(name)
         if stats is None:
             if command.required:

@@ -71,7 +71,7 @@ def implausible_stamps(scan: BagScan) -> int | None:
 
 def rollout_of(scan: BagScan, gates: GateSet, command: CommandTopic) -> RolloutSummary | None:
     """The rollout part of a bag that recorded a policy's commands (rollout.py); None for a demonstration."""
-    times = command_log_times(scan.path, command)
+    times = command_log_times(scan.path, command, scan.camera)
     if times is None:
         return None
     params = gates.params

@@ -51,7 +51,7 @@ def run_camera_pose(args: argparse.Namespace) -> int:
     if args.version is not None and not 0 < len(args.version) <= MAX_TEXT_CHARS:  # what camera.extrinsics.version holds
         raise UsageError(f"--version: expected 1..{MAX_TEXT_CHARS} characters, got {len(args.version)}")
     rig_path = _rig_path(args)
-    rig = load_rig_config(rig_path) if rig_path is not None else None
+    rig = _one_camera(load_rig_config(rig_path), args) if rig_path is not None else None
     measured = _measured_pose(args)
     world_T_base, base_label = _base_in_world(args.base, measured, rig)
     world_T_optical = world_T_base @ measured.base_T_optical
@@ -73,6 +73,21 @@ def run_camera_pose(args: argparse.Namespace) -> int:
         print(f"roi-node camera-pose: wrote camera.extrinsics into {args.write} (version {block.version}); "
               "the rest of the file is unchanged")
     return 0
+
+
+def _one_camera(rig: RigConfig, args: argparse.Namespace) -> RigConfig:
+    """The rig narrowed to the camera the pose is for: its only one, or `--camera ID` of several (a fixed camera)."""
+    if args.camera is None and rig.several_cameras:
+        raise UsageError(f"{rig.source}: the rig has cameras {', '.join(rig.camera_ids)}; say which one: --camera ID")
+    narrowed = rig.for_camera(args.camera) if args.camera is not None else rig
+    camera = narrowed.camera
+    if camera.mount is not None:
+        raise UsageError(f"{narrowed.camera_location(camera.id)}: camera {camera.id!r} rides {camera.mount.parent}; camera-pose "
+                         "gives the pose of a camera fixed in world")
+    if args.write and rig.several_cameras:
+        raise UsageError(f"--write {args.write}: the rig has several cameras; write the printed block into "
+                         f"{narrowed.camera_location(camera.id)}.extrinsics yourself")
+    return narrowed
 
 
 def _rig_path(args: argparse.Namespace) -> Path | None:

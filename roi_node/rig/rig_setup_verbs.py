@@ -75,6 +75,8 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     pose.add_argument("--config", metavar="RIG", help="rig config to read the robots, the camera and the child frame name from")
     pose.add_argument("--write", metavar="RIG",
                       help="replace camera.extrinsics in this rig file (atomically; other keys and comments kept)")
+    pose.add_argument("--camera", metavar="ID", help="which camera of a rig of several (cameras[].id) the pose is for; "
+                      "--write then needs a rig of one camera")
     pose.add_argument("--child", metavar="NAME", help="the block's child frame name (default: the rig's, else camera_optical_frame)")
     pose.add_argument("--version", metavar="TEXT", help="the block's version, recorded with every frame (1..256 characters, as a rig "
                       "holds it; default: today's date)")

@@ -40,13 +40,15 @@ from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
 import numpy as np
 
 from roi_node.engine.camera import CameraModel
+from roi_node.engine.config import load_rig_config
+from roi_node.engine.errors import ConfigError
 from roi_node.engine.sync import NS_PER_MS, NS_PER_S
 from roi_node.rostools.sim_clock import Clock, SystemClock
 from roi_node.rostools.sim_frames import CapturedFrames, FramesOnTheFly, FrameSource, PrerenderedFrames
 from roi_node.sim.command_follow import CommandIssue
 from roi_node.sim.limits import DEFAULT_MAX_JOINT_SPEED_RAD_S
 from roi_node.sim.render_budget import DEFAULT_RENDER_BUDGET_MIB, RenderMode, plan_render
-from roi_node.sim.rig_sim import FrameSlot, SimRig
+from roi_node.sim.rig_sim import FrameSlot, JointStateEvent, SimRig
 from roi_node.util.progress import Progress
 
 if TYPE_CHECKING:
@@ -195,6 +197,7 @@ class SimPublisher(Generic[ImageMessageT]):
                     if frames is not None:
                         self._send_frame(item, due_ns, frames)
                 else:
+                    assert isinstance(item, JointStateEvent), "run_live refuses a rig whose base pose comes from a topic"
                     self.tally.joint_late_ms_max = max(self.tally.joint_late_ms_max, self._late_ms(due_ns))
                     self.sink.joint_state(self.start_ns + item.stamp_ns, item.names, item.positions)
                     self.tally.joint_states += 1
@@ -221,7 +224,7 @@ class SimPublisher(Generic[ImageMessageT]):
         stamp_offset_ns = self.sim.capture_ns(frame_index) + self.sim.delay_ns
         due_ns = self._due_ns_of(stamp_offset_ns)
         self.clock.sleep_until(due_ns)
-        self._send_or_drop(FrameSlot(stamp_offset_ns, frame_index), due_ns, message)
+        self._send_or_drop(FrameSlot(stamp_offset_ns, frame_index, 0), due_ns, message)
 
     def _capture_due_ns(self, frame_index: int) -> int:
         """Monotonic time of frame k's capture: the followed state it shows is known from then on."""
@@ -280,9 +283,13 @@ def run_live(
     if follow_commands is not None:
         check_command_topic("--follow-commands", follow_commands)
 
+    rig_config = load_rig_config(config)
+    if rig_config.several_cameras or any(r.base_topic is not None for r in rig_config.robots):
+        raise ConfigError(f"{config}: sim live publishes a rig of one camera and fixed bases; for several cameras or a base "
+                          "from a topic write a bag (sim --bag OUT) and publish it with roi-node play")
     # built before the clock starts (the scene render takes a while); stamps are offsets from the timeline's zero
     print(f"sim: building the simulated rig of {config} (robots, static scene, choreography)", file=sys.stderr, flush=True)
-    sim = SimRig(config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms)
+    sim = SimRig(rig_config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms)
     follower = None
     if follow_commands is not None:
         follower = sim.follow_commands(max_joint_speed_rad_s, lambda issue, name: _report_first(follow_commands, issue, name))

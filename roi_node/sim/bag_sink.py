@@ -1,8 +1,10 @@
 """Drain a SimRig into a rosbag2 MCAP bag: the input of offline replay, made from nothing.
 
 Topics are what a camera driver and a robot publish (docs/design.md "Topics"):
-`/image_raw` (sensor_msgs/Image rgb8) or `/image_raw/compressed` (png or
-jpeg), `/camera_info`, `/joint_states`. The bag's log time of every message
+per camera its image topic (`/image_raw`, sensor_msgs/Image rgb8, or
+`/image_raw/compressed`, png or jpeg) and camera_info topic (`/camera_info`; a
+rig of several cameras names them per camera), `/joint_states`, and each moving
+base's pose topic in the rig's message type. The bag's log time of every message
 is its header stamp, so replaying by log time or by header stamp agrees. The
 same rig, seed and parameters give the same bag bytes.
 """
@@ -18,10 +20,11 @@ from roi_node.bagio.writer import BagWriter
 from roi_node.engine.config import RigConfig
 from roi_node.engine.errors import ConfigError
 from roi_node.sim.look import Look
-from roi_node.sim.rig_sim import CameraInfoEvent, ImageEvent, JointStateEvent, SimRig
+from roi_node.sim.rig_sim import BasePoseEvent, CameraInfoEvent, ImageEvent, JointStateEvent, SimRig
 from roi_node.sim.truth import Visibility
 from roi_node.util.progress import Progress
 from roi_node.wire import topics
+from roi_node.wire.base_pose import MESSAGE_TYPES, base_pose_message
 from roi_node.wire.image_codec import encode_compressed
 from roi_node.wire.messages import MessageFactory
 
@@ -37,8 +40,9 @@ class SimBagSummary:
     joint_states: int
     first_stamp_ns: int
     last_stamp_ns: int
-    image_topic: str
-    unseen_arms: tuple[str, ...]  # arms no frame shows any part of: the camera looks away from them
+    image_topic: str  # the first camera's
+    unseen_arms: tuple[str, ...]  # arms no frame of any camera shows any part of: the cameras look away from them
+    image_topics: tuple[str, ...]  # every camera's, in the rig's order
 
 
 def write_sim_bag(
@@ -85,32 +89,39 @@ def write_events(
 
 def _drain(sim: SimRig, bag: BagWriter, duration_s: float, fmt: str | None, progress: Progress | None = None) -> SimBagSummary:
     """Every event into the bag; log time = header stamp."""
-    image_topic = topics.absolute(topics.COMPRESSED_IMAGE if fmt else topics.IMAGE)
-    info_topic = topics.absolute(topics.CAMERA_INFO)
+    image_topics = {c.id: c.image_topic + ("/compressed" if fmt else "") for c in sim.cameras}
+    info_topics = {c.id: c.info_topic for c in sim.cameras}
     joints_topic = topics.absolute(topics.JOINT_STATES)
-    width, height = sim.camera.width_px, sim.camera.height_px
     frames = joint_states = 0
     first = last = None
     unseen = [arm.id for arm in sim.arms]
     bag.rig = rig_inputs(sim.rig)  # the bag carries the rig it was simulated from (bagio/rig_attachments.py)
     with bag:
         factory = MessageFactory(bag.typestore)
-        bag.add_topic(image_topic, topics.COMPRESSED_IMAGE_TYPE if fmt else topics.IMAGE_TYPE)
-        bag.add_topic(info_topic, topics.CAMERA_INFO_TYPE)
+        for camera in sim.cameras:
+            bag.add_topic(image_topics[camera.id], topics.COMPRESSED_IMAGE_TYPE if fmt else topics.IMAGE_TYPE)
+            bag.add_topic(info_topics[camera.id], topics.CAMERA_INFO_TYPE)
         bag.add_topic(joints_topic, topics.JOINT_STATE_TYPE)
+        bases = {m.robot.id: m.topic for m in sim.bases}
+        for motion in sim.bases:
+            bag.add_topic(topics.absolute(motion.topic.topic), MESSAGE_TYPES[motion.topic.source])
         for event in sim.events(duration_s):
             if isinstance(event, JointStateEvent):
                 bag.write(joints_topic, event.stamp_ns, factory.joint_state(event.stamp_ns, list(event.names), list(event.positions)))
                 joint_states += 1
+            elif isinstance(event, BasePoseEvent):
+                message = base_pose_message(bag.typestore.types, event.stamp_ns, bases[event.robot_id], event.world_T_base)
+                bag.write(event.topic, event.stamp_ns, message)
             elif isinstance(event, CameraInfoEvent):
-                bag.write(info_topic, event.stamp_ns, factory.camera_info(event.stamp_ns, event.frame_id, event.camera, width, height))
+                msg = factory.camera_info(event.stamp_ns, event.frame_id, event.camera, event.camera.width_px, event.camera.height_px)
+                bag.write(info_topics[event.camera_id], event.stamp_ns, msg)
             elif isinstance(event, ImageEvent):
                 if fmt:
                     data = encode_compressed(event.image, fmt, JPEG_QUALITY)
                     msg = factory.compressed(event.stamp_ns, event.frame_id, f"rgb8; {fmt} compressed bgr8", data)
                 else:
                     msg = factory.image(event.stamp_ns, event.frame_id, event.image)
-                bag.write(image_topic, event.stamp_ns, msg)
+                bag.write(image_topics[event.camera_id], event.stamp_ns, msg)
                 frames += 1
                 unseen = [arm for arm in unseen if event.truth.gripper(arm).visibility is Visibility.OUT]
                 if progress is not None:
@@ -121,7 +132,8 @@ def _drain(sim: SimRig, bag: BagWriter, duration_s: float, fmt: str | None, prog
     if progress is not None:
         progress.finish()
     assert first is not None and last is not None  # a positive duration always yields joint states
-    return SimBagSummary(bag.path, counts, frames, joint_states, first, last, image_topic, tuple(unseen))
+    image_topic = image_topics[sim.cameras[0].id]
+    return SimBagSummary(bag.path, counts, frames, joint_states, first, last, image_topic, tuple(unseen), tuple(image_topics.values()))
 
 
 def _compression(compressed: bool | str) -> str | None:

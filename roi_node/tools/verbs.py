@@ -50,7 +50,8 @@ def _cmd_sim(args: argparse.Namespace) -> int:
             camera_delay_ms=args.camera_delay_ms, progress=True,
             sharing_policy=None if args.sharing is None else checked_policy_bytes(Path(args.sharing)),
         )
-        print(f"roi-node sim: wrote {summary.path}: {summary.frames} frames on {summary.image_topic}, {summary.joint_states} joint states")
+        print(f"roi-node sim: wrote {summary.path}: {summary.frames} frames on {', '.join(summary.image_topics)}, "
+              f"{summary.joint_states} joint states")
         if summary.unseen_arms:
             arms = f"arm{'s' if len(summary.unseen_arms) > 1 else ''} {', '.join(summary.unseen_arms)}"
             print(f"roi-node sim: warning: no frame of {summary.path} shows {arms}; does the camera look away? Check "

@@ -1,15 +1,18 @@
 """A robot base's pose in world from the message it comes in (nav_msgs/Odometry, geometry_msgs/PoseStamped,
 tf2_msgs/TFMessage), for the live node (rclpy messages) and replay (rosbags messages) alike: both have the same
-fields, so one reading serves both drivers.
+fields, so one reading serves both drivers; and the message for a pose (rosbags types), which the simulator
+writes for a moving base.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from roi_node.engine.config import BasePoseSource, BasePoseTopic
 from roi_node.engine.errors import InputDataError
-from roi_node.engine.stamps import NS_PER_S
+from roi_node.engine.stamps import NS_PER_S, ns_to_stamp
 from roi_node.engine.transforms import Transform
 from roi_node.wire import topics
 
@@ -70,3 +73,30 @@ def base_poses(msg: Any, config: BasePoseTopic, where: str) -> list[tuple[int, T
 def base_pose_topic(config: BasePoseTopic) -> str:
     """The topic as a bag names it."""
     return topics.absolute(config.topic)
+
+
+def base_pose_message(types: Any, stamp_ns: int, config: BasePoseTopic, world_T_base: Transform) -> Any:
+    """The message `base_poses` reads back as (stamp_ns, world_T_base), of the rig's type, from a typestore's `types`;
+    frames as the rig names them (`world` and `base_link` where it names none)."""
+    sec, nanosec = ns_to_stamp(stamp_ns)
+    header = types["std_msgs/msg/Header"](stamp=types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec),
+                                          frame_id=config.parent_frame or "world")
+    x, y, z = (float(v) for v in world_T_base.translation_m)
+    qx, qy, qz, qw = (float(v) for v in world_T_base.quat_xyzw())
+    quat = types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)
+    child = config.child_frame or "base_link"
+    if config.source is BasePoseSource.TF:
+        transform = types["geometry_msgs/msg/Transform"](translation=types["geometry_msgs/msg/Vector3"](x=x, y=y, z=z), rotation=quat)
+        stamped = types["geometry_msgs/msg/TransformStamped"](header=header, child_frame_id=child, transform=transform)
+        return types[MESSAGE_TYPES[config.source]](transforms=[stamped])
+    pose = types["geometry_msgs/msg/Pose"](position=types["geometry_msgs/msg/Point"](x=x, y=y, z=z), orientation=quat)
+    if config.source is BasePoseSource.POSE:
+        return types[MESSAGE_TYPES[config.source]](header=header, pose=pose)
+    covariance = np.zeros(36, dtype=np.float64)
+    twist = types["geometry_msgs/msg/Twist"](linear=types["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                                             angular=types["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0))
+    return types[MESSAGE_TYPES[config.source]](
+        header=header, child_frame_id=child,
+        pose=types["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=covariance),
+        twist=types["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=covariance.copy()),
+    )

@@ -69,9 +69,19 @@ def quat_of(rotation: np.ndarray) -> list[float]:
     return [float(v) for v in quat]
 
 
-def rig_extrinsics(rig: Path) -> tuple[np.ndarray, np.ndarray]:
-    ext = yaml.safe_load(rig.read_text())["camera"]["extrinsics"]
+def camera_blocks(rig: Path) -> list[dict[str, Any]]:
+    """The rig's camera blocks as written: its `camera`, or each of `cameras`."""
+    doc = yaml.safe_load(rig.read_text())
+    return [doc["camera"]] if "camera" in doc else list(doc["cameras"])
+
+
+def rig_extrinsics(rig: Path, camera: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    ext = camera_blocks(rig)[camera]["extrinsics"]
     return np.asarray(ext["translation"], float), matrix_of(ext["rotation_xyzw"])
+
+
+FIXED_CAMERAS = [(rig, i) for rig in BUNDLED_RIGS for i, block in enumerate(camera_blocks(rig))
+                 if block["extrinsics"].get("parent", "world") == "world"]
 
 
 def run(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
@@ -96,17 +106,21 @@ def _numbers(values: np.ndarray) -> list[str]:
     return [repr(float(v)) for v in values]
 
 
-@pytest.mark.parametrize("rig", BUNDLED_RIGS, ids=[p.stem for p in BUNDLED_RIGS])
-def test_a_look_at_derived_from_a_bundled_rig_reproduces_its_extrinsics(rig: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    translation, rotation = rig_extrinsics(rig)
+@pytest.mark.parametrize(("rig", "camera"), FIXED_CAMERAS, ids=[f"{p.stem}-{i}" for p, i in FIXED_CAMERAS])
+def test_a_look_at_derived_from_a_bundled_rig_reproduces_its_extrinsics(rig: Path, camera: int,
+                                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """Every camera fixed in world of every bundled rig (chosen by id in a rig of several)."""
+    translation, rotation = rig_extrinsics(rig, camera)
     target = translation + 1.7 * rotation[:, 2]  # a point on the optical axis
     image_up = -rotation[:, 1]  # optical y points down the image
-    code, out, err = run(capsys, "--config", str(rig), "--position", *_numbers(translation),
+    blocks = camera_blocks(rig)
+    which = ["--camera", blocks[camera]["id"]] if len(blocks) > 1 else []
+    code, out, err = run(capsys, "--config", str(rig), *which, "--position", *_numbers(translation),
                          "--look-at", *_numbers(target), "--up", *_numbers(image_up))
     assert code == 0, err
     block = printed_block(out)
     assert_pose(block, translation, rotation)
-    assert block["child"] == yaml.safe_load(rig.read_text())["camera"]["extrinsics"]["child"]
+    assert block["child"] == blocks[camera]["extrinsics"]["child"]
     assert "BEHIND" not in out and err == ""
 
 
@@ -269,7 +283,7 @@ def test_write_keeps_the_old_rig_when_the_new_one_would_not_load(
     assert "wrote" not in out
     assert code == 2
     assert err == (f"roi-node camera-pose: error: {rig}: camera.extrinsics: the updated rig would not load ({rig}: rig_idd: "
-                   "unknown key; expected one of schema, rig_id, camera, robots, arms, output, sync); left unchanged\n")
+                   "unknown key; expected one of schema, rig_id, camera, cameras, robots, arms, output, sync); left unchanged\n")
     assert rig.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["front_intrinsics.yaml", "rig.yaml"]
 
@@ -344,3 +358,22 @@ def test_as_a_command_bad_input_prints_no_traceback(tmp_path: Path) -> None:
     assert result.returncode == 2
     assert result.stdout == ""
     assert result.stderr.splitlines() == [f"roi-node camera-pose: error: {tmp_path / 'none.calib'}: hand-eye calibration not found"]
+
+
+def test_a_rig_of_several_cameras_takes_the_camera_by_id(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    """The pose is for `--camera ID`, a camera fixed in world; without it, or for a camera on a link, one line, exit 2."""
+    rig = str(CONFIG / "rig_tiago_head.yaml")
+    look = ("--position", "2", "0", "1.5", "--look-at", "0", "0", "0.8")
+    code, out, err = run(capsys, *look, "--config", rig, "--camera", "front")
+    assert code == 0 and printed_block(out)["child"] == "front_optical" and "robot tiago: base" in out, err
+    code, _, err = run(capsys, *look, "--config", rig)
+    assert code == 2 and err.strip().endswith("the rig has cameras front, head; say which one: --camera ID")
+    code, _, err = run(capsys, *look, "--config", rig, "--camera", "head")
+    assert code == 2 and "cameras[head]: camera 'head' rides tiago/xtion_rgb_optical_frame" in err
+    copy = tmp_path / "rig.yaml"
+    copy.write_text((CONFIG / "rig_tiago_head.yaml").read_text())
+    for name in ("front_intrinsics.yaml", "head_intrinsics.yaml"):
+        (tmp_path / name).write_text((CONFIG / name).read_text())
+    before = copy.read_bytes()
+    code, _, err = run(capsys, *look, "--write", str(copy), "--camera", "front")
+    assert code == 2 and "the rig has several cameras; write the printed block into" in err and copy.read_bytes() == before

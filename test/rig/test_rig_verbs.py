@@ -108,7 +108,8 @@ def test_check_config_prints_the_resolved_rig_and_each_arms_joints(rig: Path, ca
             assert Path(got) == (rig.parent / value).resolve(), path
         else:
             assert got == value, path
-    for defaulted in (("camera", "z_min_m"), ("output", "global_view", "size"), ("sync", "policy")):  # filled in
+    camera: tuple[str | int, ...] = ("camera",) if "camera" in written else ("cameras", 0)
+    for defaulted in ((*camera, "z_min_m"), ("output", "global_view", "size"), ("sync", "policy")):  # filled in
         got = resolved
         for key in defaulted:
             got = got[key]

@@ -10,6 +10,8 @@ import cv2
 import numpy as np
 import yaml
 
+from roi_node.engine.camera import calibration_yaml_text, camera_from_info
+from roi_node.engine.config import load_rig_config
 from roi_node.engine.pipeline import RoiPipeline
 from roi_node.engine.sync import SyncResult
 from roi_node.engine.transforms import matrix_to_quat_xyzw
@@ -94,3 +96,43 @@ def marker_centroid(roi: np.ndarray) -> np.ndarray:
     total = weights.sum()
     assert total > 0, "no marker in the ROI"
     return np.array([(weights * xs).sum() / total, (weights * ys).sum() / total])
+
+
+def scaled_rig(bundled: Path, folder: Path, scale: float) -> Path:
+    """The bundled rig seen at `scale` of its resolution: intrinsics and every pixel length of its arms scaled.
+
+    Distortion coefficients act on normalised coordinates and stay; K and P
+    scale about pixel centres (u + 0.5 is the distance from the image's
+    left edge). Depth windows keep their alpha and radius (l follows f_x),
+    and their px clips, the inward offset and fixed sizes scale, so each
+    window covers what it covers at full size.
+    """
+    rig = load_rig_config(bundled)
+    doc = yaml.safe_load(bundled.read_text())
+    blocks = [doc["camera"]] if "camera" in doc else doc["cameras"]
+    for camera, block in zip(rig.cameras, blocks, strict=True):
+        source = camera.intrinsics
+        assert source is not None, f"{bundled.name}: the bundled rigs carry a calibration file"
+        k, p = source.k.copy(), source.p.copy()
+        for matrix in (k, p):
+            matrix[:2, :2] *= scale
+            matrix[:2, 2] = (matrix[:2, 2] + 0.5) * scale - 0.5
+        p[:2, 3] *= scale  # a stereo camera's baseline term, in px
+        small = camera_from_info(
+            width_px=round(source.width_px * scale), height_px=round(source.height_px * scale),
+            distortion_model=source.distortion_model, d=source.d, k=k, r=source.r, p=p, rectified=camera.rectified,
+        )
+        (folder / f"{camera.id}_intrinsics.yaml").write_text(calibration_yaml_text(small, camera.id))
+        block["intrinsics"] = f"{camera.id}_intrinsics.yaml"
+    for robot in doc["robots"]:  # a relative URDF path stays the bundled file
+        if not robot["urdf"].startswith("example-robot-data:"):
+            robot["urdf"] = str((bundled.parent / robot["urdf"]).resolve())
+    for arm in doc["arms"]:
+        if "offset_px" in arm:
+            arm["offset_px"] = round(arm["offset_px"] * scale)
+        for key in ("min_px", "max_px", "size_px"):
+            if key in arm["scale"]:
+                arm["scale"][key] = max(1, round(arm["scale"][key] * scale))
+    path = folder / bundled.name
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path

@@ -151,9 +151,10 @@ def roi_bag(folder: Path, name: str, rig_path: Path, poses: Sequence[Pose], *, i
     return out
 
 
-def read_records(path: Path) -> list[dict[str, Any]]:
+def read_records(path: Path, topic: str = METADATA_TOPIC) -> list[dict[str, Any]]:
+    """The metadata records of an ROI bag (of one camera's metadata topic in a rig of several)."""
     with AnyReader([path], default_typestore=typestore()) as reader:
-        connections = [c for c in reader.connections if c.topic == METADATA_TOPIC]
+        connections = [c for c in reader.connections if c.topic == topic]
         return [json.loads(reader.deserialize(raw, c.msgtype).data) for c, _, raw in reader.messages(connections=connections)]
 
 
