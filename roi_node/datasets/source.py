@@ -27,7 +27,7 @@ from roi_node.engine.errors import BagError, ImageError
 from roi_node.offline.inputs import decode_frame
 from roi_node.quality.gates import GateParams
 from roi_node.quality.results import BagScan
-from roi_node.quality.roibag import GLOBAL_TOPIC, METADATA_TOPIC, RoiBag, image_topic_in, roi_image_topic
+from roi_node.quality.roibag import GLOBAL_TOPIC, METADATA_TOPIC, RoiBag, cameras_in, image_topic_in, roi_image_topic
 from roi_node.quality.stats import BagStats
 from roi_node.wire import topics
 
@@ -42,8 +42,9 @@ def header_stamp_ns(raw: bytes | memoryview) -> int:
 
 
 def has_roi_outputs(path: Path) -> bool:
+    """Whether the bag holds ROI outputs (of one camera, or of several, which `read_source` then refuses)."""
     with open_bag(path) as reader:
-        return METADATA_TOPIC in topic_stats(reader)
+        return bool(cameras_in(topic_stats(reader)))
 
 
 @dataclass(frozen=True)
@@ -69,6 +70,11 @@ class RoiSource:
 
 def read_source(path: Path, params: GateParams) -> RoiSource:
     """Pass 1 over an ROI bag; BagError naming the bag, topic or frame when it cannot make an episode."""
+    with open_bag(path) as reader:
+        cameras = cameras_in(topic_stats(reader))
+    if len(cameras) > 1:
+        raise BagError(f"{path}: holds the outputs of cameras {', '.join(str(c) for c in cameras)}; export lerobot takes "
+                       "the ROI bag of a rig of one camera")
     with RoiBag(path) as bag:
         stats = BagStats(stamp_gap_factor=params.stamp_gap_factor)
         columns: FrameColumns | None = None

@@ -82,3 +82,15 @@ def test_sim_live_refuses_a_rig_of_several_cameras_in_one_line(head_rig: Path, c
     assert main(["sim", "live", "--config", str(head_rig), "--duration", "1"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "sim --bag OUT" in err and "roi-node play" in err, err
+
+
+def test_export_refuses_the_roi_bag_of_several_cameras_in_one_line(head_rig: Path, tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["sim", "--config", str(head_rig), "--bag", str(tmp_path / "sim"), "--duration", "0.5"]) == 0
+    assert main(["replay", str(tmp_path / "sim"), "-o", str(tmp_path / "roi"), "--config", str(head_rig)]) == 0
+    capsys.readouterr()
+    assert main(["export", "lerobot", str(tmp_path / "roi"), "-o", str(tmp_path / "dataset"), "--fps", "30", "--task", "t"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"roi-node export: error: {tmp_path / 'roi'}: holds the outputs of cameras front, head; export lerobot "
+                   "takes the ROI bag of a rig of one camera"), err
+    assert not (tmp_path / "dataset").exists()
