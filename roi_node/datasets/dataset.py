@@ -184,9 +184,10 @@ class DatasetWriter:
         sampled = set(sample_positions(count))
         writers = {key: self._video_writer(series) for key, series in self._videos.items()}
         starts = {key: writer.frames for key, writer in writers.items()}
-        feeders = {key: _GridFeeder(grid_stamps) for key in writers}
+        stamps = {key: [source.image_stamp(key, int(s)) for s in grid_stamps] for key in writers}  # another camera's own
+        feeders = {key: _GridFeeder(np.asarray(stamps[key], dtype=np.int64)) for key in writers}
         samples: dict[str, list[np.ndarray]] = {key: [] for key in writers}
-        wanted = {key: {int(s) for s in grid_stamps} for key in writers}
+        wanted = {key: set(stamps[key]) for key in writers}
         progress = Progress(f"export {source.path.name}", count * len(writers), self.progress, unit="video frames")
         encoded = 0
         for key, stamp, pixels in frames(source.path, source.video_topics, wanted):

@@ -26,6 +26,7 @@ from roi_node.engine.records import FrameRecord
 
 STATE_KEY = "observation.state"
 ACTION_KEY = "action"
+IMAGES_PREFIX = "observation.images."
 GLOBAL_KEY = "observation.images.global"
 ROI_IMAGE_PREFIX = "observation.images.roi_"
 ROI_PREFIX = "observation.roi."
@@ -56,8 +57,14 @@ def roi_key(arm_id: str, field: RoiField) -> str:
     return f"{ROI_PREFIX}{arm_id}.{field}"
 
 
-def roi_image_key(arm_id: str) -> str:
-    return f"{ROI_IMAGE_PREFIX}{arm_id}"
+def roi_image_key(arm_id: str, camera: str | None = None) -> str:
+    """`observation.images.roi_<arm>`; in a rig of several cameras `observation.images.<camera>_roi_<arm>`."""
+    return f"{IMAGES_PREFIX}{'' if camera is None else camera + '_'}roi_{arm_id}"
+
+
+def global_key(camera: str | None = None) -> str:
+    """`observation.images.global`; in a rig of several cameras `observation.images.<camera>_global`."""
+    return f"{IMAGES_PREFIX}{'' if camera is None else camera + '_'}global"
 
 
 @dataclass(frozen=True)
@@ -77,17 +84,22 @@ class EpisodeSpec:
     joint_names: tuple[str, ...]
     roi_sizes: tuple[ImageSize, ...]  # per arm, in `arms` order
     global_size: ImageSize | None
+    cameras: tuple[str, ...] = ()  # a rig of several cameras: their ids (each has every video); () for a rig of one
 
     def video_sizes(self) -> dict[str, ImageSize]:
-        """Video feature key -> frame size, in dataset order (global view first)."""
-        out = {GLOBAL_KEY: self.global_size} if self.global_size is not None else {}
-        out.update({roi_image_key(arm): size for arm, size in zip(self.arms, self.roi_sizes, strict=True)})
+        """Video feature key -> frame size, in dataset order (per camera, its global view first)."""
+        out: dict[str, ImageSize] = {}
+        for camera in self.cameras or (None,):
+            if self.global_size is not None:
+                out[global_key(camera)] = self.global_size
+            out.update({roi_image_key(arm, camera): size for arm, size in zip(self.arms, self.roi_sizes, strict=True)})
         return out
 
     def fits(self, other: EpisodeSpec) -> bool:
-        """Same arms and image sizes, and the same joint names (the dataset's order is kept)."""
+        """Same cameras, arms and image sizes, and the same joint names (the dataset's order is kept)."""
         return (
-            self.arms == other.arms
+            self.cameras == other.cameras
+            and self.arms == other.arms
             and self.roi_sizes == other.roi_sizes
             and self.global_size == other.global_size
             and set(self.joint_names) == set(other.joint_names)
@@ -96,7 +108,8 @@ class EpisodeSpec:
     def describe(self) -> str:
         rois = ", ".join(f"{arm} {size.text()}" for arm, size in zip(self.arms, self.roi_sizes, strict=True))
         view = self.global_size.text() if self.global_size is not None else "none"
-        return f"arms {', '.join(self.arms)} (ROI {rois}), global view {view}, {len(self.joint_names)} joints"
+        cameras = f"cameras {', '.join(self.cameras)}, " if self.cameras else ""
+        return f"{cameras}arms {', '.join(self.arms)} (ROI {rois}), global view {view}, {len(self.joint_names)} joints"
 
     def numeric_features(self) -> dict[str, dict[str, Any]]:
         """Every non-video feature but LeRobot's defaults, in dataset column order."""
@@ -123,16 +136,21 @@ class EpisodeSpec:
     @classmethod
     def from_features(cls, features: Mapping[str, Any], where: str) -> EpisodeSpec:
         """The spec of an existing dataset, from its info.json features."""
+        arms = tuple(dict.fromkeys(key.removeprefix(ROI_PREFIX).rsplit(".", 1)[0] for key in features if key.startswith(ROI_PREFIX)))
+        if not arms:
+            raise DatasetError(f"{where}: info.json has no {ROI_PREFIX}<arm>.<field> feature; not a roi_node export")
+        # the arm ids are known from the record fields, so `<camera>_roi_<arm>` parses whatever the camera id holds
+        suffix = f"_roi_{arms[0]}"
+        cameras = tuple(key.removeprefix(IMAGES_PREFIX).removesuffix(suffix) for key in features
+                        if key.startswith(IMAGES_PREFIX) and key.endswith(suffix))
+        first = cameras[0] if cameras else None
         try:
             joints = tuple(str(n) for n in features[STATE_KEY]["names"])
-            arms = tuple(key.removeprefix(ROI_IMAGE_PREFIX) for key in features if key.startswith(ROI_IMAGE_PREFIX))
-            rois = tuple(_size(features[roi_image_key(arm)]["shape"]) for arm in arms)
-            view = _size(features[GLOBAL_KEY]["shape"]) if GLOBAL_KEY in features else None
+            rois = tuple(_size(features[roi_image_key(arm, first)]["shape"]) for arm in arms)
+            view = _size(features[global_key(first)]["shape"]) if global_key(first) in features else None
         except (KeyError, TypeError, ValueError) as exc:
             raise DatasetError(f"{where}: info.json features are not those of a roi_node export ({exc!r} missing or malformed)") from exc
-        if not arms:
-            raise DatasetError(f"{where}: info.json has no {ROI_IMAGE_PREFIX}<arm> video feature; not a roi_node export")
-        return cls(arms, joints, rois, view)
+        return cls(arms, joints, rois, view, cameras)
 
 
 def _size(shape: Sequence[int]) -> ImageSize:

@@ -21,13 +21,13 @@ from typing import Any
 import numpy as np
 
 from roi_node.bagio.reader import DESERIALIZE_ERRORS, Cdr, deserialize, open_bag, read_messages, stamp_ns, topic_stats
-from roi_node.datasets.features import GLOBAL_KEY, EpisodeSpec, FrameColumns, ImageSize, check_arm_ids, roi_image_key
+from roi_node.datasets.features import EpisodeSpec, FrameColumns, ImageSize, check_arm_ids, global_key, roi_image_key
 from roi_node.datasets.video import as_rgb
 from roi_node.engine.errors import BagError, ImageError
 from roi_node.offline.inputs import decode_frame
 from roi_node.quality.gates import GateParams
 from roi_node.quality.results import BagScan
-from roi_node.quality.roibag import GLOBAL_TOPIC, METADATA_TOPIC, RoiBag, cameras_in, image_topic_in, roi_image_topic
+from roi_node.quality.roibag import METADATA_TOPIC, RoiBag, cameras_in, image_topic_in
 from roi_node.quality.stats import BagStats
 from roi_node.wire import topics
 
@@ -42,7 +42,7 @@ def header_stamp_ns(raw: bytes | memoryview) -> int:
 
 
 def has_roi_outputs(path: Path) -> bool:
-    """Whether the bag holds ROI outputs (of one camera, or of several, which `read_source` then refuses)."""
+    """Whether the bag holds ROI outputs (of one camera, or of each of several)."""
     with open_bag(path) as reader:
         return bool(cameras_in(topic_stats(reader)))
 
@@ -58,6 +58,12 @@ class RoiSource:
     usable: tuple[int, ...]  # positions in `columns` of frames with every image, by stamp
     video_topics: dict[str, str]  # video feature key -> topic
     scan: BagScan
+    image_stamps: dict[str, dict[int, int]]  # video key -> record stamp -> the stamp of that key's image for it
+
+    def image_stamp(self, key: str, stamp_ns: int) -> int:
+        """The header stamp of video `key`'s image for the frame of the records stamped `stamp_ns` (another camera's
+        nearest frame in a rig of several)."""
+        return self.image_stamps[key][stamp_ns]
 
     @property
     def incomplete(self) -> int:
@@ -69,13 +75,15 @@ class RoiSource:
 
 
 def read_source(path: Path, params: GateParams) -> RoiSource:
-    """Pass 1 over an ROI bag; BagError naming the bag, topic or frame when it cannot make an episode."""
+    """Pass 1 over an ROI bag; BagError naming the bag, topic or frame when it cannot make an episode.
+
+    In a bag of several cameras the first camera by id is the episode's: its records give the state, the ROI fields
+    and the grid; each other camera gives, for each of those frames, its own frame nearest in stamp (within one of its
+    frame intervals).
+    """
     with open_bag(path) as reader:
-        cameras = cameras_in(topic_stats(reader))
-    if len(cameras) > 1:
-        raise BagError(f"{path}: holds the outputs of cameras {', '.join(str(c) for c in cameras)}; export lerobot takes "
-                       "the ROI bag of a rig of one camera")
-    with RoiBag(path) as bag:
+        cameras = tuple(c for c in cameras_in(topic_stats(reader)) if c is not None)
+    with RoiBag(path, cameras[0] if cameras else None) as bag:
         stats = BagStats(stamp_gap_factor=params.stamp_gap_factor)
         columns: FrameColumns | None = None
         robot_id = ""
@@ -89,33 +97,62 @@ def read_source(path: Path, params: GateParams) -> RoiSource:
                 robot_id = str(record.robot_id)
             columns.add(record, f"{path}: {METADATA_TOPIC} message {message.position} (frame_index {record.frame_index})")
         assert columns is not None  # RoiBag refuses a bag without records
-        video_topics = _video_topics(bag, columns.arms)
+        per_camera = [_video_topics(bag, columns.arms, camera) for camera in cameras or (None,)]
+        video_topics = {key: topic for keys in per_camera for key, topic in keys.items()}
         sizes, stamps = _image_stamps(bag, video_topics)
         scan = BagScan.of(path, bag, stats, [])
-    usable = _usable(columns, stamps)
+    first = cameras[0] if cameras else None
+    image_stamps = {key: _nearest(columns.stamps_ns, have, exact=key in per_camera[0]) for key, have in stamps.items()}
+    usable = _usable(columns, image_stamps)
     if not usable:
         raise BagError(f"{path}: no frame has an image on every one of {', '.join(video_topics.values())}")
     spec = EpisodeSpec(
         arms=columns.arms,
         joint_names=columns.joint_names,
-        roi_sizes=tuple(sizes[roi_image_key(arm)] for arm in columns.arms),
-        global_size=sizes.get(GLOBAL_KEY),
+        roi_sizes=tuple(sizes[roi_image_key(arm, first)] for arm in columns.arms),
+        global_size=sizes.get(global_key(first)),
+        cameras=cameras,
     )
-    return RoiSource(path, spec, robot_id, columns, usable, video_topics, scan)
+    for camera in cameras[1:]:  # every camera's images have the first one's sizes (one output block per rig)
+        for key in (global_key(camera), *(roi_image_key(arm, camera) for arm in columns.arms)):
+            if key in sizes and sizes[key] != spec.video_sizes()[key]:
+                raise BagError(f"{path}: {video_topics[key]}: images of {sizes[key].text()}, camera {first}'s are "
+                               f"{spec.video_sizes()[key].text()}")
+    return RoiSource(path, spec, robot_id, columns, usable, video_topics, scan, image_stamps)
 
 
-def _video_topics(bag: RoiBag, arms: tuple[str, ...]) -> dict[str, str]:
+def _nearest(record_stamps: list[int], have: set[int], *, exact: bool) -> dict[int, int]:
+    """Record stamp -> the image stamp for it: the same stamp (`exact`, the records' own camera), else the nearest
+    image within one median image interval (another camera's, which captures at its own times)."""
+    if exact:
+        return {s: s for s in record_stamps if s in have}
+    ordered = np.array(sorted(have), dtype=np.int64)
+    if len(ordered) < 2:
+        return {s: int(ordered[0]) for s in record_stamps if len(ordered) and s == int(ordered[0])}
+    interval = int(np.median(np.diff(ordered)))
+    out = {}
+    for stamp in record_stamps:
+        i = int(np.searchsorted(ordered, stamp))
+        candidates = [int(ordered[j]) for j in (i - 1, i) if 0 <= j < len(ordered)]
+        best = min(candidates, key=lambda c: (abs(c - stamp), c))
+        if abs(best - stamp) <= interval:
+            out[stamp] = best
+    return out
+
+
+def _video_topics(bag: RoiBag, arms: tuple[str, ...], camera: str | None) -> dict[str, str]:
     """Video key -> the topic holding its images: the raw output, else its `/compressed` (replay/node output_transport)."""
     wanted: dict[str, str] = {}
-    global_topic = image_topic_in(bag.topics, GLOBAL_TOPIC)
+    global_topic = image_topic_in(bag.topics, topics.absolute(topics.global_image_topic(camera)))
     if global_topic is not None:
-        wanted[GLOBAL_KEY] = global_topic
+        wanted[global_key(camera)] = global_topic
     for arm in arms:
-        topic = image_topic_in(bag.topics, roi_image_topic(arm))
+        name = topics.absolute(topics.roi_image(arm, camera))
+        topic = image_topic_in(bag.topics, name)
         if topic is None or bag.topics[topic].count == 0:
-            expected = f"{roi_image_topic(arm)} ({topics.IMAGE_TYPE}) or its /compressed ({topics.COMPRESSED_IMAGE_TYPE})"
+            expected = f"{name} ({topics.IMAGE_TYPE}) or its /compressed ({topics.COMPRESSED_IMAGE_TYPE})"
             raise BagError(f"{bag.path}: no images on {expected} for arm {arm}: the bag has the metadata but not the ROI crops")
-        wanted[roi_image_key(arm)] = topic
+        wanted[roi_image_key(arm, camera)] = topic
     return wanted
 
 
@@ -145,13 +182,13 @@ def _decoded(msg: Any, msgtype: str, where: str) -> np.ndarray:
         raise BagError(str(exc)) from exc
 
 
-def _usable(columns: FrameColumns, stamps: dict[str, set[int]]) -> tuple[int, ...]:
+def _usable(columns: FrameColumns, image_stamps: dict[str, dict[int, int]]) -> tuple[int, ...]:
     """Frames with every image, by stamp; a repeated stamp counts once (its first record)."""
     seen: set[int] = set()
     usable = []
     for position in np.argsort(np.asarray(columns.stamps_ns, dtype=np.int64), kind="stable"):
         stamp = columns.stamps_ns[int(position)]
-        if stamp not in seen and all(stamp in have for have in stamps.values()):
+        if stamp not in seen and all(stamp in have for have in image_stamps.values()):
             usable.append(int(position))
         seen.add(stamp)
     return tuple(usable)

@@ -2,21 +2,26 @@
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
+import av
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 import yaml
 
 from roi_node.bagio.writer import typestore
 from roi_node.cli import main
+from roi_node.datasets.features import EpisodeSpec
 from roi_node.engine.config import BasePoseSource, load_rig_config
 from roi_node.engine.sync import NS_PER_S
 from roi_node.sim.rig_sim import BasePoseEvent, ImageEvent, SimRig
 from roi_node.sim.sim_cameras import BASE_PERIOD_S, BASE_RATE_HZ, BASE_TRAVEL_M
 from roi_node.wire.base_pose import base_pose_message, base_poses
 from test.conftest import CONFIG
+from test.support.exportbags import images_by_stamp
 from test.support.rigs import scaled_rig
 
 RATE_HZ = 30.0
@@ -84,13 +89,30 @@ def test_sim_live_refuses_a_rig_of_several_cameras_in_one_line(head_rig: Path, c
     assert err.count("\n") == 0 and "sim --bag OUT" in err and "roi-node play" in err, err
 
 
-def test_export_refuses_the_roi_bag_of_several_cameras_in_one_line(head_rig: Path, tmp_path: Path,
-                                                                   capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["sim", "--config", str(head_rig), "--bag", str(tmp_path / "sim"), "--duration", "0.5"]) == 0
+def test_a_two_camera_session_exports_a_video_per_camera_and_arm_keyed_by_name(
+    head_rig: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`observation.images.<camera>_roi_<arm>` and `<camera>_global`: the first camera's frames on the grid, the other
+    camera's nearest frame for each (they capture 0.37 period apart), bit-identical with the lossless codec."""
+    assert main(["sim", "--config", str(head_rig), "--bag", str(tmp_path / "sim"), "--duration", "1.0"]) == 0
     assert main(["replay", str(tmp_path / "sim"), "-o", str(tmp_path / "roi"), "--config", str(head_rig)]) == 0
+    out = tmp_path / "dataset"
+    assert main(["export", "lerobot", str(tmp_path / "roi"), "-o", str(out), "--fps", "30", "--task", "t", "--codec", "lossless"]) == 0
     capsys.readouterr()
-    assert main(["export", "lerobot", str(tmp_path / "roi"), "-o", str(tmp_path / "dataset"), "--fps", "30", "--task", "t"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert err == (f"roi-node export: error: {tmp_path / 'roi'}: holds the outputs of cameras front, head; export lerobot "
-                   "takes the ROI bag of a rig of one camera"), err
-    assert not (tmp_path / "dataset").exists()
+    features = json.loads((out / "meta/info.json").read_text())["features"]
+    videos = {key for key, feature in features.items() if feature["dtype"] == "video"}
+    assert videos == {f"observation.images.{c}_{view}" for c in ("front", "head") for view in ("global", "roi_left", "roi_right")}
+    stamps = [row for file in sorted((out / "data").glob("*/*.parquet"))
+              for row in pq.read_table(file).column("roi_node.source_stamp_ns").to_pylist()]
+    front = images_by_stamp(tmp_path / "roi", "/roi/front/left/image_raw")
+    head = images_by_stamp(tmp_path / "roi", "/roi/head/right/image_raw")
+    assert set(stamps) == set(front)  # the grid is the first camera's frames
+    period_ns = 10**9 / 30
+    for key, truth, nearest in (("front_roi_left", front, False), ("head_roi_right", head, True)):
+        with av.open(str(out / f"videos/observation.images.{key}/chunk-000/file-000.mp4")) as container:
+            decoded = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+        assert len(decoded) == len(stamps)
+        for stamp, image in zip(stamps, decoded, strict=True):
+            shown = min(truth, key=lambda s: abs(s - stamp)) if nearest else stamp
+            assert abs(shown - stamp) <= period_ns / 2 and np.array_equal(image, truth[shown]), (key, stamp)
+    assert EpisodeSpec.from_features(features, "test").cameras == ("front", "head")

@@ -114,8 +114,8 @@ class OffsetSim(SimRig):
         super().__init__(rig, **options)
         self.offsets_ns = list(offsets_ns)
 
-    def capture_ns(self, frame_index: int) -> int:
-        return super().capture_ns(frame_index) + self.offsets_ns[frame_index]
+    def capture_ns(self, frame_index: int, camera_index: int = 0) -> int:
+        return super().capture_ns(frame_index, camera_index) + self.offsets_ns[frame_index]
 
 
 def jitter_ns(frames: int, amplitude_ns: int, seed: int) -> list[int]:
