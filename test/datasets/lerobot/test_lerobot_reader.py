@@ -158,3 +158,23 @@ def test_episode_statistics_agree_with_lerobots_compute_episode_stats(bags: Expo
                 assert np.all((low <= mine) & (mine <= high) & (low <= reference) & (reference <= high)), (key, name)
                 continue
             assert np.all(np.abs(mine - reference) <= 1e-6 * (1 + np.abs(reference))), (key, name)
+
+
+def test_a_two_camera_session_loads_with_a_video_key_per_camera_and_arm(tmp_path: Path) -> None:
+    """The bundled two-camera rig (a fixed camera and a head camera), at an eighth of its resolution: LeRobot's reader
+    finds each camera's global view and ROIs under its own name, and the first camera's frames decode as in the bag."""
+    from test.conftest import CONFIG
+    from test.support.rigs import scaled_rig
+
+    rig = scaled_rig(CONFIG / "rig_tiago_head.yaml", tmp_path, 0.125)
+    assert main(["sim", "--config", str(rig), "--bag", str(tmp_path / "sim"), "--duration", "1.0"]) == 0
+    assert main(["replay", str(tmp_path / "sim"), "-o", str(tmp_path / "roi"), "--config", str(rig)]) == 0
+    export([tmp_path / "roi"], tmp_path / "ds", "--codec", "lossless")
+    ds = LeRobotDataset("roi_node/two_cameras", root=tmp_path / "ds", video_backend="pyav")
+    views = ("global", "roi_left", "roi_right")
+    assert set(ds.meta.video_keys) == {f"observation.images.{c}_{v}" for c in ("front", "head") for v in views}
+    truth = images_by_stamp(tmp_path / "roi", "/roi/front/right/image_raw")
+    for index in (0, len(ds) // 2, len(ds) - 1):
+        item = ds[index]
+        assert np.array_equal(to_uint8(item["observation.images.front_roi_right"]), truth[int(item["roi_node.source_stamp_ns"])])
+        assert to_uint8(item["observation.images.head_roi_left"]).shape == truth[int(item["roi_node.source_stamp_ns"])].shape
