@@ -112,3 +112,23 @@ def test_a_silent_camera_and_base_leave_the_other_camera_publishing(tmp_path: Pa
     for record in records:
         assert record["bases"] == [{"robot_id": "tiago", "stamp_ns": None, "residual_ms": None, "status": "missing", "pose": None}]
         assert all("no_base_pose" in arm["flags"] for arm in record["arms"])  # type: ignore[attr-defined]
+
+
+def test_a_base_from_tf_without_tf2_msgs_stops_the_start_in_one_line(tmp_path: Path) -> None:
+    """The ROS wheels on PyPI have no tf2_msgs: the node says which rig key asks for it, exit 2, before DDS starts."""
+    pytest.importorskip("nav_msgs.msg")
+    try:
+        import tf2_msgs.msg  # noqa: F401
+    except ImportError:
+        pass
+    else:
+        pytest.skip("this ROS environment has tf2_msgs: a base from tf is read")
+    rig = scaled_rig(CONFIG / "rig_tiago_head.yaml", tmp_path, 0.125)
+    doc = yaml.safe_load(rig.read_text())
+    doc["robots"][0]["base_in_world"] = {"topic": "tf", "type": "tf", "child_frame": "base_footprint"}
+    rig.write_text(yaml.safe_dump(doc, sort_keys=False))
+    result = subprocess.run([sys.executable, *node_args(rig)], cwd=REPO, env=ros_env(next_domain()), capture_output=True,
+                            text=True, timeout=120)
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+    line = result.stderr.strip().splitlines()[-1]
+    assert "robots[tiago].base_in_world: type tf: message type 'tf2_msgs/msg/TFMessage' is not available" in line, line
