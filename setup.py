@@ -1,8 +1,9 @@
 """ament_python package definition; also a plain pip-installable setuptools package.
 
 colcon installs the console scripts to lib/roi_node (setup.cfg), the ament index
-marker to share/ament_index/resource_index/packages, and package.xml + config/
-to share/roi_node, where `ros2 run` and the runtime config lookup find them.
+marker to share/ament_index/resource_index/packages, and package.xml, config/ and
+launch/ to share/roi_node, where `ros2 run`, `ros2 launch` and the runtime config
+lookup find them.
 """
 
 from glob import glob
@@ -19,6 +20,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", sorted(glob("config/*.*"))),
+        (f"share/{PACKAGE}/launch", sorted(glob("launch/*.launch.py"))),
     ],
     python_requires=">=3.11",
     # OpenCV 4.x, not 5.x: a system ROS 2 Jazzy install (Ubuntu 24.04) ships

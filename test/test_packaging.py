@@ -50,6 +50,7 @@ def test_colcon_build_installs_executables_index_marker_and_config(tmp_path: Pat
     for name in ("rig_demo_bimanual.yaml", "front_intrinsics.yaml", "metadata.schema.json", "roi_node.params.yaml", "fastdds_shm.xml",
                  "gates.yaml", "manifest.schema.json", "rig.schema.json"):
         assert (install / "share" / "roi_node" / "config" / name).is_file()
+    assert (install / "share" / "roi_node" / "launch" / "roi_node.launch.py").is_file()  # `ros2 launch roi_node roi_node.launch.py`
     # the installed executable runs from the install space and finds its config through the ament prefix
     site = next(install.glob("lib/python3*/site-packages"))
     run_env = {**env, "PYTHONPATH": str(site), "AMENT_PREFIX_PATH": str(install)}
