@@ -11,68 +11,20 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import pytest
-import rclpy
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
 from roi_node.sim.bag_sink import write_sim_bag
 from test.conftest import CONFIG, REPO
 from test.dds.harness import LOSSLESS_TRANSPORT, PATIENT_SYNC, next_domain, node_args, process, ros_env, wait_until
+from test.support.listener import TopicListener
 from test.support.rigs import scaled_rig
 
 pytestmark = pytest.mark.dds
-
-
-class _Listener:
-    """The front camera's records and every /diagnostics array, in a context of its own."""
-
-    def __init__(self, domain_id: int) -> None:
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = Node("test_two_camera_listener", context=self.context)
-        self.lock = threading.Lock()
-        self.records: list[dict[str, object]] = []
-        self.statuses: dict[str, DiagnosticStatus] = {}
-        reliable = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
-        self.node.create_subscription(String, "/roi/front/metadata", self._record, reliable)
-        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._diagnostics, 10)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _record(self, msg: String) -> None:
-        with self.lock:
-            self.records.append(json.loads(msg.data))
-
-    def _diagnostics(self, msg: DiagnosticArray) -> None:
-        with self.lock:
-            self.statuses.update({s.name: s for s in msg.status})
-
-    def _spin(self) -> None:
-        try:
-            while self.context.ok():
-                self.executor.spin_once(timeout_sec=0.05)
-        except Exception:  # the context was shut down under us: the test is over
-            pass
-
-    def status(self, name: str) -> DiagnosticStatus | None:
-        with self.lock:
-            return self.statuses.get(name)
-
-    def close(self) -> None:
-        self.context.try_shutdown()
-        self.thread.join(timeout=5)
-        self.executor.shutdown()
 
 
 def test_a_silent_camera_and_base_leave_the_other_camera_publishing(tmp_path: Path) -> None:
@@ -84,30 +36,33 @@ def test_a_silent_camera_and_base_leave_the_other_camera_publishing(tmp_path: Pa
     frames = sim.frames // 2
     domain = next_domain()
     env = ros_env(domain)
-    listener = _Listener(domain)
+    listener = TopicListener(domain, {"/roi/front/metadata": String, "/diagnostics": DiagnosticArray})
     try:
         params = (*PATIENT_SYNC, *LOSSLESS_TRANSPORT, "silence_timeout_s:=1.0")
         with process(node_args(rig, *params), env, tmp_path / "node.log") as node:
-            assert wait_until(lambda: listener.node.count_publishers("/roi/front/metadata") >= 1, 60.0), \
-                (tmp_path / "node.log").read_text()
+            assert wait_until(listener.matched, 60.0), (tmp_path / "node.log").read_text()
             play = subprocess.run([sys.executable, "-m", "roi_node.cli", "play", str(sim.path), "--topics", "/front/image_raw",
                                    "/front/camera_info", "/joint_states"], cwd=REPO, env=env, capture_output=True, text=True,
                                   timeout=300)
             assert play.returncode == 0, play.stderr
 
-            def head_silent() -> bool:
-                status = listener.status("roi_node: camera head: input")
-                return status is not None and status.level == DiagnosticStatus.ERROR and \
-                    "no frames on /head/image_raw" in status.message and "base poses of tiago on /odom" in status.message
+            def status(name: str) -> DiagnosticStatus | None:
+                arrays = listener.messages("/diagnostics")
+                return next((s for array in reversed(arrays) for s in array.status if s.name == name), None)
 
-            assert wait_until(lambda: len(listener.records) >= frames and head_silent(), 60.0), \
-                (len(listener.records), {n: (s.level, s.message) for n, s in listener.statuses.items()})
-            front = listener.status("roi_node: camera front: input")
+            def head_silent() -> bool:
+                status_ = status("roi_node: camera head: input")
+                return status_ is not None and status_.level == DiagnosticStatus.ERROR and \
+                    "no frames on /head/image_raw" in status_.message and "base poses of tiago on /odom" in status_.message
+
+            assert wait_until(lambda: listener.count("/roi/front/metadata") >= frames and head_silent(), 60.0), \
+                (listener.count("/roi/front/metadata"), status("roi_node: camera head: input"))
+            front = status("roi_node: camera front: input")
             assert front is not None and "base poses of tiago on /odom" in front.message and "/front/image_raw" not in front.message
             assert node.poll() is None, "the node stays up"
     finally:
         listener.close()
-    records = listener.records[:frames]
+    records = [json.loads(m.data) for m in listener.messages("/roi/front/metadata")][:frames]
     assert [r["frame_index"] for r in records] == list(range(frames))
     for record in records:
         assert record["bases"] == [{"robot_id": "tiago", "stamp_ns": None, "residual_ms": None, "status": "missing", "pose": None}]

@@ -15,19 +15,12 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import threading
-from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-import rclpy
 import yaml
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image
 from std_msgs.msg import String
@@ -39,6 +32,7 @@ from roi_node.wire import topics
 from test.conftest import CONFIG, REPO
 from test.dds.harness import LOSSLESS_TRANSPORT, PATIENT_SYNC, next_domain, node_args, process, ros_env, wait_until
 from test.rostools.test_record_play import comparable, read_rosbags
+from test.support.listener import TopicListener
 from test.support.rigs import scaled_rig
 
 pytestmark = pytest.mark.dds
@@ -58,49 +52,6 @@ def _rig(folder: Path) -> Path:
     return path
 
 
-class _Outputs:
-    """Every message of the given output topics, as published (serialized), in arrival order per topic."""
-
-    def __init__(self, domain_id: int, output_topics: dict[str, type]) -> None:
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = Node("test_two_camera_outputs", context=self.context)
-        self.lock = threading.Lock()
-        self.received: dict[str, list[bytes]] = defaultdict(list)
-        qos = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
-        for name, msg_class in output_topics.items():
-            self.node.create_subscription(msg_class, name, self._keep(name), qos, raw=True)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _keep(self, name: str) -> Any:
-        def keep(data: bytes) -> None:
-            with self.lock:
-                self.received[name].append(bytes(data))
-        return keep
-
-    def _spin(self) -> None:
-        try:
-            while self.context.ok():
-                self.executor.spin_once(timeout_sec=0.05)
-        except Exception:  # the context was shut down under us: the test is over
-            pass
-
-    def matched(self) -> bool:
-        return all(s.get_publisher_count() >= 1 for s in self.node.subscriptions)
-
-    def count(self, name: str) -> int:
-        with self.lock:
-            return len(self.received[name])
-
-    def close(self) -> None:
-        self.context.try_shutdown()
-        self.thread.join(timeout=5)
-        self.executor.shutdown()
-
-
 def test_two_cameras_and_a_driving_base_live_equal_replay(tmp_path: Path) -> None:
     rig = _rig(tmp_path)
     sim = write_sim_bag(rig, tmp_path / "sim", duration_s=DURATION_S, seed=SEED)
@@ -113,7 +64,7 @@ def test_two_cameras_and_a_driving_base_live_equal_replay(tmp_path: Path) -> Non
     inputs = [*sim.image_topics, "/front/camera_info", "/head/camera_info", "/joint_states", "/odom"]
     domain = next_domain()
     env = ros_env(domain)
-    collector = _Outputs(domain, outputs)
+    collector = TopicListener(domain, outputs, raw=True)
     try:
         with process(node_args(rig, *PATIENT_SYNC, *LOSSLESS_TRANSPORT), env, tmp_path / "node.log"):
             assert wait_until(collector.matched, 60.0), (tmp_path / "node.log").read_text()
@@ -128,7 +79,7 @@ def test_two_cameras_and_a_driving_base_live_equal_replay(tmp_path: Path) -> Non
 
     for camera in CAMERAS:
         meta_topic = topics.absolute(topics.metadata_topic(camera))
-        live_records = [comparable(deserialize_message(raw, String).data) for raw in collector.received[meta_topic]]
+        live_records = [comparable(deserialize_message(raw, String).data) for raw in collector.messages(meta_topic)]
         offline_records = [comparable(m.data) for _, m in offline[meta_topic]]
         assert len(live_records) == len(offline_records) == frames, camera
         assert live_records == offline_records, f"camera {camera}: the live records differ from replay's"
@@ -137,7 +88,7 @@ def test_two_cameras_and_a_driving_base_live_equal_replay(tmp_path: Path) -> Non
         for name in per_camera[camera]:
             if name == meta_topic:
                 continue
-            live = {_stamp(m): m.data for m in (deserialize_message(raw, Image) for raw in collector.received[name])}
+            live = {_stamp(m): m.data for m in (deserialize_message(raw, Image) for raw in collector.messages(name))}
             replayed = {_stamp(m): m.data for _, m in offline[name]}
             assert live.keys() == replayed.keys() and len(live) == frames, name
             assert all(np.array_equal(live[s], replayed[s]) for s in live), f"{name}: an image differs from replay's"
