@@ -33,6 +33,7 @@ from roi_node.bagio.crc import crc32
 from roi_node.bagio.mcap_records import MAGIC, RECORD_PREFIX, Opcode
 from roi_node.bagio.mcap_records import attachment as attachment_record
 from roi_node.bagio.mcap_records import metadata as metadata_record
+from roi_node.bagio.member_names import MemberNameError, check_member_name, member_path
 from roi_node.bagio.reader import bag_information
 from roi_node.engine.config import RigConfig
 from roi_node.engine.errors import BagError, ConfigError, UsageError
@@ -109,6 +110,7 @@ class _Names:
 
     def name(self, file_name: str, owner: str, data: bytes) -> str:
         for candidate in (f"{self._folder}/{file_name}", f"{self._folder}/{owner}_{file_name}"):
+            check_member_name(candidate, "rig")
             taken = self._by_name.get(candidate)
             if taken is None or taken == data:
                 self._by_name[candidate] = data
@@ -201,9 +203,15 @@ def _read_attachment(stream: BinaryIO, offset: int, length: int, where: Path) ->
 
 
 def _rig_inputs(entries: dict[str, str], attachments: tuple[BagAttachment, ...], where: Path) -> RigInputs:
-    """The `roi_node.rig` record's entries and the file's attachments as RigInputs, every named attachment present."""
+    """The `roi_node.rig` record's entries and the file's attachments as RigInputs, every named attachment present.
+
+    Every name the record gives is a path inside `rig/` (member_names.py), so no reader writes outside its folder.
+    """
     names = {a.name for a in attachments}
     references = {k: v for k, v in entries.items() if k not in (VERSION_KEY, "rig_id", RIG_KEY)}
+    for name in {entries.get(RIG_KEY, RIG_ATTACHMENT), *references.values()}:
+        if check_member_name(name, str(where)).parts[0] != "rig":
+            raise MemberNameError(str(where), name, f"not a file of the rig (the {RIG_METADATA_NAME} record names files under rig/)")
     missing = sorted({entries.get(RIG_KEY, RIG_ATTACHMENT), *references.values()} - names)
     if missing:
         raise BagError(f"{where}: the {RIG_METADATA_NAME} record names attachments the file does not hold: {', '.join(missing)}")
@@ -259,7 +267,7 @@ def read_rig_inputs(bag: Path) -> RigInputs | None:
             attachments = tuple(_read_attachment(stream, i.offset, i.length, files[0]) for i in indexes)
     except (OSError, McapError, ValueError) as exc:  # ValueError: also a MalformedRecordError
         raise BagError(f"{files[0]}: cannot read the rig stored in the bag ({exc})") from exc
-    return _rig_inputs(dict(records[0].metadata), attachments, files[0])
+    return _rig_inputs(dict(records[0].metadata), attachments, bag)
 
 
 def _set_reference(doc: dict[str, Any], key_path: str, value: str, where: str) -> None:
@@ -281,7 +289,7 @@ def extract_rig(inputs: RigInputs, folder: Path, where: str) -> Path:
     """Write the carried files into `folder` and a copy of the rig YAML pointing at them; return that YAML's path."""
     by_name = {a.name: a for a in inputs.attachments}
     for attachment in inputs.attachments:
-        target = folder / attachment.name
+        target = member_path(folder, attachment.name, where)
         target.parent.mkdir(parents=True, exist_ok=True)
         target.write_bytes(attachment.data)
     try:
