@@ -2,7 +2,7 @@
 
 What a rig's output depends on is the rig YAML as written, every URDF it
 loads (FK reads the kinematic tree only, so meshes are not carried) and the
-camera calibration file it names. Each is stored as an MCAP attachment (the
+calibration file each of its cameras names. Each is stored as an MCAP attachment (the
 original bytes) in every storage file a BagWriter writes, beside one
 metadata record `roi_node.rig` that names the roi_node version and, for
 each reference in the rig YAML, the attachment holding its file. The mcap
@@ -61,7 +61,7 @@ URDF_FOLDER = "rig/urdf"
 CALIBRATION_FOLDER = "rig/calibration"
 YAML_MEDIA_TYPE = "application/yaml"
 URDF_MEDIA_TYPE = "application/xml"
-INTRINSICS_REFERENCE = "camera.intrinsics"  # the metadata key of the calibration file, as the rig YAML's key path
+INTRINSICS_REFERENCE = "camera.intrinsics"  # the metadata key of a `camera:` rig's calibration file (rig YAML key path)
 DIGEST_PREFIX = "sha256:"  # `sha256:<attachment name>`: the hex SHA-256 of that attachment's bytes
 _KEY_PATH = re.compile(r"(?:[A-Za-z_]\w*(?:\[\d+\])?\.)+[A-Za-z_]\w*")  # `robots[0].urdf`, `camera.intrinsics`
 
@@ -89,8 +89,8 @@ class BagAttachment:
 class RigInputs:
     """A rig's YAML, URDFs and calibration as attachments, and the metadata record that ties them to the YAML.
 
-    `references` maps a rig YAML key path (`robots[0].urdf`, `camera.intrinsics`)
-    to the name of the attachment holding the file it named.
+    `references` maps a rig YAML key path (`robots[0].urdf`, `camera.intrinsics`,
+    `cameras[1].intrinsics`) to the name of the attachment holding the file it named.
     """
 
     rig_id: str
@@ -112,8 +112,8 @@ class RigInputs:
         return sum(a.name.startswith(URDF_FOLDER + "/") for a in self.attachments)
 
     @property
-    def has_calibration(self) -> bool:
-        return any(a.name.startswith(CALIBRATION_FOLDER + "/") for a in self.attachments)
+    def calibration_count(self) -> int:
+        return sum(a.name.startswith(CALIBRATION_FOLDER + "/") for a in self.attachments)
 
     def metadata(self) -> dict[str, str]:
         """The `roi_node.rig` metadata record's entries: the references, then each attachment's digest."""
@@ -128,10 +128,10 @@ class RigInputs:
 
     def described(self) -> str:
         """e.g. `rig.yaml, 2 URDFs, 1 calibration`."""
-        urdfs = self.urdf_count
+        urdfs, calibrations = self.urdf_count, self.calibration_count
         parts = ["rig.yaml", f"{urdfs} URDF{'s' if urdfs != 1 else ''}"]
-        if self.has_calibration:
-            parts.append("1 calibration")
+        if calibrations:
+            parts.append(f"{calibrations} calibration{'s' if calibrations != 1 else ''}")
         return ", ".join(parts)
 
 
@@ -159,18 +159,19 @@ def _read(path: Path, what: str) -> bytes:
         raise ConfigError(f"{path}: cannot read the rig's {what} to store it in the bag ({exc.strerror or exc})") from exc
 
 
-def _intrinsics_file(rig: RigConfig) -> Path | None:
-    """The calibration file the rig YAML names (resolved as the rig loader resolves it), or None (`topic`, absent)."""
-    camera = rig.raw.get("camera")
-    value = camera.get("intrinsics") if isinstance(camera, dict) else None
-    if not isinstance(value, str) or value == "topic":
-        return None
-    path = Path(value).expanduser()
-    return path if path.is_absolute() else rig.path.parent / path
+def _calibration_files(rig: RigConfig) -> list[tuple[str, str, Path]]:
+    """Each camera's calibration file as (rig YAML key path, camera id, path); a camera on the CameraInfo topic has none.
+
+    The key is `camera.intrinsics` in a rig of one `camera:`, else `cameras[i].intrinsics` with i the camera's
+    position in the file's list (found by id: a rig narrowed to one camera keeps the file's positions).
+    """
+    listed = [c.get("id") if isinstance(c, dict) else None for c in rig.raw.get("cameras") or []]
+    return [(INTRINSICS_REFERENCE if "camera" in rig.raw else f"cameras[{listed.index(c.id)}].intrinsics", c.id, c.intrinsics_path)
+            for c in rig.cameras if c.intrinsics_path is not None]
 
 
 def rig_inputs(rig: RigConfig) -> RigInputs:
-    """The loaded rig's files as attachments: the YAML as written, each distinct URDF once, the calibration."""
+    """The loaded rig's files as attachments: the YAML as written, each distinct URDF and calibration file once."""
     attachments = [BagAttachment(RIG_ATTACHMENT, YAML_MEDIA_TYPE, _read(rig.path, "config"))]
     references: dict[str, str] = {}
     urdf_names = _Names(URDF_FOLDER)
@@ -182,11 +183,14 @@ def rig_inputs(rig: RigConfig) -> RigInputs:
         if name not in stored:
             stored.add(name)
             attachments.append(BagAttachment(name, URDF_MEDIA_TYPE, data))
-    calibration = _intrinsics_file(rig)
-    if calibration is not None:
-        name = f"{CALIBRATION_FOLDER}/{calibration.name}"
-        attachments.append(BagAttachment(name, YAML_MEDIA_TYPE, _read(calibration, "calibration")))
-        references[INTRINSICS_REFERENCE] = name
+    calibration_names = _Names(CALIBRATION_FOLDER)
+    for key_path, camera_id, path in _calibration_files(rig):
+        data = _read(path, "calibration")
+        name = calibration_names.name(path.name, camera_id, data)
+        references[key_path] = name
+        if name not in stored:
+            stored.add(name)
+            attachments.append(BagAttachment(name, YAML_MEDIA_TYPE, data))
     return RigInputs(rig.rig_id, __version__, tuple(attachments), references)
 
 

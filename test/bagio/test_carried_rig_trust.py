@@ -16,13 +16,19 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+import yaml
 from mcap.reader import make_reader
 from mcap.writer import Writer
+from rosbags.typesys.stores.ros2_jazzy import std_msgs__msg__String as String
 
 from roi_node import __version__
 from roi_node.bagio.member_names import MemberNameError, member_path
+from roi_node.bagio.rig_attachments import rig_inputs, stored_rig
+from roi_node.bagio.writer import BagWriter
 from roi_node.cli import main
+from roi_node.engine.config import load_rig_config
 from roi_node.sim.bag_sink import write_sim_bag
+from test.conftest import CONFIG
 from test.support.roibags import small_rig
 
 Attachment = tuple[str, str, bytes]  # name, media type, bytes
@@ -313,3 +319,48 @@ def test_a_damaged_carried_file_is_named_as_the_file_inside_the_bag(
     bag = rewrite(sim_bag, tmp_path / "bag", broken)
     line = refused(capsys, main(["replay", str(bag), "-o", str(tmp_path / "out")]), f"{bag}:{urdf_name(sim_bag)}")
     assert "roi_node_rig_" not in line and tempfile.gettempdir() + "/roi_node_rig" not in line
+
+
+# --- a rig of several cameras carries every camera's calibration ---
+
+
+def two_camera_rig(folder: Path) -> Path:
+    """The demo rig with its camera under `cameras:` and a second camera beside it, calibrated by a file of its own
+    with the same base name in another folder (so the attachment names must differ)."""
+    doc = yaml.safe_load((CONFIG / "rig_demo_bimanual.yaml").read_text())
+    front = doc.pop("camera")
+    shutil.copy(CONFIG / "front_intrinsics.yaml", folder / "front_intrinsics.yaml")
+    (folder / "side").mkdir()
+    side_calibration = (CONFIG / "front_intrinsics.yaml").read_text().replace("camera_name: ", "camera_name: side_", 1)
+    (folder / "side" / "front_intrinsics.yaml").write_text(side_calibration + "# the side camera's own calibration\n")
+    side = {**front, "id": "side", "intrinsics": "side/front_intrinsics.yaml",
+            "extrinsics": {**front["extrinsics"], "translation": [1.9, 0.5, 1.15], "version": "side-1"}}
+    doc["cameras"] = [front, side]
+    path = folder / "rig.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def test_a_rig_of_two_cameras_carries_both_calibrations_and_replays_from_them(tmp_path: Path) -> None:
+    rig_path = two_camera_rig(tmp_path)
+    rig = load_rig_config(rig_path)
+    assert rig.camera_ids == ("front", "side")
+    inputs = rig_inputs(rig)
+    assert inputs.references["cameras[0].intrinsics"] == "rig/calibration/front_intrinsics.yaml"
+    assert inputs.references["cameras[1].intrinsics"] == "rig/calibration/side_front_intrinsics.yaml"
+    assert inputs.described() == "rig.yaml, 1 URDF, 2 calibrations"
+    with BagWriter(tmp_path / "bag", rig=inputs) as writer:
+        writer.add_topic("/n", "std_msgs/msg/String")
+        writer.write("/n", 1, String(data="x"))
+    with storage(tmp_path / "bag").open("rb") as stream:
+        carried = {a.name: bytes(a.data) for a in make_reader(stream, validate_crcs=True).iter_attachments()}
+    assert carried["rig/calibration/front_intrinsics.yaml"] == (tmp_path / "front_intrinsics.yaml").read_bytes()
+    assert carried["rig/calibration/side_front_intrinsics.yaml"] == (tmp_path / "side" / "front_intrinsics.yaml").read_bytes()
+    with stored_rig(tmp_path / "bag") as (extracted, _):  # what replay without --config loads
+        loaded = load_rig_config(extracted)
+        for camera in rig.cameras:
+            from_bag = loaded.camera_by_id(camera.id)
+            assert from_bag.intrinsics_path is not None and camera.intrinsics_path is not None
+            assert from_bag.intrinsics_path.read_bytes() == camera.intrinsics_path.read_bytes()
+            assert from_bag.intrinsics is not None and camera.intrinsics is not None
+            assert from_bag.intrinsics.content_version() == camera.intrinsics.content_version()
