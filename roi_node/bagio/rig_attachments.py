@@ -324,6 +324,8 @@ def leading_rig_inputs(path: Path) -> RigInputs | None:
                 if opcode == Opcode.ATTACHMENT:
                     attachments.append(_attachment_from_body(body, offset, path, str(path)))
                 elif opcode == Opcode.METADATA and (record := metadata_record(body)).name == RIG_METADATA_NAME:
+                    if entries is not None:
+                        raise BagError(f"{path}: two {RIG_METADATA_NAME} records; which one describes the rig cannot be told")
                     entries = dict(record.metadata)
     except (OSError, ValueError) as exc:  # ValueError: also a MalformedRecordError
         raise BagError(f"{path}: cannot read the rig stored in the bag ({exc})") from exc
