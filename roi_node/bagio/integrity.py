@@ -8,7 +8,9 @@ topic with metadata.yaml, and opens the bag with rosbags as replay does. A
 damaged chunk is reported with its file, byte offset and the topics whose
 messages it holds, so a user knows what is gone; any other damaged record
 with its kind and byte offset. Readers call `first_damage` to turn "cannot
-read" into that line.
+read" into that line. The rig a bag carries is checked too (rig_check.py):
+its attachments against its record's digests and, in an ROI bag, its URDFs
+against the frames' fk_ver.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from typing import Any
 from roi_node.bagio.bag_metadata import METADATA_FILE, folder_information
 from roi_node.bagio.mcap_structure import ChunkDamage, FileCheck, RecordProblem, check_mcap_file
 from roi_node.bagio.reader import rosbags_refusal
+from roi_node.bagio.rig_check import RigFindings, rig_findings
 from roi_node.bagio.writer import RECORDING, STATUS_KEY
 from roi_node.engine.errors import BagError
 
@@ -32,6 +35,7 @@ class BagCheck:
     path: Path
     files: tuple[FileCheck, ...]
     problems: tuple[str, ...]
+    notes: tuple[str, ...] = ()  # what was checked less than fully (a rig record without digests)
 
     @property
     def ok(self) -> bool:
@@ -52,6 +56,7 @@ class BagCheck:
                 for f in self.files
             ],
             "problems": list(self.problems),
+            "notes": list(self.notes),
         }
 
     def lines(self) -> list[str]:
@@ -62,6 +67,7 @@ class BagCheck:
             out.extend(f"    {d.line()}" for d in f.damage)
             out.extend(f"    {p.line()}" for p in f.problems)
         out.extend(f"  {p}" for p in self.problems)
+        out.extend(f"  note: {n}" for n in self.notes)
         out.append("result: ok" if self.ok else "result: DAMAGED")
         return out
 
@@ -107,7 +113,8 @@ def check_bag(path: Path, progress: bool = False) -> BagCheck:
         problems.append(f"{meta}: status is `{RECORDING}`: the recorder never finished; `roi-node recover {path}`")
     if all(f.ok for f in files) and (refusal := rosbags_refusal(path)) is not None:
         problems.append(f"{path}: rosbags (what replay reads bags with) cannot open the bag: {refusal}")
-    return BagCheck(path, files, tuple(problems))
+    rig = rig_findings(path) if all(f.ok for f in files) and not problems else RigFindings((), ())
+    return BagCheck(path, files, (*problems, *rig.problems), rig.notes)
 
 
 def _listed_counts(info: dict[str, Any]) -> dict[str, int]:

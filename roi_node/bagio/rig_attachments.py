@@ -2,11 +2,20 @@
 
 What a rig's output depends on is the rig YAML as written, every URDF it
 loads (FK reads the kinematic tree only, so meshes are not carried) and the
-camera calibration file it names. Each is stored as an MCAP attachment (the
+calibration file each of its cameras names. Each is stored as an MCAP attachment (the
 original bytes) in every storage file a BagWriter writes, beside one
 metadata record `roi_node.rig` that names the roi_node version and, for
 each reference in the rig YAML, the attachment holding its file. The mcap
 readers list both; rosbag2 and rosbags ignore them.
+
+The record also holds each attachment's SHA-256 (`sha256:<name>`): every
+reader (replay, export, `inspect --check`, recover, verify) refuses a rig
+attachment whose bytes do not match it, that is missing, stored twice or
+stored without a CRC, naming it `BAG:<name>`. The digests catch an
+attachment changed alone; a record rewritten with its attachments is what a
+signature (`roi-node verify`) catches. A record without digests (a bag
+written before they were added) is read with its CRCs checked and says so
+(`RigInputs.note`).
 
 A replay from the bag's own rig extracts the attachments into a temporary
 folder and rewrites only those references in a copy of the YAML to the
@@ -17,6 +26,8 @@ carries the original attachments, not the rewritten copy.
 
 from __future__ import annotations
 
+import hashlib
+import re
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -27,15 +38,17 @@ from typing import TYPE_CHECKING, Any, BinaryIO
 import yaml
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
+from mcap.records import AttachmentIndex
 
 from roi_node import __version__
 from roi_node.bagio.crc import crc32
 from roi_node.bagio.mcap_records import MAGIC, RECORD_PREFIX, Opcode
 from roi_node.bagio.mcap_records import attachment as attachment_record
 from roi_node.bagio.mcap_records import metadata as metadata_record
+from roi_node.bagio.member_names import MemberNameError, check_member_name, member_path
 from roi_node.bagio.reader import bag_information
 from roi_node.engine.config import RigConfig
-from roi_node.engine.errors import BagError, ConfigError, UsageError
+from roi_node.engine.errors import BagError, ConfigError, RoiNodeError, UsageError
 
 if TYPE_CHECKING:
     from roi_node.bagio.mcap_file import McapFileWriter
@@ -48,7 +61,19 @@ URDF_FOLDER = "rig/urdf"
 CALIBRATION_FOLDER = "rig/calibration"
 YAML_MEDIA_TYPE = "application/yaml"
 URDF_MEDIA_TYPE = "application/xml"
-INTRINSICS_REFERENCE = "camera.intrinsics"  # the metadata key of the calibration file, as the rig YAML's key path
+INTRINSICS_REFERENCE = "camera.intrinsics"  # the metadata key of a `camera:` rig's calibration file (rig YAML key path)
+DIGEST_PREFIX = "sha256:"  # `sha256:<attachment name>`: the hex SHA-256 of that attachment's bytes
+_KEY_PATH = re.compile(r"(?:[A-Za-z_]\w*(?:\[\d+\])?\.)+[A-Za-z_]\w*")  # `robots[0].urdf`, `camera.intrinsics`
+
+
+class RigAttachmentError(BagError):
+    """A rig attachment a bag carries that cannot be trusted: missing, stored twice, unchecked, changed or truncated."""
+
+    def __init__(self, where: str, name: str, problem: str) -> None:
+        super().__init__(f"{where}:{name}: {problem}")
+        self.where = where
+        self.name = name
+        self.problem = problem
 
 
 @dataclass(frozen=True)
@@ -64,26 +89,36 @@ class BagAttachment:
 class RigInputs:
     """A rig's YAML, URDFs and calibration as attachments, and the metadata record that ties them to the YAML.
 
-    `references` maps a rig YAML key path (`robots[0].urdf`, `camera.intrinsics`)
-    to the name of the attachment holding the file it named.
+    `references` maps a rig YAML key path (`robots[0].urdf`, `camera.intrinsics`,
+    `cameras[1].intrinsics`) to the name of the attachment holding the file it named.
     """
 
     rig_id: str
     version: str
     attachments: tuple[BagAttachment, ...]
     references: dict[str, str]
+    digested: bool = True  # False: read from a bag whose record holds no digests (written before they were added)
+
+    @property
+    def note(self) -> str | None:
+        """One line for a rig read from a bag written before its record carried digests, else None."""
+        if self.digested:
+            return None
+        written = f"written by roi_node {self.version or '?'}"
+        return f"its {RIG_METADATA_NAME} record holds no attachment digests ({written}): only CRCs check its files"
 
     @property
     def urdf_count(self) -> int:
         return sum(a.name.startswith(URDF_FOLDER + "/") for a in self.attachments)
 
     @property
-    def has_calibration(self) -> bool:
-        return any(a.name.startswith(CALIBRATION_FOLDER + "/") for a in self.attachments)
+    def calibration_count(self) -> int:
+        return sum(a.name.startswith(CALIBRATION_FOLDER + "/") for a in self.attachments)
 
     def metadata(self) -> dict[str, str]:
-        """The `roi_node.rig` metadata record's entries."""
-        return {VERSION_KEY: self.version, "rig_id": self.rig_id, RIG_KEY: RIG_ATTACHMENT, **self.references}
+        """The `roi_node.rig` metadata record's entries: the references, then each attachment's digest."""
+        digests = {DIGEST_PREFIX + a.name: hashlib.sha256(a.data).hexdigest() for a in self.attachments}
+        return {VERSION_KEY: self.version, "rig_id": self.rig_id, RIG_KEY: RIG_ATTACHMENT, **self.references, **digests}
 
     def write_to(self, file: McapFileWriter) -> None:
         """Put the attachments and the metadata record into one storage file (BagWriter does, for each file it opens)."""
@@ -93,10 +128,10 @@ class RigInputs:
 
     def described(self) -> str:
         """e.g. `rig.yaml, 2 URDFs, 1 calibration`."""
-        urdfs = self.urdf_count
+        urdfs, calibrations = self.urdf_count, self.calibration_count
         parts = ["rig.yaml", f"{urdfs} URDF{'s' if urdfs != 1 else ''}"]
-        if self.has_calibration:
-            parts.append("1 calibration")
+        if calibrations:
+            parts.append(f"{calibrations} calibration{'s' if calibrations != 1 else ''}")
         return ", ".join(parts)
 
 
@@ -109,6 +144,7 @@ class _Names:
 
     def name(self, file_name: str, owner: str, data: bytes) -> str:
         for candidate in (f"{self._folder}/{file_name}", f"{self._folder}/{owner}_{file_name}"):
+            check_member_name(candidate, "rig")
             taken = self._by_name.get(candidate)
             if taken is None or taken == data:
                 self._by_name[candidate] = data
@@ -123,18 +159,19 @@ def _read(path: Path, what: str) -> bytes:
         raise ConfigError(f"{path}: cannot read the rig's {what} to store it in the bag ({exc.strerror or exc})") from exc
 
 
-def _intrinsics_file(rig: RigConfig) -> Path | None:
-    """The calibration file the rig YAML names (resolved as the rig loader resolves it), or None (`topic`, absent)."""
-    camera = rig.raw.get("camera")
-    value = camera.get("intrinsics") if isinstance(camera, dict) else None
-    if not isinstance(value, str) or value == "topic":
-        return None
-    path = Path(value).expanduser()
-    return path if path.is_absolute() else rig.path.parent / path
+def _calibration_files(rig: RigConfig) -> list[tuple[str, str, Path]]:
+    """Each camera's calibration file as (rig YAML key path, camera id, path); a camera on the CameraInfo topic has none.
+
+    The key is `camera.intrinsics` in a rig of one `camera:`, else `cameras[i].intrinsics` with i the camera's
+    position in the file's list (found by id: a rig narrowed to one camera keeps the file's positions).
+    """
+    listed = [c.get("id") if isinstance(c, dict) else None for c in rig.raw.get("cameras") or []]
+    return [(INTRINSICS_REFERENCE if "camera" in rig.raw else f"cameras[{listed.index(c.id)}].intrinsics", c.id, c.intrinsics_path)
+            for c in rig.cameras if c.intrinsics_path is not None]
 
 
 def rig_inputs(rig: RigConfig) -> RigInputs:
-    """The loaded rig's files as attachments: the YAML as written, each distinct URDF once, the calibration."""
+    """The loaded rig's files as attachments: the YAML as written, each distinct URDF and calibration file once."""
     attachments = [BagAttachment(RIG_ATTACHMENT, YAML_MEDIA_TYPE, _read(rig.path, "config"))]
     references: dict[str, str] = {}
     urdf_names = _Names(URDF_FOLDER)
@@ -146,11 +183,14 @@ def rig_inputs(rig: RigConfig) -> RigInputs:
         if name not in stored:
             stored.add(name)
             attachments.append(BagAttachment(name, URDF_MEDIA_TYPE, data))
-    calibration = _intrinsics_file(rig)
-    if calibration is not None:
-        name = f"{CALIBRATION_FOLDER}/{calibration.name}"
-        attachments.append(BagAttachment(name, YAML_MEDIA_TYPE, _read(calibration, "calibration")))
-        references[INTRINSICS_REFERENCE] = name
+    calibration_names = _Names(CALIBRATION_FOLDER)
+    for key_path, camera_id, path in _calibration_files(rig):
+        data = _read(path, "calibration")
+        name = calibration_names.name(path.name, camera_id, data)
+        references[key_path] = name
+        if name not in stored:
+            stored.add(name)
+            attachments.append(BagAttachment(name, YAML_MEDIA_TYPE, data))
     return RigInputs(rig.rig_id, __version__, tuple(attachments), references)
 
 
@@ -186,29 +226,73 @@ def stored_records(bag: Path) -> StoredRecords | None:
     return StoredRecords(tuple((i.name, i.media_type, i.data_size) for i in indexes), metadata)
 
 
-def _attachment_from_body(body: bytes, offset: int, where: Path) -> BagAttachment:
+_Stored = tuple[BagAttachment, int]  # an attachment as a storage file holds it, with its record's CRC (0: none)
+
+
+def _attachment_from_body(body: bytes, offset: int, file: Path, where: str) -> _Stored:
     """One attachment record's body, its CRC checked: a damaged rig file is refused, never extracted."""
     parsed = attachment_record(body)
     if parsed.crc and crc32(body[: parsed.crc_covered_bytes]) != parsed.crc:
-        raise BagError(f"{where}: cannot read the rig stored in the bag (attachment {parsed.name!r} at byte {offset}: CRC mismatch)")
+        raise RigAttachmentError(where, parsed.name, f"CRC mismatch (the attachment at byte {offset} of {file.name} is damaged); "
+                                                     "cannot read the rig stored in the bag")
     data = body[parsed.crc_covered_bytes - parsed.data_size: parsed.crc_covered_bytes]
-    return BagAttachment(parsed.name, parsed.media_type, bytes(data))
+    return BagAttachment(parsed.name, parsed.media_type, bytes(data)), parsed.crc
 
 
-def _read_attachment(stream: BinaryIO, offset: int, length: int, where: Path) -> BagAttachment:
-    stream.seek(offset)
-    return _attachment_from_body(stream.read(length)[RECORD_PREFIX.size:], offset, where)
+def _read_attachment(stream: BinaryIO, index: AttachmentIndex, file: Path, where: str) -> _Stored:
+    stream.seek(index.offset)
+    record = stream.read(index.length)
+    if len(record) < index.length:
+        raise RigAttachmentError(where, index.name, f"truncated (the attachment at byte {index.offset} runs past the end of "
+                                                    f"{file.name}); `roi-node recover {where}` keeps what is whole")
+    return _attachment_from_body(record[RECORD_PREFIX.size:], index.offset, file, where)
 
 
-def _rig_inputs(entries: dict[str, str], attachments: tuple[BagAttachment, ...], where: Path) -> RigInputs:
-    """The `roi_node.rig` record's entries and the file's attachments as RigInputs, every named attachment present."""
-    names = {a.name for a in attachments}
-    references = {k: v for k, v in entries.items() if k not in (VERSION_KEY, "rig_id", RIG_KEY)}
-    missing = sorted({entries.get(RIG_KEY, RIG_ATTACHMENT), *references.values()} - names)
-    if missing:
-        raise BagError(f"{where}: the {RIG_METADATA_NAME} record names attachments the file does not hold: {', '.join(missing)}")
-    rig_files = tuple(a for a in attachments if a.name in {RIG_ATTACHMENT, *references.values()})
-    return RigInputs(entries.get("rig_id", ""), entries.get(VERSION_KEY, ""), rig_files, references)
+def _record_entries(entries: dict[str, str], where: str) -> tuple[dict[str, str], dict[str, str]]:
+    """The record's references (rig YAML key path -> attachment name) and digests (attachment name -> hex SHA-256)."""
+    references, digests = {}, {}
+    for key, value in entries.items():
+        if key.startswith(DIGEST_PREFIX):
+            digests[key.removeprefix(DIGEST_PREFIX)] = value
+        elif _KEY_PATH.fullmatch(key):
+            references[key] = value
+        elif key not in (VERSION_KEY, "rig_id", RIG_KEY):
+            raise BagError(f"{where}: the {RIG_METADATA_NAME} record's key {key!r} is neither a rig YAML key path "
+                           f"(e.g. robots[0].urdf) nor {DIGEST_PREFIX}<attachment name>")
+    return references, digests
+
+
+def _trusted(name: str, stored: list[_Stored], digests: dict[str, str], where: str) -> None:
+    """Refuse a rig attachment that is missing, stored twice, stored without a CRC or unlike its digest."""
+    copies = [(a, crc) for a, crc in stored if a.name == name]
+    if not copies:
+        raise RigAttachmentError(where, name, f"missing (the {RIG_METADATA_NAME} record names it; the bag holds no such attachment)")
+    if len(copies) > 1:
+        raise RigAttachmentError(where, name, f"stored {len(copies)} times; which one is the rig's cannot be told")
+    attachment, crc = copies[0]
+    if crc == 0:
+        raise RigAttachmentError(where, name, "stored without a CRC (0), so its bytes are unchecked")
+    if digests and digests.get(name) != hashlib.sha256(attachment.data).hexdigest():
+        found = "no digest" if name not in digests else "another digest"
+        raise RigAttachmentError(where, name, f"its bytes do not match the {RIG_METADATA_NAME} record ({found}): "
+                                              "changed after the bag was written")
+
+
+def _rig_inputs(entries: dict[str, str], stored: list[_Stored], where: str) -> RigInputs:
+    """The `roi_node.rig` record's entries and the file's attachments as RigInputs, every named attachment trusted.
+
+    Every name the record gives is a path inside `rig/` (member_names.py), so no reader writes outside its folder.
+    """
+    references, digests = _record_entries(entries, where)
+    if entries.get(RIG_KEY, RIG_ATTACHMENT) != RIG_ATTACHMENT:
+        raise BagError(f"{where}: the {RIG_METADATA_NAME} record's {RIG_KEY} is {entries[RIG_KEY]!r}; expected {RIG_ATTACHMENT}")
+    named = {RIG_ATTACHMENT, *references.values(), *digests}
+    for name in sorted(named):
+        if check_member_name(name, where).parts[0] != "rig":
+            raise MemberNameError(where, name, f"not a file of the rig (the {RIG_METADATA_NAME} record names files under rig/)")
+        _trusted(name, stored, digests, where)
+    rig_files = tuple(a for a, _ in stored if a.name in named)
+    return RigInputs(entries.get("rig_id", ""), entries.get(VERSION_KEY, ""), rig_files, references, digested=bool(digests))
 
 
 def leading_rig_inputs(path: Path) -> RigInputs | None:
@@ -219,7 +303,7 @@ def leading_rig_inputs(path: Path) -> RigInputs | None:
     which has no summary to index them, still carries them: `recover` passes
     them on. None when the front holds no `roi_node.rig` record.
     """
-    attachments: list[BagAttachment] = []
+    attachments: list[_Stored] = []
     entries: dict[str, str] | None = None
     try:
         size = path.stat().st_size
@@ -231,16 +315,21 @@ def leading_rig_inputs(path: Path) -> RigInputs | None:
                 opcode, length = RECORD_PREFIX.unpack(prefix)
                 if opcode not in (Opcode.HEADER, Opcode.ATTACHMENT, Opcode.METADATA):
                     break  # the first schema, channel, chunk or message: the front is over
-                if length > size - stream.tell():
-                    break  # cut inside a record, or a damaged length: never read (or allocate) past the file's end
+                if length > size - stream.tell():  # never read (or allocate) past the file's end
+                    if opcode == Opcode.ATTACHMENT:  # cut inside the rig, or a damaged length
+                        raise BagError(f"{path}: the rig stored in the file is truncated (the attachment at byte {offset} "
+                                       "runs past the file's end)")
+                    break
                 body = stream.read(length)
                 if opcode == Opcode.ATTACHMENT:
-                    attachments.append(_attachment_from_body(body, offset, path))
+                    attachments.append(_attachment_from_body(body, offset, path, str(path)))
                 elif opcode == Opcode.METADATA and (record := metadata_record(body)).name == RIG_METADATA_NAME:
+                    if entries is not None:
+                        raise BagError(f"{path}: two {RIG_METADATA_NAME} records; which one describes the rig cannot be told")
                     entries = dict(record.metadata)
     except (OSError, ValueError) as exc:  # ValueError: also a MalformedRecordError
         raise BagError(f"{path}: cannot read the rig stored in the bag ({exc})") from exc
-    return None if entries is None else _rig_inputs(entries, tuple(attachments), path)
+    return None if entries is None else _rig_inputs(entries, attachments, str(path))
 
 
 def read_rig_inputs(bag: Path) -> RigInputs | None:
@@ -250,16 +339,23 @@ def read_rig_inputs(bag: Path) -> RigInputs | None:
         return None
     try:
         with files[0].open("rb") as stream:
+            stream.seek(-len(MAGIC), 2)
+            if stream.read() != MAGIC:  # no summary to find the rig by: never guess from a cut file
+                raise BagError(f"{files[0]}: truncated (it does not end with MCAP's closing magic), so the rig it carries "
+                               f"cannot be read whole; `roi-node recover {bag}` finishes it")
+            stream.seek(0)
             reader = make_reader(stream)
             records = [m for m in reader.iter_metadata() if m.name == RIG_METADATA_NAME]
             if not records:
                 return None
             summary = reader.get_summary()
             indexes = [] if summary is None else list(summary.attachment_indexes)
-            attachments = tuple(_read_attachment(stream, i.offset, i.length, files[0]) for i in indexes)
+            attachments = [_read_attachment(stream, i, files[0], str(bag)) for i in indexes]
     except (OSError, McapError, ValueError) as exc:  # ValueError: also a MalformedRecordError
         raise BagError(f"{files[0]}: cannot read the rig stored in the bag ({exc})") from exc
-    return _rig_inputs(dict(records[0].metadata), attachments, files[0])
+    if len(records) > 1:
+        raise BagError(f"{bag}: {len(records)} {RIG_METADATA_NAME} records; which one describes the rig cannot be told")
+    return _rig_inputs(dict(records[0].metadata), attachments, str(bag))
 
 
 def _set_reference(doc: dict[str, Any], key_path: str, value: str, where: str) -> None:
@@ -281,7 +377,7 @@ def extract_rig(inputs: RigInputs, folder: Path, where: str) -> Path:
     """Write the carried files into `folder` and a copy of the rig YAML pointing at them; return that YAML's path."""
     by_name = {a.name: a for a in inputs.attachments}
     for attachment in inputs.attachments:
-        target = folder / attachment.name
+        target = member_path(folder, attachment.name, where)
         target.parent.mkdir(parents=True, exist_ok=True)
         target.write_bytes(attachment.data)
     try:
@@ -301,10 +397,17 @@ def extract_rig(inputs: RigInputs, folder: Path, where: str) -> Path:
 def stored_rig(bag: Path) -> Iterator[tuple[Path, RigInputs]]:
     """The rig YAML extracted from `bag` (valid inside the block) and the inputs as stored.
 
-    A bag that carries no rig raises UsageError naming the bag and `--config`.
+    A bag that carries no rig raises UsageError naming the bag and `--config`. An error
+    raised inside the block that names an extracted file names it as the file inside the bag.
     """
     inputs = read_rig_inputs(bag)
     if inputs is None:
         raise UsageError(f"{bag}: the bag holds no rig (it was not written with one); pass --config RIG_YAML")
     with tempfile.TemporaryDirectory(prefix="roi_node_rig_") as folder:
-        yield extract_rig(inputs, Path(folder), str(bag)), inputs
+        try:
+            yield extract_rig(inputs, Path(folder), str(bag)), inputs
+        except RoiNodeError as exc:  # named as the file inside the bag: the extracted copy is gone when this is read
+            if folder not in str(exc):
+                raise
+            text = str(exc).replace(f"{folder}/rig.yaml", f"{bag}:{RIG_ATTACHMENT}").replace(f"{folder}/", f"{bag}:")
+            raise BagError(text) from exc

@@ -132,8 +132,7 @@ class BagWriter:
         (None: McapFileWriter's default); `sharing_policy`: the session's sharing policy file, as written,
         put beside the storage (bagio/bag_files.py) before the first message.
         """
-        self.path = Path(path)
-        check_target(self.path, overwrite)
+        self.path = check_target(Path(path), overwrite)  # through a symlink: the bag is written at its target
         self.typestore = typestore()
         self.compression = Compression(compression)
         self._on_error = on_error

@@ -49,7 +49,7 @@ from roi_node.quality.gates import GateSet, load_gates
 from roi_node.quality.roibag import METADATA_TOPIC
 from roi_node.quality.validate import judge
 from roi_node.trust.sharing import Audience, SharingPolicy, admit, read_dataset_sharing, write_dataset_sharing
-from roi_node.util.atomic_output import commit, ensure_parent, remove_orphaned_partials, remove_path, temporary_sibling
+from roi_node.util.atomic_output import commit, ensure_parent, output_path, remove_orphaned_partials, remove_path, temporary_sibling
 
 
 @dataclass(frozen=True)
@@ -137,7 +137,7 @@ def export_lerobot(
     ensure_parent(output)
     provenance = _provenance(state, options)
     gates = load_gates(options.gates)
-    with _staging(output, state.spec is not None) as work:
+    with _staging(output_path(output), state.spec is not None) as work:  # an appended dataset's symlink is written through
         writer: DatasetWriter | None = None
         reports: list[EpisodeReport] = []
         try:

@@ -17,6 +17,7 @@ import json
 import os
 from pathlib import Path
 
+from roi_node.bagio.member_names import member_path
 from roi_node.bagio.rig_attachments import RigInputs
 from roi_node.datasets.errors import DatasetFileError, DatasetWriteError
 
@@ -48,8 +49,11 @@ def _episodes(root: Path, dataset: Path) -> dict[int, str | None]:
 
 
 def _write(root: Path, dataset: Path, relative: str, data: bytes) -> None:
-    """A new file, or a replaced one: written beside and renamed, so a hard link to an appended dataset's file is never written through."""
-    target = root / relative
+    """A new file, or a replaced one: written beside and renamed, so a hard link to an appended dataset's file is never written through.
+
+    `relative` holds an attachment name from a bag: it stays inside the dataset or is refused (bagio/member_names.py).
+    """
+    target = member_path(root, relative, str(dataset))
     tmp = target.with_name(target.name + ".tmp")
     try:
         target.parent.mkdir(parents=True, exist_ok=True)

@@ -63,6 +63,13 @@ def text_hash(text: str) -> str:
     return bytes_version(text.encode())
 
 
+def fk_version(urdf_sha256_by_robot: dict[str, str]) -> str:
+    """A lineage's fk_ver: one robot's URDF version, or for several a hash of each robot's URDF SHA-256 by id."""
+    if len(urdf_sha256_by_robot) == 1:
+        return HASH_PREFIX + next(iter(urdf_sha256_by_robot.values()))[:VERSION_HEX_DIGITS]
+    return text_hash(",".join(f"{k}={v}" for k, v in sorted(urdf_sha256_by_robot.items())))
+
+
 def generator_version() -> str:
     return f"roi_node {__version__}"
 

@@ -30,18 +30,16 @@ from roi_node.engine.errors import ConfigError, ImageError, InputDataError, Join
 from roi_node.engine.joint_limits import beyond_limits
 from roi_node.engine.kinematics import RobotKinematics, unique_in_order
 from roi_node.engine.metadata import (
-    HASH_PREFIX,
     M_DECIMALS,
     MS_DECIMALS,
     PX_DECIMALS,
     RATIO_DECIMALS,
-    VERSION_HEX_DIGITS,
     Lineage,
     content_hash,
+    fk_version,
     generator_version,
     rnd,
     rnd_list,
-    text_hash,
 )
 from roi_node.engine.quality import confidence, in_frame_ratio, padding_ratio
 from roi_node.engine.records import ArmFlag, ArmRecord, BaseRecord, FrameRecord, PoseRecord, SyncRecord, TeleopRecord
@@ -232,10 +230,7 @@ class RoiPipeline:
         return _FramePoses(world_T_cam.inverse(), world_T_base, {r: tuple(f) for r, f in flags.items()}, moving_camera)
 
     def _fk_version(self) -> str:
-        shas = {r.id: self._kinematics[r.id].urdf_sha256 for r in self.rig.robots}
-        if len(shas) == 1:
-            return HASH_PREFIX + next(iter(shas.values()))[:VERSION_HEX_DIGITS]
-        return text_hash(",".join(f"{k}={v}" for k, v in sorted(shas.items())))
+        return fk_version({r.id: self._kinematics[r.id].urdf_sha256 for r in self.rig.robots})
 
     def _lineage(self, camera: CameraModel) -> Lineage:
         cam = self.rig.camera

@@ -70,6 +70,8 @@ def _replay_one(source: Path, args: argparse.Namespace) -> int:
             check_bag_path(source)
             with stored_rig(source) as (config, carried):
                 print(f"replay: using the rig stored in {source} ({carried.described()})", file=sys.stderr)
+                if carried.note is not None:
+                    print(f"replay: note: {carried.note}", file=sys.stderr)
                 summary = replay_bag(source, Path(args.output), config, progress=True, carried_rig=carried, **replay_options(args))
     except ReplayInterrupted as exc:
         print("\n".join(exc.summary.lines()))

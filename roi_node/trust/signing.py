@@ -67,7 +67,7 @@ def sign(path: Path, how: SignWith, signature: Path | None = None, *, overwrite:
     kind = kind_of(path)
     target = signature_path(path, signature)
     config, identity = _signing_config(how)
-    check_target(target, overwrite)
+    target = check_target(target, overwrite)
     usability = check_usable(path, kind, None)
     if usability.findings:
         return SignResult(path, kind, target, identity, 0, usability.findings)

@@ -12,6 +12,9 @@ same folder as the target, so the final rename never crosses filesystems.
 A run killed mid-write leaves its hidden sibling (or, between the two
 renames, the old output set aside); the next run of that output settles both
 (`settle_killed_runs`), so nothing hidden accumulates and no old output is lost.
+What is replaced is only ever a regular file or folder (`output_path`): a
+FIFO, device or socket at the path is refused, and a symlink is written
+through, so its target gets the new output and the link stays a link.
 Pure Python (no ROS, no bag libraries): bag/ and report/ both use it.
 """
 
@@ -20,6 +23,7 @@ from __future__ import annotations
 import glob
 import os
 import shutil
+import stat
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -35,16 +39,55 @@ class OutputExistsError(BagWriteError):
     """The output path is taken and --overwrite was not given."""
 
 
-def check_target(target: Path, overwrite: bool) -> None:
-    """Refuse an existing output unless `overwrite`; create its missing parent folders.
+class OutputKindError(BagWriteError):
+    """The output path holds what is never replaced: not a regular file or folder (a FIFO, device, socket, broken link)."""
+
+    def __init__(self, target: Path, found: str) -> None:
+        super().__init__(f"{target}: {found}, not a regular file or folder; only those are replaced (remove it or choose another path)")
+        self.target = target
+        self.found = found
+
+
+_KINDS = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def output_path(target: Path) -> Path:
+    """Where an output at `target` is written: `target`, or through a symlink the file or folder it points to.
+
+    Writing through keeps the link a link and gives its target the new
+    output (replacing the link would leave the target's old content in use);
+    anything that is not a regular file or folder raises OutputKindError.
+    """
+    real = target
+    if target.is_symlink():
+        try:
+            real = target.resolve(strict=False)
+        except (OSError, RuntimeError) as exc:  # RuntimeError: a symlink loop
+            raise OutputKindError(target, f"a symlink that does not resolve ({exc})") from exc
+    try:
+        mode = real.stat().st_mode
+    except (FileNotFoundError, NotADirectoryError):  # a new output (a missing parent is ensure_parent's to report)
+        return real
+    except OSError as exc:
+        raise OutputKindError(target, f"unreadable ({exc.strerror or exc})") from exc
+    for test, kind in _KINDS:
+        if test(mode):
+            raise OutputKindError(target, kind if real == target else f"a symlink to {real}, {kind}")
+    return real
+
+
+def check_target(target: Path, overwrite: bool) -> Path:
+    """Refuse an existing output unless `overwrite`; create its missing parent folders; return where to write (`output_path`).
 
     What a killed run of the same output left is settled first (`settle_killed_runs`).
     """
-    if target.parent.is_dir():
-        settle_killed_runs(target)
+    real = output_path(target)
+    if real.parent.is_dir():
+        settle_killed_runs(real)
     if (target.exists() or target.is_symlink()) and not overwrite:
         raise OutputExistsError(f"{target}: output exists; choose another path or pass --overwrite")
-    ensure_parent(target)
+    ensure_parent(real)
+    return real
 
 
 def ensure_parent(target: Path) -> None:
@@ -145,7 +188,7 @@ def atomic_output(target: Path, *, overwrite: bool) -> Iterator[Path]:
     finalized partial result moves it away itself before re-raising (see
     `keep_interrupted`).
     """
-    check_target(target, overwrite)
+    target = check_target(target, overwrite)
     partial = temporary_sibling(target)
     remove_path(partial)
     try:
@@ -162,6 +205,7 @@ def atomic_output(target: Path, *, overwrite: bool) -> Iterator[Path]:
 
 def replace_file(path: Path, data: bytes) -> None:
     """Write `data` through a new sibling renamed over `path`: no reader sees half a file, no hard link to it is written through."""
+    path = output_path(path)
     fresh = path.with_name(f".{path.name}.new")
     fresh.write_bytes(data)
     os.replace(fresh, path)
