@@ -19,16 +19,18 @@ class UnknownActionNameError(ConfigError):
 
 
 class ActionShapeError(InputDataError):
-    """A policy output that is not a vector or chunk of the action's length; the policy and the features disagree."""
+    """A policy output that is not a vector, chunk or mapping of the action's length; the policy and the features
+    disagree. `returned` says what came back: a shape, or the kind of value where there is none (None, a string)."""
 
-    def __init__(self, source: str, shape: tuple[int, ...], length: int) -> None:
+    def __init__(self, source: str, length: int, returned: str, shape: tuple[int, ...] | None = None) -> None:
         super().__init__(
-            f"{source}: returned an action of shape {shape}; expected ({length},) or a chunk (steps, {length}) "
-            f"over the {length} action names"
+            f"{source}: returned {returned}; expected ({length},) or a chunk (steps, {length}) of real numbers over the "
+            f"{length} action names, or a mapping of each name to a number or a series of steps"
         )
         self.source = source
         self.shape = shape
         self.length = length
+        self.returned = returned
 
 
 class ActionNamesError(InputDataError):
