@@ -94,10 +94,8 @@ def as_action_chunk(output: Any, action_names: Sequence[str], source: str) -> np
     (lists, torch tensors on the CPU), or a mapping of every action name to
     its position or to its series of N positions (one per step).
     """
-    if isinstance(output, Mapping):
-        array = _mapping_chunk(output, action_names, source)
-    else:
-        array = _real_array(output, source, len(action_names))
+    mapping = isinstance(output, Mapping)
+    array = _mapping_chunk(output, action_names, source) if mapping else _real_array(output, source, len(action_names))
     given = array.shape
     if array.ndim == 3 and array.shape[0] == 1:
         array = array[0]

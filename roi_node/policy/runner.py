@@ -18,8 +18,10 @@ Observations are read on a thread of their own (the newest frame wins); a
 node that stops publishing ends the run with the stream's error. A NaN/inf
 output is refused and counted, the run goes on; an output of the wrong shape
 or names ends it (the policy and the features disagree, which no later call
-mends), as does a policy that raises. SIGINT and SIGTERM stop the loop
-between ticks; the last line sums the run up either way.
+mends), as does a policy that raises. SIGINT and SIGTERM stop the run
+wherever it waits (the preflight, the loop between ticks, the reader): every
+wait looks at the stop event, so neither a silent node nor a looped bag
+holds a stop up. The last line sums the run up either way.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from roi_node.live.spin import ros_context
 from roi_node.policy.action_publisher import ActionPublisher
 from roi_node.policy.action_stats import ActionStats
 from roi_node.policy.actions import ActionChunkQueue, ActionClamp, ActionStep, action_joints
+from roi_node.policy.errors import StopRequestedError
 from roi_node.policy.features import PolicyFeatures
 from roi_node.policy.loaders import LoadedPolicy, PolicyKind, check_lerobot_folder, load_callable, load_lerobot, policy_kind
 from roi_node.policy.observations import PolicyObservation, PolicyObservationStream
@@ -99,43 +102,57 @@ def run_policy(features: PolicyFeatures, options: RunOptions) -> int:
 
     stop = threading.Event()
     stats = ActionStats()
+    started = time.monotonic()
     with stop_on_signals(stop) as received, ros_context(options.ros_args, rclpy_signal_handlers=False), \
             PolicyObservationStream(features, task=options.task, timeout_s=options.observation_timeout_s,
-                                    ros_args=options.ros_args) as stream:
+                                    ros_args=options.ros_args, stop=stop) as stream:
         node = Node("roi_node_policy")
         publisher = ActionPublisher(node, options.command_topic, features.action_names, clamp, stats)
-        require_fit(features, stream.describe_node(options.describe_frames))
-        if policy is None:
-            policy = load_lerobot(options.policy)
-        print(f"roi-node policy run: {policy.label} ({policy.kind}) -> {options.command_topic} at {features.fps} Hz, "
-              f"{len(features.action_names)} joints", file=sys.stderr, flush=True)
-        latest = LatestObservation()
-        reader = threading.Thread(target=_read_observations, args=(stream, latest, stop), name="policy-observations", daemon=True)
-        reader.start()
-        started = time.monotonic()
+        reader: threading.Thread | None = None
         try:
-            _loop(policy, features, publisher, latest, stop, options.refill_below)
+            require_fit(features, stream.describe_node(options.describe_frames))
+            if policy is None:
+                policy = load_lerobot(options.policy)
+            print(f"roi-node policy run: {policy.label} ({policy.kind}) -> {options.command_topic} at {features.fps:g} Hz, "
+                  f"{len(features.action_names)} joints", file=sys.stderr, flush=True)
+            latest = LatestObservation()
+            reader = threading.Thread(target=_read_observations, args=(stream, latest, stop), name="policy-observations", daemon=True)
+            reader.start()
+            _loop(policy, features, publisher, latest, stop, options.refill_below, options.observation_timeout_s)
+        except StopRequestedError:  # a signal while the node was awaited: a stop, not a failure
+            pass
         finally:
             stop.set()
-            reader.join(timeout=options.observation_timeout_s + 1.0)
-            publisher.publish_diagnostics()
-            why = f"stopped by {received[0]}" if received else "stopped"
-            print(f"roi-node policy run: {why} after {time.monotonic() - started:.1f} s; {stats.summary()}", flush=True)
+            if reader is not None:
+                reader.join()  # its waits look at `stop`
+            if reader is not None or received:  # a run that failed before its loop says so in one line, no summary
+                publisher.publish_diagnostics()
+                why = f"stopped by {received[0]}" if received else "stopped"
+                print(f"roi-node policy run: {why} after {time.monotonic() - started:.1f} s; {stats.summary()}", flush=True)
             node.destroy_node()
     return 0
 
 
 def _read_observations(stream: PolicyObservationStream, latest: LatestObservation, stop: threading.Event) -> None:
-    """Until `stop`: each new observation into `latest`; the stream's error (a silent node) ends the run."""
+    """Until `stop`: each new observation into `latest`; the stream's error (a silent node) ends the run. A new epoch
+    (the node's stamps went back: a looped bag, a restarted source) is said on stderr; its frames are taken on."""
+    epoch: int | None = None
     try:
         while not stop.is_set():
-            latest.put(stream.next())
+            observation = stream.next()
+            if epoch is not None and observation.epoch != epoch:
+                print(f"roi-node policy run: the node's stamps went back to {observation.stamp_ns} (a looped bag or a "
+                      f"restarted source): epoch {observation.epoch}, its frames taken as new", file=sys.stderr, flush=True)
+            epoch = observation.epoch
+            latest.put(observation)
+    except StopRequestedError:
+        pass
     except Exception as exc:  # NodeNotObservedError or a record that does not parse: the main loop raises it
         latest.fail(exc)
 
 
 def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPublisher, latest: LatestObservation,
-          stop: threading.Event, refill_below: int) -> None:
+          stop: threading.Event, refill_below: int, close_timeout_s: float) -> None:
     stats = publisher.stats
     queue = ActionChunkQueue(refill_below)
     period_ns = round(NS_PER_S / features.fps)
@@ -178,7 +195,7 @@ def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPubli
                 due_ns += int(missed) * period_ns
             stop.wait(max(due_ns - time.monotonic_ns(), 0) / NS_PER_S)
     finally:
-        worker.close()
+        worker.close(close_timeout_s)
 
 
 def _seed_from_state(publisher: ActionPublisher, observation: PolicyObservation, features: PolicyFeatures) -> None:

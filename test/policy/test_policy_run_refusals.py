@@ -91,7 +91,7 @@ class Bench:
         feeder = threading.Thread(target=feed if offer_more else stop.wait, daemon=True)
         feeder.start()
         try:
-            _loop(LoadedPolicy("test:policy", PolicyKind.CALLABLE, act, lambda: None), self.features, self.publisher, latest, stop, 1)
+            _loop(LoadedPolicy("test:policy", PolicyKind.CALLABLE, act, lambda: None), self.features, self.publisher, latest, stop, 1, 10.0)
         finally:
             stop.set()
             feeder.join()
