@@ -19,26 +19,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from roi_node.engine.errors import RoiNodeError
-from roi_node.policy.action_errors import NonFiniteActionError
+from roi_node.policy.action_errors import NonFiniteActionError, PolicyCallError
 from roi_node.policy.action_stats import ActionStats
 from roi_node.policy.actions import as_action_chunk
 from roi_node.policy.loaders import LoadedPolicy
 from roi_node.policy.observations import PolicyObservation
 
 WAIT_SLICE_S = 0.05  # how often a waiting thread looks at the stop flag
-
-
-class PolicyCallError(RoiNodeError):
-    """The policy raised while acting: the run stops, naming the policy, the frame and the error."""
-
-    def __init__(self, policy: str, stamp_ns: int, error: BaseException) -> None:
-        detail = str(error).splitlines()[0][:300] if str(error) else ""
-        super().__init__(f"--policy {policy}: raised {type(error).__name__}{': ' + detail if detail else ''} "
-                         f"on the observation of frame {stamp_ns}")
-        self.policy = policy
-        self.stamp_ns = stamp_ns
-        self.error = error
 
 
 class LatestObservation:
@@ -142,11 +129,11 @@ class PolicyWorker:
         self.stats.count_observation_age(observation.frame_age_s)
         try:
             output = self.policy.act(observation.batch)
-        except Exception as exc:  # the policy's own failure: named with the frame, never a traceback
+        except BaseException as exc:  # sys.exit, KeyboardInterrupt (no signal reaches this thread), GeneratorExit too
             raise PolicyCallError(self.policy.label, observation.stamp_ns, exc) from exc
         self.stats.count_policy_call()
         try:
-            steps = as_action_chunk(output, self.action_names, self.policy.label)
+            steps = as_action_chunk(output, self.action_names, f"--policy {self.policy.label}")
         except NonFiniteActionError as exc:
             self.stats.count_refusal(type(exc).__name__, str(exc))
             print(f"roi-node policy run: {exc}", file=sys.stderr, flush=True)

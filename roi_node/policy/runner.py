@@ -42,6 +42,7 @@ from roi_node.engine.config import load_rig_config
 from roi_node.engine.errors import RoiNodeError
 from roi_node.engine.sync import NS_PER_S
 from roi_node.live.spin import ros_context
+from roi_node.policy.action_errors import PolicyLoadError, policy_did
 from roi_node.policy.action_publisher import ActionPublisher
 from roi_node.policy.action_stats import ActionStats
 from roi_node.policy.actions import ActionChunkQueue, ActionClamp, ActionStep, action_joints
@@ -70,18 +71,31 @@ class RunOptions:
     ros_args: tuple[str, ...]
 
 
+@dataclass
+class StopSignals:
+    """SIGINT/SIGTERM received during a run: each sets `stop` and is named in `received`. While `interrupting`, a
+    signal also raises KeyboardInterrupt, for code that cannot look at `stop` (a policy module's import); a
+    KeyboardInterrupt with nothing received came from the policy itself."""
+
+    stop: threading.Event
+    received: list[str]
+    interrupting: bool = False
+
+
 @contextmanager
-def stop_on_signals(stop: threading.Event) -> Iterator[list[str]]:
-    """SIGINT/SIGTERM set `stop`; the list yielded receives the signal's name. Previous handlers restored on exit."""
-    received: list[str] = []
+def stop_on_signals(stop: threading.Event) -> Iterator[StopSignals]:
+    """SIGINT/SIGTERM set `stop` (see StopSignals); the previous handlers are restored on exit."""
+    signals = StopSignals(stop, [])
 
     def handler(signum: int, frame: FrameType | None) -> None:
-        received.append(signal.Signals(signum).name)
+        signals.received.append(signal.Signals(signum).name)
         stop.set()
+        if signals.interrupting:
+            raise KeyboardInterrupt
 
     previous = {signum: signal.signal(signum, handler) for signum in STOP_SIGNALS}
     try:
-        yield received
+        yield signals
     finally:
         for signum, old in previous.items():
             signal.signal(signum, old)
@@ -89,21 +103,28 @@ def stop_on_signals(stop: threading.Event) -> Iterator[list[str]]:
 
 def run_policy(features: PolicyFeatures, options: RunOptions) -> int:
     """Run until SIGINT/SIGTERM (exit 0, the summary printed) or a failure (raised: the CLI's one line, exit 2)."""
+    stats = ActionStats()
+    started = time.monotonic()
+    with stop_on_signals(threading.Event()) as signals:
+        try:
+            _run(features, options, signals, stats, started)
+        except StopRequestedError:  # a signal while the policy imported or the node was awaited: a stop, not a failure
+            _say_stopped(signals, started, stats)
+    return 0
+
+
+def _run(features: PolicyFeatures, options: RunOptions, signals: StopSignals, stats: ActionStats, started: float) -> None:
     policy: LoadedPolicy | None = None  # a LeRobot policy's weights open after the preflight
     if policy_kind(options.policy) is PolicyKind.LEROBOT:
         check_lerobot_folder(options.policy)
     else:
-        policy = load_callable(options.policy)
+        policy = _import_policy(options.policy, signals)
     if not features.action_names:
         raise RoiNodeError(f"{features.source}: names no action (features.action.names): nothing to command")
     rig = load_rig_config(options.rig)
     clamp = ActionClamp(action_joints(rig, features.action_names, max_step_rad=options.max_step_rad, max_step_m=options.max_step_m))
-
-
-    stop = threading.Event()
-    stats = ActionStats()
-    started = time.monotonic()
-    with stop_on_signals(stop) as received, ros_context(options.ros_args, rclpy_signal_handlers=False), \
+    stop = signals.stop
+    with ros_context(options.ros_args, rclpy_signal_handlers=False), \
             PolicyObservationStream(features, task=options.task, timeout_s=options.observation_timeout_s,
                                     ros_args=options.ros_args, stop=stop) as stream:
         node = Node("roi_node_policy")
@@ -119,18 +140,37 @@ def run_policy(features: PolicyFeatures, options: RunOptions) -> int:
             reader = threading.Thread(target=_read_observations, args=(stream, latest, stop), name="policy-observations", daemon=True)
             reader.start()
             _loop(policy, features, publisher, latest, stop, options.refill_below, options.observation_timeout_s)
-        except StopRequestedError:  # a signal while the node was awaited: a stop, not a failure
+        except StopRequestedError:
             pass
         finally:
             stop.set()
             if reader is not None:
                 reader.join()  # its waits look at `stop`
-            if reader is not None or received:  # a run that failed before its loop says so in one line, no summary
+            if reader is not None or signals.received:  # a run that failed before its loop says so in one line
                 publisher.publish_diagnostics()
-                why = f"stopped by {received[0]}" if received else "stopped"
-                print(f"roi-node policy run: {why} after {time.monotonic() - started:.1f} s; {stats.summary()}", flush=True)
+                _say_stopped(signals, started, stats)
             node.destroy_node()
-    return 0
+
+
+def _import_policy(spec: str, signals: StopSignals) -> LoadedPolicy:
+    """`load_callable`, where a signal interrupts the import: the user's is a stop, the policy's own
+    KeyboardInterrupt (nothing received) its failure, like its SystemExit or GeneratorExit (loaders.py)."""
+    signals.interrupting = True
+    try:
+        if signals.stop.is_set():
+            raise KeyboardInterrupt
+        return load_callable(spec)
+    except KeyboardInterrupt as exc:
+        if signals.received:
+            raise StopRequestedError("the policy module's import") from exc
+        raise PolicyLoadError(spec, f"importing module {spec.partition(':')[0]!r} failed: it {policy_did(exc)}") from exc
+    finally:
+        signals.interrupting = False
+
+
+def _say_stopped(signals: StopSignals, started: float, stats: ActionStats) -> None:
+    why = f"stopped by {signals.received[0]}" if signals.received else "stopped"
+    print(f"roi-node policy run: {why} after {time.monotonic() - started:.1f} s; {stats.summary()}", flush=True)
 
 
 def _read_observations(stream: PolicyObservationStream, latest: LatestObservation, stop: threading.Event) -> None:
