@@ -46,6 +46,7 @@ from roi_node.policy.action_errors import PolicyLoadError, policy_did
 from roi_node.policy.action_publisher import ActionPublisher
 from roi_node.policy.action_stats import ActionStats
 from roi_node.policy.actions import ActionChunkQueue, ActionClamp, ActionStep, action_joints
+from roi_node.policy.command_topic import POLICY_NODE_NAME, check_command_graph, check_command_topic
 from roi_node.policy.errors import StopRequestedError
 from roi_node.policy.features import PolicyFeatures
 from roi_node.policy.loaders import LoadedPolicy, PolicyKind, check_lerobot_folder, load_callable, load_lerobot, policy_kind
@@ -123,15 +124,18 @@ def _run(features: PolicyFeatures, options: RunOptions, signals: StopSignals, st
         raise RoiNodeError(f"{features.source}: names no action (features.action.names): nothing to command")
     rig = load_rig_config(options.rig)
     clamp = ActionClamp(action_joints(rig, features.action_names, max_step_rad=options.max_step_rad, max_step_m=options.max_step_m))
+    check_command_topic(options.command_topic, rig)
     stop = signals.stop
     with ros_context(options.ros_args, rclpy_signal_handlers=False), \
             PolicyObservationStream(features, task=options.task, timeout_s=options.observation_timeout_s,
                                     ros_args=options.ros_args, stop=stop) as stream:
-        node = Node("roi_node_policy")
-        publisher = ActionPublisher(node, options.command_topic, features.action_names, clamp, stats)
+        node = Node(POLICY_NODE_NAME)
+        publisher: ActionPublisher | None = None
         reader: threading.Thread | None = None
         try:
             require_fit(features, stream.describe_node(options.describe_frames))
+            check_command_graph(node, options.command_topic)  # the node's endpoints are known once its frames came
+            publisher = ActionPublisher(node, options.command_topic, features.action_names, clamp, stats)
             if policy is None:
                 policy = load_lerobot(options.policy)
             print(f"roi-node policy run: {policy.label} ({policy.kind}) -> {options.command_topic} at {features.fps:g} Hz, "
@@ -147,7 +151,8 @@ def _run(features: PolicyFeatures, options: RunOptions, signals: StopSignals, st
             if reader is not None:
                 reader.join()  # its waits look at `stop`
             if reader is not None or signals.received:  # a run that failed before its loop says so in one line
-                publisher.publish_diagnostics()
+                if publisher is not None:
+                    publisher.publish_diagnostics()
                 _say_stopped(signals, started, stats)
             node.destroy_node()
 
