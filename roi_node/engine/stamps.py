@@ -93,3 +93,18 @@ class StreamClock:
         self.last_ns = max(self._candidate)
         self._candidate.clear()
         return StampCheck(StampVerdict.ACCEPTED, self.epoch, release_held=True)
+
+
+
+def started_over(stamp_ns: int, newest_ns: int) -> bool:
+    """Whether a stream whose newest stamp is `newest_ns` started over at `stamp_ns`: more than MAX_BACKWARD_NS behind
+    it is a new epoch (a bag played in a loop, a restarted source), not a late frame of the old one."""
+    return stamp_ns < newest_ns - MAX_BACKWARD_NS
+
+
+def is_later(stamp_ns: int, than_ns: int) -> bool:
+    """Whether a stream's `stamp_ns` comes after `than_ns`: a later stamp, or one of a new epoch (`started_over`).
+
+    A consumer that took only later stamps never took another frame once a looped bag went back to its start.
+    """
+    return stamp_ns > than_ns or started_over(stamp_ns, than_ns)

@@ -19,16 +19,18 @@ class UnknownActionNameError(ConfigError):
 
 
 class ActionShapeError(InputDataError):
-    """A policy output that is not a vector or chunk of the action's length; the policy and the features disagree."""
+    """A policy output that is not a vector, chunk or mapping of the action's length; the policy and the features
+    disagree. `returned` says what came back: a shape, or the kind of value where there is none (None, a string)."""
 
-    def __init__(self, source: str, shape: tuple[int, ...], length: int) -> None:
+    def __init__(self, source: str, length: int, returned: str, shape: tuple[int, ...] | None = None) -> None:
         super().__init__(
-            f"{source}: returned an action of shape {shape}; expected ({length},) or a chunk (steps, {length}) "
-            f"over the {length} action names"
+            f"{source}: returned {returned}; expected ({length},) or a chunk (steps, {length}) of real numbers over the "
+            f"{length} action names, or a mapping of each name to a number or a series of steps"
         )
         self.source = source
         self.shape = shape
         self.length = length
+        self.returned = returned
 
 
 class ActionNamesError(InputDataError):
@@ -58,3 +60,25 @@ class PolicyLoadError(ConfigError):
         super().__init__(f"--policy {policy}: {problem}")
         self.policy = policy
         self.problem = problem
+
+
+def policy_did(error: BaseException) -> str:
+    """What a policy did when it did not return, as a phrase: `called sys.exit(3)`, `raised GeneratorExit`, `raised
+    ValueError: <its first line>`. The one place a policy's escape is named: a SystemExit, KeyboardInterrupt or
+    GeneratorExit out of a policy (on import or per call) is its failure, classified like any exception, so it never
+    becomes the process's exit status (0, 3, 130) or a traceback."""
+    if isinstance(error, SystemExit):
+        return f"called sys.exit({'' if error.code is None else repr(error.code)})"
+    detail = str(error).splitlines()[0][:300] if str(error).strip() else ""
+    return f"raised {type(error).__name__}{': ' + detail if detail else ''}"
+
+
+class PolicyCallError(InputDataError):
+    """The policy did not return while acting (it raised, or called sys.exit): the run stops, naming the policy,
+    what it did and the frame."""
+
+    def __init__(self, policy: str, stamp_ns: int, error: BaseException) -> None:
+        super().__init__(f"--policy {policy}: {policy_did(error)} on the observation of frame {stamp_ns}")
+        self.policy = policy
+        self.stamp_ns = stamp_ns
+        self.error = error

@@ -86,35 +86,60 @@ def _urdf_joints(path: Path) -> dict[str, UrdfJoint]:
 
 
 def as_action_chunk(output: Any, action_names: Sequence[str], source: str) -> np.ndarray:
-    """A policy's output as a (steps, len(action_names)) float64 chunk; raises for a wrong shape, other names or NaN/inf.
+    """A policy's output as a (steps, len(action_names)) float64 chunk; raises for a wrong shape, other names, values
+    that are not real numbers, or NaN/inf.
 
     Accepted: a vector (A,), a chunk (N, A), a batched chunk (1, N, A) as
     LeRobot's `predict_action_chunk` returns, anything numpy reads as one
     (lists, torch tensors on the CPU), or a mapping of every action name to
-    its position.
+    its position or to its series of N positions (one per step).
     """
-    if isinstance(output, Mapping):
-        missing = [n for n in action_names if n not in output]
-        unknown = [str(k) for k in output if k not in action_names]
-        if missing or unknown:
-            raise ActionNamesError(source, missing, unknown)
-        output = [output[n] for n in action_names]
-    if hasattr(output, "detach"):  # a torch tensor: numpy reads it only off the graph and on the CPU
-        output = output.detach().cpu().numpy()
-    try:
-        array = np.asarray(output, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ActionShapeError(source, (), len(action_names)) from exc
+    mapping = isinstance(output, Mapping)
+    array = _mapping_chunk(output, action_names, source) if mapping else _real_array(output, source, len(action_names))
+    given = array.shape
     if array.ndim == 3 and array.shape[0] == 1:
         array = array[0]
     if array.ndim == 1:
         array = array[np.newaxis, :]
     if array.ndim != 2 or array.shape[0] == 0 or array.shape[1] != len(action_names):
-        raise ActionShapeError(source, tuple(np.shape(output)), len(action_names))
+        raise ActionShapeError(source, len(action_names), f"an action of shape {given}", given)
     bad = [not bool(np.isfinite(array[:, column]).all()) for column in range(array.shape[1])]
     if any(bad):
         raise NonFiniteActionError(source, [n for n, b in zip(action_names, bad, strict=True) if b])
     return array
+
+
+def _mapping_chunk(output: Mapping[Any, Any], action_names: Sequence[str], source: str) -> np.ndarray:
+    """A mapping read by name: each joint's value is its position (a number) or its positions step by step (a 1-d
+    series), so a joint's series becomes a column of the chunk whatever the number of steps. It is never read as a
+    matrix, which took a joint's steps for the joints of one step when there were as many steps as joints."""
+    missing = [n for n in action_names if n not in output]
+    unknown = [str(k) for k in output if k not in action_names]
+    if missing or unknown:
+        raise ActionNamesError(source, missing, unknown)
+    columns = [_real_array(output[n], source, len(action_names)) for n in action_names]
+    shapes = {c.shape for c in columns}
+    if not columns or len(shapes) > 1 or columns[0].ndim > 1 or columns[0].shape == (0,):
+        detail = ", ".join(f"{n}: {c.shape}" for n, c in zip(action_names, columns, strict=True))
+        raise ActionShapeError(source, len(action_names), f"a mapping whose values are not all numbers or all series "
+                               f"of one length ({detail})")
+    return np.stack(columns, axis=-1).reshape(-1, len(action_names))
+
+
+def _real_array(output: Any, source: str, length: int) -> np.ndarray:
+    """`output` as float64, or ActionShapeError saying what it is: numpy reads None as NaN, a complex array as its
+    real part (a warning, not an error) and a string of digits as a number, so each is refused by its kind first."""
+    if hasattr(output, "detach"):  # a torch tensor: numpy reads it only off the graph and on the CPU
+        output = output.detach().cpu().numpy()
+    if output is None or isinstance(output, str | bytes):
+        raise ActionShapeError(source, length, f"a {type(output).__name__}")
+    try:
+        array = np.asarray(output)
+    except (TypeError, ValueError) as exc:  # ragged lists
+        raise ActionShapeError(source, length, f"a {type(output).__name__} numpy cannot read as an array ({exc})") from exc
+    if array.dtype.kind not in "iuf":  # complex, bool, strings, objects (a generator, a None in a list)
+        raise ActionShapeError(source, length, f"a {type(output).__name__} of {array.dtype} values, not real numbers")
+    return array.astype(np.float64)
 
 
 @dataclass(frozen=True)

@@ -23,3 +23,12 @@ class NodeNotObservedError(RoiNodeError):
         super().__init__(f"no description of the running node after {waited_s:g} s: {reason}")
         self.waited_s = waited_s
         self.reason = reason
+
+
+class StopRequestedError(RoiNodeError):
+    """The stop event (SIGINT/SIGTERM in `policy run`) was set while a wait for the node was on: the run ends as
+    stopped by the user, not as a failure of the node."""
+
+    def __init__(self, waiting_for: str) -> None:
+        super().__init__(f"stopped while waiting for {waiting_for}")
+        self.waiting_for = waiting_for

@@ -15,6 +15,7 @@ read with the words that wrote it.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -84,7 +85,7 @@ class PolicyFeatures:
     state_names: tuple[str, ...]  # observation.state, in info.json's order
     action_names: tuple[str, ...]
     numeric: tuple[NumericFeature, ...]
-    fps: int
+    fps: float  # LeRobot writes an int; a float (14.99) is read as it is, never truncated
     robot_type: str | None
 
     state_key = STATE_KEY
@@ -122,17 +123,28 @@ class PolicyFeatures:
 
 
 def read_json(path: Path) -> dict[str, Any]:
+    """The JSON object in `path`; NaN and Infinity (which Python's json reads, and JSON has not) are refused."""
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = json.loads(path.read_text(encoding="utf-8"), parse_constant=_no_constant)
     except FileNotFoundError as exc:
         raise PolicyFeaturesError(path, "does not exist") from exc
     except (OSError, UnicodeDecodeError) as exc:
         raise PolicyFeaturesError(path, f"cannot be read ({exc})") from exc
     except json.JSONDecodeError as exc:
         raise PolicyFeaturesError(path, f"is not JSON (line {exc.lineno}: {exc.msg})") from exc
+    except _NonFiniteJsonError as exc:
+        raise PolicyFeaturesError(path, f"is not JSON: it holds {exc.args[0]} (a number must be finite)") from exc
     if not isinstance(doc, dict):
         raise PolicyFeaturesError(path, f"expected a JSON object, got {type(doc).__name__}")
     return doc
+
+
+class _NonFiniteJsonError(ValueError):
+    """NaN, Infinity or -Infinity in a JSON file: raised by the parser, turned into the file's one line."""
+
+
+def _no_constant(name: str) -> Any:
+    raise _NonFiniteJsonError(name)
 
 
 def _checkpoint_config(path: Path) -> Path | None:
@@ -159,7 +171,10 @@ def _trained_on(given: Path, config: Path) -> Path:
     if not train_config.is_file():
         raise PolicyFeaturesError(given, f"a checkpoint's {CONFIG_JSON} names no joints, and no {TRAIN_CONFIG_JSON} beside it "
                                   "names its dataset: give the training dataset (--dataset ROOT)")
-    root = read_json(train_config).get("dataset", {}).get("root")
+    dataset = read_json(train_config).get("dataset", {})
+    if not isinstance(dataset, dict):
+        raise PolicyFeaturesError(train_config, f"dataset: expected an object with the dataset's root, got {dataset!r:.80}")
+    root = dataset.get("root")
     if not isinstance(root, str) or not (Path(root) / INFO_JSON).is_file():
         raise PolicyFeaturesError(train_config, f"dataset.root {root!r} is not a local dataset with {INFO_JSON}: "
                                   "give the training dataset (--dataset ROOT)")
@@ -171,7 +186,7 @@ def _from_info(given: Path, info_path: Path, info: dict[str, Any], kind: Feature
     if not isinstance(features, dict):
         raise PolicyFeaturesError(info_path, "has no 'features' object (not a LeRobot dataset's meta/info.json)")
     fps = info.get("fps")
-    if not isinstance(fps, int | float) or isinstance(fps, bool) or fps <= 0:
+    if not isinstance(fps, int | float) or isinstance(fps, bool) or not math.isfinite(fps) or fps <= 0:
         raise PolicyFeaturesError(info_path, f"fps: expected a positive number, got {fps!r}")
     images: list[ImageFeature] = []
     numeric: list[NumericFeature] = []
@@ -190,7 +205,7 @@ def _from_info(given: Path, info_path: Path, info: dict[str, Any], kind: Feature
         state_names=_names(info_path, features, STATE_KEY),
         action_names=_names(info_path, features, ACTION_KEY) if ACTION_KEY in features else (),
         numeric=tuple(numeric),
-        fps=int(fps),
+        fps=float(fps),
         robot_type=info.get("robot_type") if isinstance(info.get("robot_type"), str) else None,
     )
 
@@ -232,4 +247,6 @@ def _names(path: Path, features: dict[str, Any], key: str) -> tuple[str, ...]:
         names = next(iter(names.values()))
     if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
         raise PolicyFeaturesError(path, f"features.{key}.names: expected a list of joint names, got {names!r}")
+    if twice := sorted({n for n in names if names.count(n) > 1}):  # by name, a second entry would shadow the first
+        raise PolicyFeaturesError(path, f"features.{key}.names: {', '.join(map(repr, twice))} more than once; each joint once")
     return tuple(names)

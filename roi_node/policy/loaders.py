@@ -27,7 +27,7 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
-from roi_node.policy.action_errors import PolicyLoadError
+from roi_node.policy.action_errors import PolicyLoadError, policy_did
 
 LEROBOT_FILES = ("config.json", "model.safetensors")
 PREPROCESSOR_JSON = "policy_preprocessor.json"
@@ -83,8 +83,8 @@ def load_callable(spec: str) -> LoadedPolicy:
         module = importlib.import_module(module_name)
     except ModuleNotFoundError as exc:
         raise PolicyLoadError(spec, f"cannot import module {module_name!r}: no module named {exc.name!r}") from exc
-    except Exception as exc:  # the module's own code failed on import: a SyntaxError, a missing dependency, its own error
-        raise PolicyLoadError(spec, f"importing module {module_name!r} failed: {type(exc).__name__}: {exc}") from exc
+    except (Exception, SystemExit, GeneratorExit) as exc:  # its own code failed on import (a KeyboardInterrupt: runner)
+        raise PolicyLoadError(spec, f"importing module {module_name!r} failed: it {policy_did(exc)}") from exc
     function = module
     for part in function_name.split("."):
         if not hasattr(function, part):

@@ -41,7 +41,7 @@ from rclpy.node import Node
 
 from roi_node.datasets.features import GLOBAL_KEY, STATE_KEY, FrameColumns, ImageSize
 from roi_node.engine.records import FrameRecord
-from roi_node.policy.errors import NodeNotObservedError
+from roi_node.policy.errors import NodeNotObservedError, StopRequestedError
 from roi_node.policy.features import LEROBOT_DEFAULT_KEYS, PolicyFeatures
 from roi_node.policy.preflight import NodePublication
 from roi_node.rostools.consumer import Observation, ObservationClient
@@ -63,6 +63,7 @@ class PolicyObservation:
     frame_age_s: float  # delivery time - header stamp, on the node's clock
     joint_age_s: float | None  # delivery time - the synchronised joint sample's stamp; None without one
     record: FrameRecord
+    epoch: int = 0  # how often the node's stamps went back (a looped bag, a restarted source) before this frame
 
 
 def image_chw(pixels: np.ndarray) -> np.ndarray:
@@ -98,11 +99,14 @@ class PolicyObservationStream:
     `latest` True is the control-loop mode (each `next` is the newest frame
     after the last one handed out, a backlog skipped); False hands out every
     frame in order. Iterating stops when no frame arrives within `timeout_s`,
-    raising NodeNotObservedError that names the silent topic.
+    raising NodeNotObservedError that names the silent topic, or once `stop`
+    is set (StopRequestedError): every wait looks at it, so a stop is never held up
+    by a silent node.
     """
 
     def __init__(self, features: PolicyFeatures, *, task: str = "", node: Node | None = None, latest: bool = True,
-                 transport: str = OutputTransport.RAW, timeout_s: float = 10.0, ros_args: Sequence[str] = ()) -> None:
+                 transport: str = OutputTransport.RAW, timeout_s: float = 10.0, ros_args: Sequence[str] = (),
+                 stop: threading.Event | None = None) -> None:
         self.features = features
         self.task = task
         self.latest = latest
@@ -115,8 +119,9 @@ class PolicyObservationStream:
         self._owned = contextlib.ExitStack()  # the hidden client node, when this stream runs its own
         self._executor: SingleThreadedExecutor | None = None
         self._stop = threading.Event()
+        self._stop_waits = stop
         self._spinner: threading.Thread | None = None
-        self._last_stamp_ns: int | None = None
+        self._last: tuple[int, int] | None = None  # (epoch, stamp_ns) of the last frame handed out
 
     def __enter__(self) -> PolicyObservationStream:
         if self._given_node is None:
@@ -154,10 +159,14 @@ class PolicyObservationStream:
     def _next_frame(self, timeout_s: float) -> Observation:
         client = self.client
         started = time.monotonic()
-        frame = client.latest(self._last_stamp_ns, timeout_s) if self.latest else client.get(timeout_s)
+        stop = self._stop_waits
+        epoch, stamp = self._last or (None, None)
+        frame = client.latest(stamp, timeout_s, epoch=epoch, stop=stop) if self.latest else client.get(timeout_s, stop=stop)
+        if frame is None and stop is not None and stop.is_set():
+            raise StopRequestedError("the node's next frame")
         if frame is None:
             raise NodeNotObservedError(time.monotonic() - started, client.waiting_for() or "no new complete frame")
-        self._last_stamp_ns = frame.stamp_ns
+        self._last = (frame.epoch, frame.stamp_ns)
         return frame
 
     def next(self, timeout_s: float | None = None) -> PolicyObservation:
@@ -169,7 +178,7 @@ class PolicyObservationStream:
         now_ns = self._node.get_clock().now().nanoseconds
         joint_ns = record.sync.joint_stamp_ns
         return PolicyObservation(batch, frame.stamp_ns, (now_ns - frame.stamp_ns) / 1e9,
-                                 None if joint_ns is None else (now_ns - joint_ns) / 1e9, record)
+                                 None if joint_ns is None else (now_ns - joint_ns) / 1e9, record, frame.epoch)
 
     def __iter__(self) -> Iterator[PolicyObservation]:
         while True:
@@ -182,7 +191,9 @@ class PolicyObservationStream:
         view from its records (not the policy's: a renamed arm is a mismatch
         to report, not a topic to wait on), taking every frame in order, so
         the camera rate is the median gap between consecutive stamps; its
-        subscriptions end with it.
+        subscriptions end with it. Frames of a new epoch (the stamps went
+        back: a looped bag) start the count again, so the rate is measured
+        within one pass.
         """
         assert self._node is not None
         probe = ObservationClient(self._node, None, max_buffer=frames, transport=self._transport)
@@ -191,11 +202,13 @@ class PolicyObservationStream:
         seen: list[Observation] = []
         try:
             while len(seen) < frames:
-                frame = probe.get(max(deadline - time.monotonic(), 0.0))
+                frame = probe.get(max(deadline - time.monotonic(), 0.0), stop=self._stop_waits)
+                if frame is None and self._stop_waits is not None and self._stop_waits.is_set():
+                    raise StopRequestedError("the node's frames for the preflight")
                 if frame is None:
                     raise NodeNotObservedError(time.monotonic() - started, probe.waiting_for() or
                                                f"{len(seen)} of {frames} complete frames")
-                seen.append(frame)
+                seen = [*seen, frame] if not seen or seen[-1].epoch == frame.epoch else [frame]
         finally:
             probe.close()
         first = seen[0]

@@ -19,26 +19,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from roi_node.engine.errors import RoiNodeError
-from roi_node.policy.action_errors import NonFiniteActionError
+from roi_node.policy.action_errors import NonFiniteActionError, PolicyCallError
 from roi_node.policy.action_stats import ActionStats
 from roi_node.policy.actions import as_action_chunk
 from roi_node.policy.loaders import LoadedPolicy
 from roi_node.policy.observations import PolicyObservation
 
 WAIT_SLICE_S = 0.05  # how often a waiting thread looks at the stop flag
-
-
-class PolicyCallError(RoiNodeError):
-    """The policy raised while acting: the run stops, naming the policy, the frame and the error."""
-
-    def __init__(self, policy: str, stamp_ns: int, error: BaseException) -> None:
-        detail = str(error).splitlines()[0][:300] if str(error) else ""
-        super().__init__(f"--policy {policy}: raised {type(error).__name__}{': ' + detail if detail else ''} "
-                         f"on the observation of frame {stamp_ns}")
-        self.policy = policy
-        self.stamp_ns = stamp_ns
-        self.error = error
 
 
 class LatestObservation:
@@ -59,15 +46,18 @@ class LatestObservation:
             self.error = error
             self._changed.notify_all()
 
-    def wait_newer(self, than_stamp_ns: int | None, timeout_s: float) -> PolicyObservation | None:
-        """An observation stamped after `than_stamp_ns` (any, for None), waiting up to `timeout_s`; None if none came."""
+    def wait_newer(self, than: PolicyObservation | None, timeout_s: float) -> PolicyObservation | None:
+        """An observation after `than` (a later stamp or a later epoch; any, for None), waiting up to `timeout_s`;
+        None if none came."""
         with self._changed:
-            self._changed.wait_for(lambda: self.error is not None or self._newer(than_stamp_ns) is not None, timeout_s)
-            return self._newer(than_stamp_ns)
+            self._changed.wait_for(lambda: self.error is not None or self._newer(than) is not None, timeout_s)
+            return self._newer(than)
 
-    def _newer(self, than_stamp_ns: int | None) -> PolicyObservation | None:
+    def _newer(self, than: PolicyObservation | None) -> PolicyObservation | None:
         obs = self.observation
-        return obs if obs is not None and (than_stamp_ns is None or obs.stamp_ns > than_stamp_ns) else None
+        if obs is None or than is None:
+            return obs
+        return obs if (obs.epoch, obs.stamp_ns) > (than.epoch, than.stamp_ns) else None
 
 
 @dataclass(frozen=True)
@@ -87,7 +77,7 @@ class PolicyWorker:
         self._stop = threading.Event()
         self._result: PolicyChunk | None = None
         self._error: BaseException | None = None
-        self._used_stamp_ns: int | None = None
+        self._used: PolicyObservation | None = None
         self._thread = threading.Thread(target=self._run, name="policy", daemon=True)
         self._thread.start()
 
@@ -107,20 +97,25 @@ class PolicyWorker:
             result, self._result = self._result, None
         return result
 
-    def close(self) -> None:
+    def close(self, timeout_s: float) -> None:
+        """Stop; a policy still computing after `timeout_s` is left to the process's end (its thread is a daemon),
+        so a policy that never returns cannot hold the run's end up."""
         self._stop.set()
         self._requested.set()
-        self._thread.join()
+        self._thread.join(timeout_s)
+        if self._thread.is_alive():
+            print(f"roi-node policy run: --policy {self.policy.label} still computing after {timeout_s:g} s; "
+                  "not waited for", file=sys.stderr, flush=True)
 
     def _run(self) -> None:
         try:
             while not self._stop.is_set():
                 if not self._requested.wait(WAIT_SLICE_S):
                     continue
-                observation = self.latest.wait_newer(self._used_stamp_ns, WAIT_SLICE_S)
+                observation = self.latest.wait_newer(self._used, WAIT_SLICE_S)
                 if observation is None or self._stop.is_set():
                     continue
-                self._used_stamp_ns = observation.stamp_ns
+                self._used = observation
                 chunk = self._act(observation)
                 with self._lock:
                     if chunk is not None:
@@ -134,11 +129,11 @@ class PolicyWorker:
         self.stats.count_observation_age(observation.frame_age_s)
         try:
             output = self.policy.act(observation.batch)
-        except Exception as exc:  # the policy's own failure: named with the frame, never a traceback
+        except BaseException as exc:  # sys.exit, KeyboardInterrupt (no signal reaches this thread), GeneratorExit too
             raise PolicyCallError(self.policy.label, observation.stamp_ns, exc) from exc
         self.stats.count_policy_call()
         try:
-            steps = as_action_chunk(output, self.action_names, self.policy.label)
+            steps = as_action_chunk(output, self.action_names, f"--policy {self.policy.label}")
         except NonFiniteActionError as exc:
             self.stats.count_refusal(type(exc).__name__, str(exc))
             print(f"roi-node policy run: {exc}", file=sys.stderr, flush=True)

@@ -165,7 +165,7 @@ def _numeric(features: PolicyFeatures, node: NodePublication) -> list[Mismatch]:
 def _fps(features: PolicyFeatures, node: NodePublication) -> list[Mismatch]:
     if abs(node.camera_rate_hz - features.fps) <= FPS_TOLERANCE * features.fps:
         return []
-    return [Mismatch(MismatchKind.FPS, FPS_KEY, f"{features.fps} fps", f"a {node.camera_rate_hz:.1f} Hz camera")]
+    return [Mismatch(MismatchKind.FPS, FPS_KEY, f"{features.fps:g} fps", f"a {node.camera_rate_hz:.1f} Hz camera")]
 
 
 def _actions(features: PolicyFeatures, node: NodePublication) -> list[Mismatch]:

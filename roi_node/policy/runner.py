@@ -18,8 +18,10 @@ Observations are read on a thread of their own (the newest frame wins); a
 node that stops publishing ends the run with the stream's error. A NaN/inf
 output is refused and counted, the run goes on; an output of the wrong shape
 or names ends it (the policy and the features disagree, which no later call
-mends), as does a policy that raises. SIGINT and SIGTERM stop the loop
-between ticks; the last line sums the run up either way.
+mends), as does a policy that raises. SIGINT and SIGTERM stop the run
+wherever it waits (the preflight, the loop between ticks, the reader): every
+wait looks at the stop event, so neither a silent node nor a looped bag
+holds a stop up. The last line sums the run up either way.
 """
 
 from __future__ import annotations
@@ -40,9 +42,12 @@ from roi_node.engine.config import load_rig_config
 from roi_node.engine.errors import RoiNodeError
 from roi_node.engine.sync import NS_PER_S
 from roi_node.live.spin import ros_context
+from roi_node.policy.action_errors import PolicyLoadError, policy_did
 from roi_node.policy.action_publisher import ActionPublisher
 from roi_node.policy.action_stats import ActionStats
 from roi_node.policy.actions import ActionChunkQueue, ActionClamp, ActionStep, action_joints
+from roi_node.policy.command_topic import POLICY_NODE_NAME, check_command_graph, check_command_topic
+from roi_node.policy.errors import StopRequestedError
 from roi_node.policy.features import PolicyFeatures
 from roi_node.policy.loaders import LoadedPolicy, PolicyKind, check_lerobot_folder, load_callable, load_lerobot, policy_kind
 from roi_node.policy.observations import PolicyObservation, PolicyObservationStream
@@ -67,18 +72,31 @@ class RunOptions:
     ros_args: tuple[str, ...]
 
 
+@dataclass
+class StopSignals:
+    """SIGINT/SIGTERM received during a run: each sets `stop` and is named in `received`. While `interrupting`, a
+    signal also raises KeyboardInterrupt, for code that cannot look at `stop` (a policy module's import); a
+    KeyboardInterrupt with nothing received came from the policy itself."""
+
+    stop: threading.Event
+    received: list[str]
+    interrupting: bool = False
+
+
 @contextmanager
-def stop_on_signals(stop: threading.Event) -> Iterator[list[str]]:
-    """SIGINT/SIGTERM set `stop`; the list yielded receives the signal's name. Previous handlers restored on exit."""
-    received: list[str] = []
+def stop_on_signals(stop: threading.Event) -> Iterator[StopSignals]:
+    """SIGINT/SIGTERM set `stop` (see StopSignals); the previous handlers are restored on exit."""
+    signals = StopSignals(stop, [])
 
     def handler(signum: int, frame: FrameType | None) -> None:
-        received.append(signal.Signals(signum).name)
+        signals.received.append(signal.Signals(signum).name)
         stop.set()
+        if signals.interrupting:
+            raise KeyboardInterrupt
 
     previous = {signum: signal.signal(signum, handler) for signum in STOP_SIGNALS}
     try:
-        yield received
+        yield signals
     finally:
         for signum, old in previous.items():
             signal.signal(signum, old)
@@ -86,56 +104,100 @@ def stop_on_signals(stop: threading.Event) -> Iterator[list[str]]:
 
 def run_policy(features: PolicyFeatures, options: RunOptions) -> int:
     """Run until SIGINT/SIGTERM (exit 0, the summary printed) or a failure (raised: the CLI's one line, exit 2)."""
+    stats = ActionStats()
+    started = time.monotonic()
+    with stop_on_signals(threading.Event()) as signals:
+        try:
+            _run(features, options, signals, stats, started)
+        except StopRequestedError:  # a signal while the policy imported or the node was awaited: a stop, not a failure
+            _say_stopped(signals, started, stats)
+    return 0
+
+
+def _run(features: PolicyFeatures, options: RunOptions, signals: StopSignals, stats: ActionStats, started: float) -> None:
     policy: LoadedPolicy | None = None  # a LeRobot policy's weights open after the preflight
     if policy_kind(options.policy) is PolicyKind.LEROBOT:
         check_lerobot_folder(options.policy)
     else:
-        policy = load_callable(options.policy)
+        policy = _import_policy(options.policy, signals)
     if not features.action_names:
         raise RoiNodeError(f"{features.source}: names no action (features.action.names): nothing to command")
     rig = load_rig_config(options.rig)
     clamp = ActionClamp(action_joints(rig, features.action_names, max_step_rad=options.max_step_rad, max_step_m=options.max_step_m))
-
-
-    stop = threading.Event()
-    stats = ActionStats()
-    with stop_on_signals(stop) as received, ros_context(options.ros_args, rclpy_signal_handlers=False), \
+    check_command_topic(options.command_topic, rig)
+    stop = signals.stop
+    with ros_context(options.ros_args, rclpy_signal_handlers=False), \
             PolicyObservationStream(features, task=options.task, timeout_s=options.observation_timeout_s,
-                                    ros_args=options.ros_args) as stream:
-        node = Node("roi_node_policy")
-        publisher = ActionPublisher(node, options.command_topic, features.action_names, clamp, stats)
-        require_fit(features, stream.describe_node(options.describe_frames))
-        if policy is None:
-            policy = load_lerobot(options.policy)
-        print(f"roi-node policy run: {policy.label} ({policy.kind}) -> {options.command_topic} at {features.fps} Hz, "
-              f"{len(features.action_names)} joints", file=sys.stderr, flush=True)
-        latest = LatestObservation()
-        reader = threading.Thread(target=_read_observations, args=(stream, latest, stop), name="policy-observations", daemon=True)
-        reader.start()
-        started = time.monotonic()
+                                    ros_args=options.ros_args, stop=stop) as stream:
+        node = Node(POLICY_NODE_NAME)
+        publisher: ActionPublisher | None = None
+        reader: threading.Thread | None = None
         try:
-            _loop(policy, features, publisher, latest, stop, options.refill_below)
+            require_fit(features, stream.describe_node(options.describe_frames))
+            check_command_graph(node, options.command_topic)  # the node's endpoints are known once its frames came
+            publisher = ActionPublisher(node, options.command_topic, features.action_names, clamp, stats)
+            if policy is None:
+                policy = load_lerobot(options.policy)
+            print(f"roi-node policy run: {policy.label} ({policy.kind}) -> {options.command_topic} at {features.fps:g} Hz, "
+                  f"{len(features.action_names)} joints", file=sys.stderr, flush=True)
+            latest = LatestObservation()
+            reader = threading.Thread(target=_read_observations, args=(stream, latest, stop), name="policy-observations", daemon=True)
+            reader.start()
+            _loop(policy, features, publisher, latest, stop, options.refill_below, options.observation_timeout_s)
+        except StopRequestedError:
+            pass
         finally:
             stop.set()
-            reader.join(timeout=options.observation_timeout_s + 1.0)
-            publisher.publish_diagnostics()
-            why = f"stopped by {received[0]}" if received else "stopped"
-            print(f"roi-node policy run: {why} after {time.monotonic() - started:.1f} s; {stats.summary()}", flush=True)
+            if reader is not None:
+                reader.join()  # its waits look at `stop`
+            if reader is not None or signals.received:  # a run that failed before its loop says so in one line
+                if publisher is not None:
+                    publisher.publish_diagnostics()
+                _say_stopped(signals, started, stats)
             node.destroy_node()
-    return 0
+
+
+def _import_policy(spec: str, signals: StopSignals) -> LoadedPolicy:
+    """`load_callable`, where a signal interrupts the import: the user's is a stop, the policy's own
+    KeyboardInterrupt (nothing received) its failure, like its SystemExit or GeneratorExit (loaders.py)."""
+    signals.interrupting = True
+    try:
+        if signals.stop.is_set():
+            raise KeyboardInterrupt
+        return load_callable(spec)
+    except KeyboardInterrupt as exc:
+        if signals.received:
+            raise StopRequestedError("the policy module's import") from exc
+        raise PolicyLoadError(spec, f"importing module {spec.partition(':')[0]!r} failed: it {policy_did(exc)}") from exc
+    finally:
+        signals.interrupting = False
+
+
+def _say_stopped(signals: StopSignals, started: float, stats: ActionStats) -> None:
+    why = f"stopped by {signals.received[0]}" if signals.received else "stopped"
+    print(f"roi-node policy run: {why} after {time.monotonic() - started:.1f} s; {stats.summary()}", flush=True)
 
 
 def _read_observations(stream: PolicyObservationStream, latest: LatestObservation, stop: threading.Event) -> None:
-    """Until `stop`: each new observation into `latest`; the stream's error (a silent node) ends the run."""
+    """Until `stop`: each new observation into `latest`; the stream's error (a silent node) ends the run. A new epoch
+    (the node's stamps went back: a looped bag, a restarted source) is said on stderr; its frames are taken on."""
+    epoch: int | None = None
     try:
         while not stop.is_set():
-            latest.put(stream.next())
+            observation = stream.next()
+            if epoch is not None and observation.epoch != epoch:
+                print(f"roi-node policy run: the node's stamps went back to {observation.stamp_ns} (a looped bag or a "
+                      f"restarted source): epoch {observation.epoch}, its frames taken as new", file=sys.stderr, flush=True)
+            epoch = observation.epoch
+            latest.put(observation)
+    except StopRequestedError:
+        pass
     except Exception as exc:  # NodeNotObservedError or a record that does not parse: the main loop raises it
         latest.fail(exc)
 
 
 def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPublisher, latest: LatestObservation,
-          stop: threading.Event, refill_below: int) -> None:
+          stop: threading.Event, refill_below: int, close_timeout_s: float) -> None:
     stats = publisher.stats
     queue = ActionChunkQueue(refill_below)
     period_ns = round(NS_PER_S / features.fps)
@@ -178,7 +240,7 @@ def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPubli
                 due_ns += int(missed) * period_ns
             stop.wait(max(due_ns - time.monotonic_ns(), 0) / NS_PER_S)
     finally:
-        worker.close()
+        worker.close(close_timeout_s)
 
 
 def _seed_from_state(publisher: ActionPublisher, observation: PolicyObservation, features: PolicyFeatures) -> None:

@@ -53,7 +53,7 @@ def _cmd_preflight(args: argparse.Namespace) -> int:
     if mismatches:
         return EXIT_ERROR
     print(f"roi-node policy preflight: {features.source} fits the node: {len(features.images)} images, "
-          f"{len(features.state_names)} state joints, {features.fps} fps against a {node.camera_rate_hz:.1f} Hz camera, "
+          f"{len(features.state_names)} state joints, {features.fps:g} fps against a {node.camera_rate_hz:.1f} Hz camera, "
           f"{len(features.action_names)} actions", flush=True)
     return 0
 

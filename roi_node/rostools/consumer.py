@@ -12,6 +12,12 @@ were computed from (the record's `joint_positions`). Completed observations go
 to a bounded queue (oldest dropped and counted) for consumers that want every
 frame, and `latest()` serves control loops that want only the newest complete
 one. Incomplete stamps are evicted once `max_partial` newer stamps started.
+The node publishes its records in frame order, so a record not after the
+previous one is the node's stream starting over (a bag played with
+`--loop`, a restarted camera): a new epoch (`Observation.epoch`, `epochs`).
+Parts were once kept only for stamps after the newest complete one, so a
+looped bag never completed a frame again. Every wait takes a timeout and an optional stop
+event, looked at every STOP_POLL_S.
 """
 
 from __future__ import annotations
@@ -19,7 +25,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import Counter, OrderedDict, deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -32,12 +38,14 @@ from std_msgs.msg import String
 
 from roi_node.engine.errors import ConfigError
 from roi_node.engine.records import FrameRecord, RecordFormatError
+from roi_node.engine.stamps import is_later
 from roi_node.live.conversions import stamp_ns
 from roi_node.wire import topics
 from roi_node.wire.compressed_outputs import OutputTransport, compressed_topic
 from roi_node.wire.image_codec import image_from_compressed, image_from_msg
 
 GLOBAL = "global"
+STOP_POLL_S = 0.05  # how often a wait given a stop event looks at it
 
 
 @dataclass(frozen=True)
@@ -48,6 +56,7 @@ class Observation:
     joint_positions: dict[str, float]
     metadata: dict[str, Any]  # the record as its JSON mapping (record.as_dict())
     record: FrameRecord
+    epoch: int = 0  # how often the node's stamps went back (started over) before this frame
 
     def as_dict(self) -> dict[str, Any]:
         """The mapping a policy server usually takes: {stamp_ns, global, rois, joint_positions, metadata}."""
@@ -105,6 +114,8 @@ class ObservationClient:
         self._max_partial = max_partial
         self._ready: deque[Observation] = deque(maxlen=max_buffer)
         self._latest: Observation | None = None
+        self._record_ns: int | None = None  # the stamp of the last record
+        self.epochs = 0  # times the stamps went back more than a second: a looped bag, a restarted source
         self._cond = threading.Condition()
         self.dropped_unconsumed = 0  # complete observations pushed out of the full buffer
         self.dropped_incomplete = 0  # stamps evicted before every part arrived
@@ -179,10 +190,8 @@ class ObservationClient:
             pixels = image_from_compressed(msg.format, msg.data, key) if self._compressed else image_from_msg(msg, key).copy()
             with self._cond:
                 self._received[key] += 1
-                part = self._part(stamp_ns(msg.header))
-                if part is not None:
-                    part.images[key] = pixels
-                    self._complete(stamp_ns(msg.header))
+                self._part(stamp_ns(msg.header), False).images[key] = pixels
+                self._complete(stamp_ns(msg.header))
 
         return callback
 
@@ -199,20 +208,26 @@ class ObservationClient:
             self._received["metadata"] += 1
             if self.listed_arms is None:
                 self._discover(record)
-            part = self._part(record.stamp_ns)
-            if part is not None:
-                part.record = record
-                self._complete(record.stamp_ns)
+            went_back = self._record_ns is not None and record.stamp_ns <= self._record_ns
+            self._record_ns = record.stamp_ns
+            self._part(record.stamp_ns, went_back).record = record
+            self._complete(record.stamp_ns)
 
-    def _part(self, stamp: int) -> _Partial | None:
-        if stamp in self._partial:
-            return self._partial[stamp]
-        if self._latest is not None and stamp <= self._latest.stamp_ns:
-            return None  # a straggler of an evicted or older stamp
-        self._partial[stamp] = _Partial()
-        while len(self._partial) > self._max_partial:
-            self._partial.popitem(last=False)
-            self.dropped_incomplete += 1
+    def _part(self, stamp: int, went_back: bool) -> _Partial:
+        """The parts of `stamp` so far; `went_back` (a record not after the previous one) starts a new epoch: the old
+        epoch's parts never complete, but this frame's images may have come before its record and are kept."""
+        if went_back:
+            self.epochs += 1
+            first = self._partial.pop(stamp, None)
+            self.dropped_incomplete += len(self._partial)
+            self._partial.clear()
+            if first is not None:
+                self._partial[stamp] = first
+        if stamp not in self._partial:
+            self._partial[stamp] = _Partial()
+            while len(self._partial) > self._max_partial:
+                self._partial.popitem(last=False)
+                self.dropped_incomplete += 1
         return self._partial[stamp]
 
     def _complete(self, stamp: int) -> None:
@@ -230,6 +245,7 @@ class ObservationClient:
             joint_positions=dict(part.record.joint_positions),
             metadata=part.record.as_dict(),
             record=part.record,
+            epoch=self.epochs,
         )
         if len(self._ready) == self._ready.maxlen:
             self.dropped_unconsumed += 1
@@ -237,21 +253,38 @@ class ObservationClient:
         self._latest = observation
         self._cond.notify_all()
 
-    def get(self, timeout_s: float | None = None) -> Observation | None:
-        """The oldest buffered observation (every frame, in order); None on timeout."""
+    def get(self, timeout_s: float | None = None, *, stop: threading.Event | None = None) -> Observation | None:
+        """The oldest buffered observation (every frame, in order); None on timeout or once `stop` is set."""
         with self._cond:
-            if not self._cond.wait_for(lambda: bool(self._ready), timeout_s):
+            if not self._wait(lambda: bool(self._ready), timeout_s, stop):
                 return None
             return self._ready.popleft()
 
-    def latest(self, newer_than_ns: int | None = None, timeout_s: float | None = None) -> Observation | None:
-        """The newest complete observation (for control loops); waits for one newer than `newer_than_ns`."""
+    def latest(self, newer_than_ns: int | None = None, timeout_s: float | None = None, *, epoch: int | None = None,
+               stop: threading.Event | None = None) -> Observation | None:
+        """The newest complete observation (for control loops); waits for one after `newer_than_ns` of `epoch` (a later
+        stamp or a later epoch; without `epoch`, a later stamp or one a new epoch's: engine.stamps.is_later); None on
+        timeout or once `stop` is set."""
         with self._cond:
 
             def fresh() -> bool:
-                return self._latest is not None and (newer_than_ns is None or self._latest.stamp_ns > newer_than_ns)
+                obs = self._latest
+                if obs is None or newer_than_ns is None:
+                    return obs is not None
+                return (obs.epoch, obs.stamp_ns) > (epoch, newer_than_ns) if epoch is not None else is_later(obs.stamp_ns, newer_than_ns)
 
-            if not self._cond.wait_for(fresh, timeout_s):
+            if not self._wait(fresh, timeout_s, stop):
                 return None
             self._ready.clear()
             return self._latest
+
+    def _wait(self, ready: Callable[[], bool], timeout_s: float | None, stop: threading.Event | None) -> bool:
+        """`ready()` under the lock, waiting up to `timeout_s` (None: no limit) unless `stop` is set meanwhile."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while not ready():
+            remaining = None if deadline is None else deadline - time.monotonic()
+            if (stop is not None and stop.is_set()) or (remaining is not None and remaining <= 0):
+                return False
+            slices = [t for t in (remaining, STOP_POLL_S if stop is not None else None) if t is not None]
+            self._cond.wait(min(slices) if slices else None)
+        return True

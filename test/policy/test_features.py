@@ -14,6 +14,7 @@ import pytest
 from roi_node.cli import main
 from roi_node.policy.errors import PolicyFeaturesError
 from roi_node.policy.features import FeatureSource, PolicyFeatures
+from roi_node.policy.preflight import MismatchKind, NodePublication, preflight
 from test.policy.policyrig import RATE_HZ, export_dataset, read_info, record_session, write_checkpoint
 
 
@@ -94,3 +95,55 @@ def test_bad_files_are_one_line_naming_the_file(dataset: Path, tmp_path: Path, c
     assert refusal(capsys, "--features", str(missing)) == (
         f"roi-node policy: error: {missing}: does not exist (expected a dataset root, its meta/info.json, "
         "a checkpoint folder or its config.json)")
+
+
+def camera_at(rate_hz: float) -> NodePublication:
+    return NodePublication("robot", (), (), None, (), rate_hz, 10)
+
+
+@pytest.mark.parametrize(("fps", "camera_hz", "fits"), [(14.99, 15.0, True), (15, 15.6, True), (14.2, 15.0, False),
+                                                         (0.5, 0.5, True), (0.5, 15.0, False)])
+def test_fps_is_read_as_the_float_it_is(dataset: Path, tmp_path: Path, fps: float, camera_hz: float, fits: bool) -> None:
+    """14.99 fps is within 5% of a 15 Hz camera (it was truncated to 14, which is not); 0.5 is "0.5 fps", never 0."""
+    info = read_info(dataset)
+    info["fps"] = fps
+    (tmp_path / "info.json").write_text(json.dumps(info))
+    features = PolicyFeatures.load(tmp_path / "info.json")
+    assert features.fps == fps
+    mismatches = [m for m in preflight(features, camera_at(camera_hz)) if m.kind is MismatchKind.FPS]
+    assert (mismatches == []) is fits
+    if mismatches:
+        assert mismatches[0].line() == f"fps: the policy expects {fps:g} fps, the node publishes a {camera_hz:.1f} Hz camera"
+
+
+@pytest.mark.parametrize(("text", "problem"), [
+    ('{"fps": NaN, "features": {}}', "is not JSON: it holds NaN (a number must be finite)"),
+    ('{"fps": Infinity, "features": {}}', "is not JSON: it holds Infinity (a number must be finite)"),
+    ('{"fps": 15, "features": {"observation.state": {"dtype": "float32", "shape": [2], "names": [-Infinity]}}}',
+     "is not JSON: it holds -Infinity (a number must be finite)"),
+])
+def test_nan_and_infinity_are_one_line_naming_the_file(tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str,
+                                                       problem: str) -> None:
+    info = tmp_path / "info.json"
+    info.write_text(text)
+    assert refusal(capsys, "--features", str(info)) == f"roi-node policy: error: {info}: {problem}"
+
+
+def test_a_state_name_twice_is_one_line_naming_it(dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    info = read_info(dataset)
+    names = info["features"]["observation.state"]["names"]
+    names[3] = names[1]
+    (tmp_path / "info.json").write_text(json.dumps(info))
+    assert refusal(capsys, "--features", str(tmp_path / "info.json")) == (
+        f"roi-node policy: error: {tmp_path / 'info.json'}: features.observation.state.names: {names[1]!r} more than once; "
+        "each joint once")
+
+
+@pytest.mark.parametrize("value", ["local/session", ["root"], 7])
+def test_a_train_config_dataset_that_is_no_object_is_one_line(dataset: Path, tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str], value: object) -> None:
+    checkpoint = write_checkpoint(tmp_path, read_info(dataset))
+    (checkpoint / "train_config.json").write_text(json.dumps({"dataset": value}))
+    assert refusal(capsys, "--features", str(checkpoint)) == (
+        f"roi-node policy: error: {checkpoint / 'train_config.json'}: dataset: expected an object with the dataset's root, "
+        f"got {value!r}")

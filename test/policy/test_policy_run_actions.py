@@ -114,11 +114,54 @@ def test_a_mapping_is_ordered_by_the_action_names() -> None:
     assert err.value.unknown == ("elbow",) and err.value.missing == tuple(NAMES[1:])
 
 
-@pytest.mark.parametrize("output", [[0.1, 0.2, 0.3], np.zeros((2, 3, 4)), "left", []])
+@pytest.mark.parametrize("steps", [1, 3, len(NAMES), 7])
+def test_a_mapping_of_series_is_each_joints_steps_whatever_their_number(steps: int) -> None:
+    """joint -> its positions step by step: a column each, also with as many steps as joints (once read transposed)."""
+    series = {n: [10.0 * j + s for s in range(steps)] for j, n in enumerate(NAMES)}
+    chunk = as_action_chunk(dict(reversed(series.items())), NAMES, "policy")
+    assert chunk.shape == (steps, len(NAMES))
+    for j, name in enumerate(NAMES):
+        np.testing.assert_array_equal(chunk[:, j], series[name])
+
+
+@pytest.mark.parametrize("values", [
+    {0: [1.0, 2.0], 1: [1.0, 2.0, 3.0]},  # series of different lengths
+    {0: 1.0, 1: [1.0, 2.0]},  # a number beside a series
+    {0: [[1.0, 2.0]], 1: [[1.0, 2.0]]},  # a matrix per joint
+    {0: [], 1: []},  # no steps
+])
+def test_a_mapping_of_ragged_or_nested_values_is_refused_naming_each_joints_shape(values: dict[int, object]) -> None:
+    output = {n: values.get(j, values[1]) for j, n in enumerate(NAMES)}
+    with pytest.raises(ActionShapeError) as err:
+        as_action_chunk(output, NAMES, "pkg.mod:act")
+    assert err.value.returned.startswith("a mapping whose values are not all numbers or all series of one length")
+    assert f"{NAMES[0]}: {np.shape(output[NAMES[0]])}" in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize(("output", "returned"), [
+    (None, "a NoneType"),
+    ("0.1", "a str"),
+    (b"0.1", "a bytes"),
+    ((x for x in [0.1, 0.2, 0.3, 0.4]), "a generator of object values"),
+    (np.array([0.1, 0.2, 0.3, 0.4]) + 1j, "a ndarray of complex128 values"),
+    ([0.1 + 0j, 0.2, 0.3, 0.4], "a list of complex128 values"),
+    ([True, False, True, False], "a list of bool values"),
+    ([0.1, None, 0.3, 0.4], "a list of object values"),
+])
+def test_what_is_not_real_numbers_is_refused_by_its_kind(output: object, returned: str) -> None:
+    """numpy would read None as NaN, "0.1" as 0.1 and a complex array as its real part: each is named, never cast."""
+    with pytest.raises(ActionShapeError) as err:
+        as_action_chunk(output, NAMES, "pkg.mod:act")
+    assert err.value.returned.startswith(returned) and str(err.value).startswith(f"pkg.mod:act: returned {returned}")
+    with pytest.raises(ActionShapeError):
+        as_action_chunk(dict.fromkeys(NAMES, output), NAMES, "pkg.mod:act")
+
+
+@pytest.mark.parametrize("output", [[0.1, 0.2, 0.3], np.zeros((2, 3, 4)), [], [[0.1, 0.2], [0.3]]])
 def test_wrong_shapes_are_refused_naming_the_expected_length(output: object) -> None:
     with pytest.raises(ActionShapeError) as err:
         as_action_chunk(output, NAMES, "pkg.mod:act")
-    assert err.value.length == 4 and str(err.value).startswith("pkg.mod:act: returned an action of shape")
+    assert err.value.length == 4 and str(err.value).startswith("pkg.mod:act: returned a")
 
 
 def test_nan_is_refused_naming_the_joints() -> None:

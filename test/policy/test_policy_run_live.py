@@ -153,3 +153,69 @@ def test_a_lerobot_folder_without_lerobot_installed_is_refused_before_dds(datase
     done = policy_run("--policy", str(tmp_path), "--features", str(dataset), "--config", str(RIG))
     assert done.returncode == 2 and len(tool_lines(done.stderr.strip())) == 1
     assert "a LeRobot policy needs lerobot and torch" in done.stderr and ".venv-lerobot" in done.stderr
+
+
+@pytest.mark.parametrize(("module", "did"), [("test.policy.exits_on_import", "called sys.exit(0)"),
+                                             ("test.policy.interrupts_on_import", "raised KeyboardInterrupt")])
+def test_a_module_that_exits_or_interrupts_on_import_fails_as_the_policy(dataset: Path, module: str, did: str) -> None:
+    """Its own sys.exit(0) once ended the run with exit 0, its own KeyboardInterrupt with the user's 130."""
+    done = policy_run("--policy", f"{module}:act", "--features", str(dataset), "--config", str(RIG))
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert tool_lines(done.stderr.strip()) == [f"roi-node policy: error: --policy {module}:act: importing module {module!r} "
+                                               f"failed: it {did}"]
+
+
+@pytest.mark.dds
+def test_a_policy_that_calls_sys_exit_ends_the_run_with_exit_2(dataset: Path, tmp_path: Path) -> None:
+    """sys.exit(3) from the policy's call (on its own thread) once ended the process with exit 3."""
+    env = ros_env(next_domain())
+    sim = ["-m", "roi_node.cli", "sim", "live", "--config", str(RIG), "--duration", "300", "--rate-hz", "30"]
+    policy = ["-m", "roi_node.cli", "policy", "run", "--policy", "test.policy.misbehaving_policies:exits", "--features",
+              str(dataset), "--config", str(RIG), "--command-topic", COMMAND_TOPIC, "--timeout-s", "60"]
+    with process(sim, env, tmp_path / "sim.log"), process(node_args(RIG), env, tmp_path / "node.log"), \
+            process(policy, env, tmp_path / "policy.log") as runner:
+        assert runner.wait(timeout=CONVERGE_TIMEOUT_S) == 2, (tmp_path / "policy.log").read_text()
+    lines = tool_lines((tmp_path / "policy.log").read_text().strip())
+    assert lines[-1].startswith("roi-node policy: error: --policy test.policy.misbehaving_policies:exits: called sys.exit(3) "
+                                "on the observation of frame "), lines
+    assert "Traceback" not in (tmp_path / "policy.log").read_text()
+
+
+@pytest.mark.parametrize(("topic", "problem"), [
+    ("joint_states", "is the node's joint-state input (its default joint_state_topics), measured states"),
+    ("/joint_states", "is the node's joint-state input (its default joint_state_topics), measured states"),
+    ("image_raw", "is an input of camera 'front'"),
+    ("roi/metadata", "is among the node's outputs"),
+    ("joint commands", "not a topic name: topic name must not contain characters other than alphanumerics"),
+    ("9commands", "not a topic name: topic name token must not start with a number"),
+    ("/robot//commands", "not a topic name: topic name must not contain repeated '/'"),
+    ("", "not a topic name: topic name must not be empty string"),
+])
+def test_a_command_topic_that_carries_measured_states_or_is_no_name_is_refused_before_dds(
+        dataset: Path, topic: str, problem: str) -> None:
+    """Commands on the joint-state input would be read back as the robot's state; rclpy's error for a bad name came
+    only after DDS started. Both are one line before any node is sought (no node runs here)."""
+    done = policy_run("--policy", "examples.hold_pose_policy:hold_pose", "--features", str(dataset), "--config", str(RIG),
+                      "--command-topic", topic, "--timeout-s", "600")
+    lines = tool_lines(done.stderr.strip())
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert lines[0].startswith(f"roi-node policy: error: --command-topic {topic!r}: {problem}"), lines[0]
+
+
+@pytest.mark.dds
+def test_a_command_topic_another_node_publishes_measured_states_on_is_refused_before_the_first_command(
+        dataset: Path, tmp_path: Path) -> None:
+    """The sim's joint states remapped to `measured_states`, which the node reads: a name no default gives away, so
+    the graph refuses it once the node was observed, and nothing is published."""
+    env = ros_env(next_domain())
+    sim = ["-m", "roi_node.cli", "sim", "live", "--config", str(RIG), "--duration", "300", "--rate-hz", "30",
+           "--ros-args", "-r", "joint_states:=measured_states"]
+    policy = ["-m", "roi_node.cli", "policy", "run", "--policy", "examples.hold_pose_policy:hold_pose", "--features",
+              str(dataset), "--config", str(RIG), "--command-topic", "measured_states", "--timeout-s", "60"]
+    with process(sim, env, tmp_path / "sim.log"), \
+            process(node_args(RIG, "joint_state_topics:=['measured_states']"), env, tmp_path / "node.log"), \
+            process(policy, env, tmp_path / "policy.log") as runner:
+        assert runner.wait(timeout=CONVERGE_TIMEOUT_S) == 2, (tmp_path / "policy.log").read_text()
+    lines = tool_lines((tmp_path / "policy.log").read_text().strip())
+    assert len(lines) == 1 and lines[0].startswith("roi-node policy: error: --command-topic 'measured_states': "), lines
+    assert "already publish on /measured_states (measured states or another commander)" in lines[0]

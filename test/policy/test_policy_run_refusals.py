@@ -26,7 +26,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 from roi_node.engine.config import load_rig_config
-from roi_node.policy.action_errors import ActionShapeError
+from roi_node.policy.action_errors import ActionShapeError, PolicyCallError
 from roi_node.policy.action_publisher import ActionPublisher
 from roi_node.policy.action_stats import ActionStats
 from roi_node.policy.actions import ActionClamp, action_joints
@@ -34,9 +34,10 @@ from roi_node.policy.features import FeatureSource, PolicyFeatures
 from roi_node.policy.loaders import LoadedPolicy, PolicyKind
 from roi_node.policy.observations import PolicyObservation
 from roi_node.policy.policy_diagnostics import STATUS_NAME
-from roi_node.policy.policy_worker import LatestObservation, PolicyCallError
+from roi_node.policy.policy_worker import LatestObservation
 from roi_node.policy.runner import _loop
 from test.dds.harness import next_domain
+from test.policy import misbehaving_policies as misbehaving
 
 NAMES = ("left_panda_joint1", "left_panda_joint2", "left_panda_joint4")
 START = np.array([0.0, -0.3, -2.2])
@@ -91,7 +92,7 @@ class Bench:
         feeder = threading.Thread(target=feed if offer_more else stop.wait, daemon=True)
         feeder.start()
         try:
-            _loop(LoadedPolicy("test:policy", PolicyKind.CALLABLE, act, lambda: None), self.features, self.publisher, latest, stop, 1)
+            _loop(LoadedPolicy("test:policy", PolicyKind.CALLABLE, act, lambda: None), self.features, self.publisher, latest, stop, 1, 10.0)
         finally:
             stop.set()
             feeder.join()
@@ -157,3 +158,35 @@ def test_a_raising_policy_stops_the_run_naming_it_and_the_frame(bench: Bench) ->
         # once had the loop start on the feeder's second observation)
     assert str(err.value) == ("--policy test:policy: raised ValueError: checkpoint expects 14 joints on the observation of "
                               "frame 1000000000")
+
+
+@pytest.mark.dds
+@pytest.mark.parametrize(("act", "did"), [
+    (misbehaving.exits, "called sys.exit(3)"),
+    (misbehaving.exits_quietly, "called sys.exit()"),
+    (misbehaving.interrupts, "raised KeyboardInterrupt"),
+    (misbehaving.closes, "raised GeneratorExit: the generator was closed"),
+])
+def test_a_policy_that_exits_or_interrupts_itself_fails_as_the_policy(bench: Bench, act: Callable[[dict[str, Any]], Any],
+                                                                     did: str) -> None:
+    """sys.exit, KeyboardInterrupt and GeneratorExit out of the policy end the run as its failure (never the process's
+    exit status, or the user's interrupt), unpublished."""
+    with pytest.raises(PolicyCallError) as err:
+        bench.run(act, published=5, offer_more=False)
+    assert str(err.value) == f"--policy test:policy: {did} on the observation of frame 1000000000"
+    assert bench.stats.published == 0
+
+
+@pytest.mark.dds
+@pytest.mark.parametrize(("act", "returned"), [
+    (misbehaving.returns_none, "a NoneType"),
+    (misbehaving.returns_text, "a str"),
+    (misbehaving.yields, "a generator of object values, not real numbers"),
+    (misbehaving.returns_complex, "a ndarray of complex64 values, not real numbers"),
+])
+def test_a_policy_that_returns_no_action_stops_the_run_naming_what_it_returned(
+        bench: Bench, act: Callable[[dict[str, Any]], Any], returned: str) -> None:
+    with pytest.raises(ActionShapeError) as err:
+        bench.run(act, published=5, offer_more=False)
+    assert str(err.value).startswith(f"--policy test:policy: returned {returned}; expected (3,)")
+    assert bench.stats.published == 0

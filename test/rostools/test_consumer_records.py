@@ -96,3 +96,35 @@ def test_a_record_arrives_as_a_frame_record_and_a_malformed_one_is_counted(
     assert observation.joint_positions == json.loads(text)["joint_positions"]
     assert [int(observation.rois[arm][0, 0, 0]) for arm in arms] == list(range(1, len(arms) + 1))
     assert client.malformed_records == 1
+
+
+@pytest.mark.dds
+def test_stamps_that_go_back_start_a_new_epoch_and_keep_completing(spun_node: Node, bimanual_rig_path: Path,
+                                                                   tmp_path: Path) -> None:
+    """A looped bag: its records go back to the first stamp, by less than a second and by more. Each pass completes
+    every frame (they were dropped as stragglers of the newest stamp), and `latest` takes a new epoch's frames as new."""
+    replay_bag(write_sim_bag(bimanual_rig_path, tmp_path / "sim", duration_s=0.4, seed=3).path, tmp_path / "roi", bimanual_rig_path)
+    texts = metadata_texts(tmp_path / "roi")
+    records = [FrameRecord.from_json(text) for text in texts]
+    arms = [arm.arm_id for arm in records[0].arms]
+    client = ObservationClient(spun_node, arms, with_global=False, max_buffer=100, qos=RELIABLE)
+    metadata_pub = spun_node.create_publisher(String, topics.METADATA, RELIABLE)
+    image_pubs = [spun_node.create_publisher(Image, topics.roi_image(arm), RELIABLE) for arm in arms]
+    assert wait_until(client.matched, 30.0), "the client's subscriptions never matched"
+    stop = threading.Event()
+    handed = []
+    for epoch in range(3):
+        for text, record in zip(texts, records, strict=True):
+            for pub in image_pubs:
+                pub.publish(arm_image(record.stamp_ns, epoch))
+            metadata_pub.publish(String(data=text))
+            observation = client.get(timeout_s=30.0, stop=stop)
+            assert observation is not None, f"epoch {epoch}, frame {record.stamp_ns}: {client.waiting_for()}"
+            assert (observation.epoch, observation.stamp_ns) == (epoch, record.stamp_ns)
+            assert int(observation.rois[arms[0]][0, 0, 0]) == epoch
+            newest = client.latest(handed[-1].stamp_ns if handed else None, 30.0, epoch=handed[-1].epoch if handed else None)
+            assert newest is observation
+            handed.append(newest)
+    assert client.epochs == 2 and client.dropped_incomplete == 0
+    stop.set()
+    assert client.get(timeout_s=3600.0, stop=stop) is None  # a set stop ends a wait at once, whatever its timeout
