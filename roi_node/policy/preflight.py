@@ -133,8 +133,8 @@ def _images(features: PolicyFeatures, node: NodePublication) -> list[Mismatch]:
     out: list[Mismatch] = []
     for image in features.images:
         expected = "x".join(map(str, image.shape_chw))
-        if image.key not in published:
-            what = f"arms {', '.join(node.arms)}" + ("" if node.global_size is not None else " and no global view")
+        if image.key not in published:  # another arm, or a camera the node's rig has not: its images are named by key
+            what = f"its images are {', '.join(published)}"
             out.append(Mismatch(MismatchKind.MISSING_IMAGE, image.key, f"an image {expected}", f"no such image ({what})"))
         elif image.shape_chw != (CHANNELS, published[image.key].height_px, published[image.key].width_px):
             out.append(Mismatch(MismatchKind.IMAGE_SHAPE, image.key, expected, _shape(published[image.key])))

@@ -53,6 +53,9 @@ def live_node(dataset: tuple[Path, Path], tmp_path_factory: pytest.TempPathFacto
         yield env
 
 
+NODE_IMAGES = "observation.images.global, observation.images.roi_left, observation.images.roi_right"
+
+
 def preflight(env: dict[str, str], features: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "roi_node.cli", "policy", "preflight", "--features", str(features),
                            "--timeout-s", TIMEOUT_S], cwd=REPO, env=env, capture_output=True, text=True, timeout=180)
@@ -60,7 +63,13 @@ def preflight(env: dict[str, str], features: Path) -> subprocess.CompletedProces
 
 def rename_arm(info: dict[str, Any], config: dict[str, Any]) -> tuple[str, ...]:
     config["input_features"]["observation.images.roi_leftarm"] = config["input_features"].pop("observation.images.roi_left")
-    return ("observation.images.roi_leftarm", "3x256x256", "no such image (arms left, right)")
+    return ("observation.images.roi_leftarm", "3x256x256", f"no such image (its images are {NODE_IMAGES})")
+
+
+def camera_key(info: dict[str, Any], config: dict[str, Any]) -> tuple[str, ...]:
+    """A dataset of a rig with a camera `wrist` (keys by camera id), against a node whose rig has one camera."""
+    config["input_features"]["observation.images.wrist_roi_left"] = config["input_features"].pop("observation.images.roi_left")
+    return ("observation.images.wrist_roi_left", "3x256x256", f"no such image (its images are {NODE_IMAGES})")
 
 
 def swap_state_order(info: dict[str, Any], config: dict[str, Any]) -> tuple[str, ...]:
@@ -84,7 +93,7 @@ def foreign_action(info: dict[str, Any], config: dict[str, Any]) -> tuple[str, .
     return ("action", "joint 'left_panda_joint9'", "no such joint")
 
 
-@pytest.mark.parametrize("change", [rename_arm, swap_state_order, shrink_image, double_fps, foreign_action])
+@pytest.mark.parametrize("change", [rename_arm, camera_key, swap_state_order, shrink_image, double_fps, foreign_action])
 def test_a_mismatch_is_one_line_naming_the_key_and_both_values_before_any_weights(
     dataset: tuple[Path, Path], live_node: dict[str, str], tmp_path: Path,
     change: Callable[[dict[str, Any], dict[str, Any]], tuple[str, ...]],
