@@ -498,7 +498,7 @@ def test_forked_and_spawned_workers_give_the_bytes_of_a_replay_in_this_process(
 def test_a_killed_worker_fails_the_unfinished_bags_by_name_and_leaves_no_temporary_output(tmp_path: Path) -> None:
     rig = small_rig(tmp_path)
     pipeline = RoiPipeline(load_rig_config(rig))
-    first = write_bag(tmp_path / "long_a", pipeline, frames=800).path  # a few seconds per bag: both workers are writing
+    first = write_bag(tmp_path / "long_a", pipeline, frames=800).path  # a few seconds per bag
     sources = [first, Path(shutil.copytree(first, tmp_path / "long_b"))]
     out = tmp_path / "out"
     proc = subprocess.Popen(
@@ -506,7 +506,8 @@ def test_a_killed_worker_fails_the_unfinished_bags_by_name_and_leaves_no_tempora
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     deadline = time.monotonic() + 120
-    while len(partials := sorted(out.glob(".long_*_roi.partial-*"))) < 2:  # both workers are writing
+    # a worker is writing (the other may not have started yet, or be done: a loaded machine schedules them apart)
+    while not (partials := sorted(out.glob(".long_*_roi.partial-*"))):
         assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
         time.sleep(0.01)
     victim = int(partials[0].name.rpartition("-")[2])
