@@ -68,8 +68,14 @@ def test_a_restamped_simulated_bag_gives_a_live_node_a_sane_latency_and_the_bags
         with process(node_args(rig, *PATIENT_SYNC, *LOSSLESS_TRANSPORT), env, tmp_path / "node.log"):
             collector.wait_for_node()
             before_ns = time.time_ns()
-            play = subprocess.run([sys.executable, "-m", "roi_node.cli", "play", str(bag), "--restamp"],
-                                  cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+            play = subprocess.run(
+                [sys.executable, "-m", "roi_node.cli", "play", str(bag), "--restamp"],
+                cwd=REPO,
+                env=env,
+                capture_output=True,
+                text=True,
+                timeout=120,
+            )
             assert play.returncode == 0, play.stderr
             assert collector.wait_until(lambda: len(collector.metadata) >= FRAMES, 30.0), (tmp_path / "node.log").read_text()
     finally:

@@ -61,8 +61,14 @@ def _wait(condition: Callable[[], bool], proc: subprocess.Popen[str], timeout_s:
 
 @pytest.mark.parametrize(
     ("phase", "signum", "follow"),
-    [("pre-render", signal.SIGINT, False), ("pre-render", signal.SIGTERM, False), ("waiting for subscribers", signal.SIGTERM, True),
-     ("publishing", signal.SIGINT, False), ("publishing", signal.SIGTERM, False), ("publishing", signal.SIGINT, True)],
+    [
+        ("pre-render", signal.SIGINT, False),
+        ("pre-render", signal.SIGTERM, False),
+        ("waiting for subscribers", signal.SIGTERM, True),
+        ("publishing", signal.SIGINT, False),
+        ("publishing", signal.SIGTERM, False),
+        ("publishing", signal.SIGINT, True),
+    ],
     ids=["prerender-int", "prerender-term", "follow-waiting-term", "publishing-int", "publishing-term", "follow-publishing-int"],
 )
 def test_a_signal_at_any_phase_ends_the_run_as_an_interrupt_with_its_summary(
@@ -78,7 +84,11 @@ def test_a_signal_at_any_phase_ends_the_run_as_an_interrupt_with_its_summary(
         args += ["--min-subscribers", "2"]  # only the commander subscribes: the run waits for a second one
     sim = subprocess.Popen(
         [sys.executable, "-m", "roi_node.cli", "sim", "live", "--config", str(rig), "--seed", str(SEED), *args],
-        cwd=REPO, env={**ros_env(domain), "ROI_NODE_PROGRESS_S": "0"}, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        cwd=REPO,
+        env={**ros_env(domain), "ROI_NODE_PROGRESS_S": "0"},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
     stderr = Lines(sim)
     commanded = 0
