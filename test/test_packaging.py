@@ -47,8 +47,8 @@ def test_colcon_build_installs_executables_index_marker_and_config(tmp_path: Pat
     assert (install / "lib" / "roi_node" / "roi_node_lifecycle").is_file()  # `ros2 run roi_node roi_node_lifecycle`
     assert (install / "share" / "ament_index" / "resource_index" / "packages" / "roi_node").is_file()
     assert (install / "share" / "roi_node" / "package.xml").is_file()
-    for name in ("rig_demo_bimanual.yaml", "front_intrinsics.yaml", "metadata.schema.json", "roi_node.params.yaml", "fastdds_shm.xml",
-                 "gates.yaml", "manifest.schema.json", "rig.schema.json"):
+    for name in ("rig_demo_bimanual.yaml", "front_intrinsics.yaml", "metadata.schema.json", "roi_node.params.yaml",
+                 "roi_node.recording.params.yaml", "fastdds_shm.xml", "gates.yaml", "manifest.schema.json", "rig.schema.json"):
         assert (install / "share" / "roi_node" / "config" / name).is_file()
     assert (install / "share" / "roi_node" / "launch" / "roi_node.launch.py").is_file()  # `ros2 launch roi_node roi_node.launch.py`
     # the installed executable runs from the install space and finds its config through the ament prefix

@@ -35,6 +35,20 @@ class DatasetWriteError(DatasetError, BagWriteError):
         self.reason = reason
 
 
+class FrameGapError(BagError):
+    """A grid time of a bag's episode with no frame within max_age before it nor the tolerance after it.
+
+    Its own class so that `export lerobot --skip-gaps` can leave that bag out (naming it and `problem`) and export the
+    others; `frame_index` is the first grid frame that has no frame to show.
+    """
+
+    def __init__(self, where: str, frame_index: int, problem: str) -> None:
+        super().__init__(f"{where}: {problem}")
+        self.where = where
+        self.frame_index = frame_index
+        self.problem = problem
+
+
 class ExportOptionError(UsageError):
     """An export option whose value is out of its range or unusable (the API's counterpart of argparse's checks)."""
 

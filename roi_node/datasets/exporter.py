@@ -31,7 +31,7 @@ from roi_node.bagio.bag_files import hash_files
 from roi_node.bagio.rig_attachments import read_rig_inputs
 from roi_node.datasets.actions import Actions, CommandStream, next_state_actions
 from roi_node.datasets.dataset import DatasetWriter, EpisodeInput
-from roi_node.datasets.errors import DatasetError, DatasetWriteError
+from roi_node.datasets.errors import DatasetError, DatasetWriteError, FrameGapError
 from roi_node.datasets.existing import DatasetState, load_state
 from roi_node.datasets.features import SOURCE_STAMP_KEY, STATE_KEY, ActionSource
 from roi_node.datasets.grid import GridPlan, resample
@@ -66,6 +66,7 @@ class ExportOptions:
     progress: bool = False  # video frames encoded, rate and ETA on stderr (util/progress.py)
     audience: Audience | None = None  # None: the appended dataset's, else internal (trust/sharing.py)
     leave_out_disallowed: bool = False  # export the sources whose sharing policy allows the audience, leave out the rest
+    skip_gaps: bool = False  # leave out (named) a bag whose frames have a gap beyond max_age, export the others
 
     def __post_init__(self) -> None:
         check_fps(self.fps)
@@ -109,6 +110,7 @@ class ExportResult:
     action: ActionOrigin
     elapsed_s: float
     left_out: tuple[tuple[Path, str], ...] = ()  # sources whose sharing policy does not allow the audience, and why
+    skipped: tuple[tuple[Path, str], ...] = ()  # with skip_gaps: bags left out for a gap in their frames, and where it is
 
     @property
     def frames_written(self) -> int:
@@ -140,17 +142,27 @@ def export_lerobot(
     with _staging(output_path(output), state.spec is not None) as work:  # an appended dataset's symlink is written through
         writer: DatasetWriter | None = None
         reports: list[EpisodeReport] = []
+        skipped: list[tuple[Path, str]] = []
         try:
             for bag in admission.admitted:
                 with _roi_bag(bag, options, work, (regenerated or {}).get(bag)) as roi:
                     source = read_source(roi, gates.params)
+                    try:
+                        plan = resample(source.usable_stamps_ns, options.fps, round(options.max_age_ms * NS_PER_MS), str(bag))
+                    except FrameGapError as gap:
+                        if not options.skip_gaps:
+                            raise
+                        skipped.append((bag, gap.problem))
+                        continue
                     writer = writer or _writer(work, output, source, state, options, provenance.codec)
-                    report = _episode(writer, bag, source, options, provenance, gates, admission.policies[bag])
+                    report = _episode(writer, bag, source, plan, options, provenance, gates, admission.policies[bag])
                     copy_rig_files(work, output, report.episode_index, read_rig_inputs(roi))
                 reports.append(report)
                 if on_episode is not None:
                     on_episode(report)
-            assert writer is not None
+            if writer is None:  # every bag had a gap (skip_gaps): no episode to write
+                gaps = "; ".join(f"{bag}: {why}" for bag, why in skipped)
+                raise DatasetError(f"every bag has a gap in its frames, nothing to export: {gaps}")
             writer.finish(provenance)
             write_dataset_sharing(work, output.name, admission.sharing)
         except BaseException:
@@ -159,7 +171,7 @@ def export_lerobot(
             raise
     return ExportResult(
         output, reports, writer.state.episodes, writer.state.frames, provenance.codec, provenance.action, time.perf_counter() - started,
-        admission.left_out,
+        admission.left_out, tuple(skipped),
     )
 
 
@@ -198,14 +210,13 @@ def _writer(work: Path, output: Path, source: RoiSource, state: DatasetState, op
 
 
 def _episode(
-    writer: DatasetWriter, bag: Path, source: RoiSource, options: ExportOptions, provenance: Provenance, gates: GateSet,
-    sharing: SharingPolicy | None,
+    writer: DatasetWriter, bag: Path, source: RoiSource, plan: GridPlan, options: ExportOptions, provenance: Provenance,
+    gates: GateSet, sharing: SharingPolicy | None,
 ) -> EpisodeReport:
     if not writer.spec.fits(source.spec):
         raise DatasetError(
             f"{bag}: {source.spec.describe()} differ from the dataset's {writer.spec.describe()}; one dataset holds episodes of one rig"
         )
-    plan = resample(source.usable_stamps_ns, options.fps, round(options.max_age_ms * NS_PER_MS), str(bag))
     selected = source.columns.select([source.usable[i] for i in plan.sources], writer.spec.joint_names)
     actions = _actions(bag, selected, writer.spec.joint_names, options)
     index = writer.add_episode(EpisodeInput(source, plan, options.task, actions))

@@ -25,7 +25,8 @@ tolerance after it, and within max_age when that is shorter).
 
 A grid time with no frame within `max_age_ns` before it nor the tolerance
 after it is a gap: showing the older frame would show the scene as it no
-longer is, so the bag is refused with the grid time and both distances. Source
+longer is, so the bag is refused with the grid time and both distances
+(FrameGapError: `export lerobot --skip-gaps` leaves that bag out instead). Source
 frames no grid frame shows are dropped (the source is faster than the grid);
 grid frames that repeat the previous grid frame's source are duplicated (the
 source is slower, or a frame is missing); both are counted per episode, with
@@ -43,6 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from roi_node.datasets.errors import FrameGapError
 from roi_node.engine.errors import BagError
 from roi_node.engine.sync import NS_PER_MS, NS_PER_S
 
@@ -135,9 +137,11 @@ def _refuse_gaps(stamps: np.ndarray, fps: int, max_age_ns: int, tolerance: int, 
         k = (a + age_scaled) // NS_PER_S + 1  # the first grid time beyond max_age after a
         t = k * NS_PER_S
         if b - t > tolerance:
-            raise BagError(
-                f"{where}: no frame within {max_age_ns / NS_PER_MS:g} ms before grid time {k / fps:.3f} s "
+            raise FrameGapError(
+                where,
+                k,
+                f"no frame within {max_age_ns / NS_PER_MS:g} ms before grid time {k / fps:.3f} s "
                 f"(frame {k} at {fps} fps) nor {tolerance / fps / NS_PER_MS:.1f} ms after it: the latest is "
                 f"{(t - a) / fps / NS_PER_MS:.1f} ms old, the next {(b - t) / fps / NS_PER_MS:.1f} ms later; "
-                "raise --max-age-ms or lower --fps"
+                "raise --max-age-ms or lower --fps (--skip-gaps leaves such a bag out)",
             )

@@ -1,7 +1,15 @@
 """Live == offline: compare the ROI outputs of two bags frame by frame (docs/design.md, "Determinism").
 
-Metadata records must be equal as JSON except the live-only fields
-(`teleop.latency_ms`). Frames the live node released without their joint
+Frames are matched by stamp. Metadata records must be equal as JSON except
+the live-only field `teleop.latency_ms` and `frame_index`, each run's own
+count of the frames it took: a frame the recorder caught but the node never
+received (sent before the node's reader matched, or lost on the way to a
+best-effort reader) is in the replay and renumbers every later one there.
+Such frames, only in the replay, are counted (`offline_only`), not compared;
+a live frame the replay lacks is a difference. A live frame whose ROI
+image a recorder did not catch (it subscribes to each output topic once it
+sees it: a node started mid-recording publishes some before) is compared on
+the images it has, and counted (`live_images_missing`). Frames the live node released without their joint
 sample (it came later than `max_wait_ms`, so live says `stale`,
 `extrapolated` or `missing` where the full bag says `ok`) and frames synced
 with the `latest` policy are counted as exempt, not compared: live had less
@@ -27,6 +35,8 @@ DEGRADED_STATUS = (SyncStatus.STALE, SyncStatus.EXTRAPOLATED, SyncStatus.MISSING
 class Comparison:
     frames: int = 0
     exempt: int = 0
+    offline_only: int = 0  # frames of the recorded inputs the live node never received (so never processed)
+    live_images_missing: int = 0  # ROI images of compared frames the live recording lacks (its recorder had not caught them)
     differences: list[str] = field(default_factory=list)
 
     @property
@@ -56,10 +66,9 @@ def compare_live_offline(live_bag: Path, offline_bag: Path) -> Comparison:
     live_records, live_images = _outputs(live_bag)
     offline_records, offline_images = _outputs(offline_bag)
     result = Comparison()
-    if live_records.keys() != offline_records.keys():
-        only_live = sorted(set(live_records) - set(offline_records))[:3]
-        only_offline = sorted(set(offline_records) - set(live_records))[:3]
-        result.differences.append(f"frame stamps differ: only live {only_live}, only offline {only_offline}")
+    result.offline_only = len(offline_records.keys() - live_records.keys())
+    if only_live := sorted(live_records.keys() - offline_records.keys()):
+        result.differences.append(f"{len(only_live)} live frames are not in the replay, the first stamps {only_live[:3]}")
     for stamp in sorted(live_records.keys() & offline_records.keys()):
         live, offline = live_records[stamp], offline_records[stamp]
         released_early = live.sync.status in DEGRADED_STATUS and offline.sync.status == SyncStatus.OK
@@ -73,11 +82,13 @@ def compare_live_offline(live_bag: Path, offline_bag: Path) -> Comparison:
             result.differences.append(f"frame {stamp}: metadata differs in {diff}")
             continue
         for topic, frames in live_images.items():
-            if frames.get(stamp) != offline_images.get(topic, {}).get(stamp):
+            if stamp not in frames:
+                result.live_images_missing += 1
+            elif frames[stamp] != offline_images.get(topic, {}).get(stamp):
                 result.differences.append(f"frame {stamp}: {topic} pixels differ")
     return result
 
 
 def _without_live_only(record: FrameRecord) -> FrameRecord:
-    """The record without its live-only field (`teleop.latency_ms`), which offline cannot have."""
-    return replace(record, teleop=replace(record.teleop, latency_ms=None))
+    """The record without `teleop.latency_ms` (offline cannot have it) and `frame_index` (each run's own count)."""
+    return replace(record, frame_index=0, teleop=replace(record.teleop, latency_ms=None))

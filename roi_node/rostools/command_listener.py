@@ -49,7 +49,7 @@ class CommandListener:
         try:
             self._executor.spin()
         except ExternalShutdownException:
-            pass  # the context shut down (Ctrl-C): the publisher's loop ends the run
+            pass  # the context shut down under the listener: the publisher's loop ends the run
         except BaseException as exc:
             self.failure = exc
 

@@ -15,7 +15,9 @@ player exits only once every reliable subscriber acknowledged what it sent
 away. Pacing follows the bag's log times scaled by `--rate`;
 `--clock` also publishes /clock with the bag time, for nodes with
 use_sim_time; `--loop` starts over at the end (stamps then jump back, which
-the live node treats as a bag loop).
+the live node treats as a bag loop). `--restamp` moves every log time and
+header stamp by one offset so that the first message is now
+(rostools/restamp.py says which stamps move).
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from roi_node.bagio.reader import open_bag, read_messages
 from roi_node.engine.errors import BagError
 from roi_node.live.conversions import time_msg
 from roi_node.live.msg_types import from_bag_qos, message_class
+from roi_node.rostools.restamp import restamped
 from roi_node.rostools.writer_history import history_depth, report_unacknowledged, wait_for_acknowledgements
 from roi_node.util.progress import Progress
 
@@ -43,7 +46,9 @@ CLOCK_PERIOD_NS = 10_000_000  # /clock at 100 Hz of bag time at most
 DISCOVERY_WAIT_S = 3.0
 
 
-def play(bag: Path, *, rate: float, loop: bool, clock: bool, topics: Sequence[str], ros_args: Sequence[str]) -> int:
+def play(
+    bag: Path, *, rate: float, loop: bool, clock: bool, topics: Sequence[str], ros_args: Sequence[str], restamp: bool = False
+) -> int:
     if rate <= 0:
         raise BagError(f"play: --rate must be > 0, got {rate}")
     from roi_node.live.spin import ros_context
@@ -52,7 +57,7 @@ def play(bag: Path, *, rate: float, loop: bool, clock: bool, topics: Sequence[st
     with ros_context(ros_args):
         node = Node("roi_node_player")
         try:
-            return _play(node, bag, rate, loop, clock, wanted)
+            return _play(node, bag, rate, loop, clock, wanted, restamp)
         except KeyboardInterrupt:
             print("roi-node play: interrupted")
             return 130
@@ -60,7 +65,7 @@ def play(bag: Path, *, rate: float, loop: bool, clock: bool, topics: Sequence[st
             node.destroy_node()
 
 
-def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: set[str]) -> int:
+def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: set[str], restamp: bool) -> int:
     with open_bag(bag) as reader:
         connections = [c for c in reader.connections if not wanted or c.topic in wanted]
         if not connections:
@@ -69,12 +74,13 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
         sizes = _first_message_sizes(reader, connections, bag)
         duration_ns = max(1, int(reader.duration))
         publishers = {}
+        classes = {c.id: message_class(c.msgtype) for c in connections}
         for c in connections:
             qos = from_bag_qos(list(getattr(c.ext, "offered_qos_profiles", []) or []))
             if qos.reliability == ReliabilityPolicy.RELIABLE and qos.durability == DurabilityPolicy.VOLATILE:
                 sent_hz = (c.msgcount - 1) * 1e9 / duration_ns * max(1.0, rate) if c.msgcount >= 2 else None
                 qos.depth = max(qos.depth, history_depth(sent_hz, sizes.get(c.id)))
-            publishers[c.id] = node.create_publisher(message_class(c.msgtype), c.topic, qos)
+            publishers[c.id] = node.create_publisher(classes[c.id], c.topic, qos)
         clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)) if clock else None
         _wait_for_subscribers(list(publishers.values()))
         sent = 0
@@ -82,22 +88,25 @@ def _play(node: Node, bag: Path, rate: float, loop: bool, clock: bool, wanted: s
         passes = 0
         while True:
             passes += 1
-            start_wall = time.monotonic_ns()
+            start_wall, start_wall_clock = time.monotonic_ns(), time.time_ns()
             first: int | None = None
+            offset_ns = 0  # --restamp: what moves this pass's first message to its send time, start_wall
             last_clock = -CLOCK_PERIOD_NS
             progress = Progress(f"play {bag.name}" + (f" (pass {passes})" if loop else ""), total, True, unit="messages")
             for count, (connection, log_ns, raw) in enumerate(read_messages(reader, connections, bag), 1):
                 if not rclpy.ok(context=node.context):  # SIGINT/SIGTERM: rclpy shut the context down
                     raise KeyboardInterrupt
-                first = log_ns if first is None else first
+                if first is None:
+                    first = log_ns
+                    offset_ns = start_wall_clock - log_ns if restamp else 0
                 due = start_wall + int((log_ns - first) / rate)
                 while (wait := due - time.monotonic_ns()) > 0:
                     time.sleep(min(wait / 1e9, 0.01))
                 if clock_pub is not None and log_ns - last_clock >= CLOCK_PERIOD_NS:
-                    clock_pub.publish(Clock(clock=time_msg(log_ns)))
+                    clock_pub.publish(Clock(clock=time_msg(log_ns + offset_ns)))
                     last_clock = log_ns
                 try:
-                    publishers[connection.id].publish(bytes(raw))
+                    publishers[connection.id].publish(restamped(bytes(raw), classes[connection.id], offset_ns) if restamp else bytes(raw))
                 except RuntimeError:  # rclpy's RCLError ("publisher's context is invalid") is a RuntimeError
                     if rclpy.ok(context=node.context):
                         raise

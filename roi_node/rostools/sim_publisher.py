@@ -50,6 +50,7 @@ from roi_node.sim.limits import DEFAULT_MAX_JOINT_SPEED_RAD_S
 from roi_node.sim.render_budget import DEFAULT_RENDER_BUDGET_MIB, RenderMode, plan_render
 from roi_node.sim.rig_sim import FrameSlot, JointStateEvent, SimRig
 from roi_node.util.progress import Progress
+from roi_node.util.stop_signals import interrupt_on_signals
 
 if TYPE_CHECKING:
     from roi_node.rostools.command_listener import CommandListener
@@ -259,6 +260,7 @@ class SimPublisher(Generic[ImageMessageT]):
         return max(0, self.clock.monotonic_ns() - due_ns) / NS_PER_MS
 
 
+@interrupt_on_signals()  # SIGINT/SIGTERM at any phase end the run as an interrupt, with its summary
 def run_live(
     config: Path,
     *,
@@ -293,7 +295,7 @@ def run_live(
     follower = None
     if follow_commands is not None:
         follower = sim.follow_commands(max_joint_speed_rad_s, lambda issue, name: _report_first(follow_commands, issue, name))
-    with ros_context(ros_args):
+    with ros_context(ros_args, rclpy_signal_handlers=False):  # the context outlives the interrupt
         rig = RigPublisher(sim.camera, sim.rate_hz, sim.joint_rate_hz)
         listener = None
         publisher = SimPublisher(rig, sim, duration_s, render_budget_mib=render_budget_mib, late_frames=late_frames,

@@ -88,7 +88,8 @@ def _quality(text: str) -> int:
 def _cmd_play(args: argparse.Namespace) -> int:
     from roi_node.rostools.player import play
 
-    return play(Path(args.bag), rate=args.rate, loop=args.loop, clock=args.clock, topics=args.topics or [], ros_args=args.ros_args)
+    return play(Path(args.bag), rate=args.rate, loop=args.loop, clock=args.clock, topics=args.topics or [], ros_args=args.ros_args,
+                restamp=args.restamp)
 
 
 def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -147,4 +148,7 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     play.add_argument("--loop", action="store_true", help="start over at the end")
     play.add_argument("--clock", action="store_true", help="publish /clock with the bag time (for use_sim_time)")
     play.add_argument("--topics", nargs="+", help="only these topics")
+    play.add_argument("--restamp", action="store_true",
+                      help="move every log time and header stamp so that the first message is now (a simulated bag is stamped "
+                           "from 1970: a live node's latency would read decades)")
     play.set_defaults(func=_cmd_play)

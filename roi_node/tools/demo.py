@@ -94,12 +94,7 @@ def _run_step(args: list[str], env: dict[str, str], log: Path, name: str) -> str
     return result.stdout
 
 
-RECORDING_PENDING_FRAMES = 90
-RECORDING_MAX_WAIT_MS = 250.0
-RECORDING_JOINT_DEPTH = 2000
-RECORDING_IMAGE_DEPTH = 90  # 3 s of frames: a reliable KEEP_LAST reader whose executor stalls loses what overflows its queue
-RECORDING_OUTPUT_DEPTH = 90  # 3 s of the node's outputs: a reliable writer repairs only what its history holds, for a recorder
-# held back longer than the 1 s default
+RECORDING_PARAMS = "roi_node.recording.params.yaml"  # the bundled settings of a recording run (config/)
 
 
 def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed: int) -> int:
@@ -118,15 +113,9 @@ def run_demo(out: Path, config: Path, *, duration_s: float, rate_hz: float, seed
     watch = MetadataWatch(int(env["ROS_DOMAIN_ID"]))
     procs: dict[str, tuple[subprocess.Popen[bytes], Path]] = {}
     try:
-        # a recording run wants every frame, correctly paired: reliable subscriptions with a 10 s joint-state queue (a
-        # starved reader otherwise loses joint states: the 100-deep default is 0.5 s at 200 Hz) and a 3 s image queue (with
-        # the 5-deep default a core held busy lost 4 of 600 frames), 3 s of history on its outputs for the recorder, a 3 s
-        # pending queue (1 s overflowed once when the node stalled 1.4 s beside a busy core) and a 250 ms wait for the
-        # joint sample ride out a busy moment (the live defaults favour latency)
-        recording = ["qos.subscription_reliability:=reliable", f"qos.joint_state_depth:={RECORDING_JOINT_DEPTH}",
-                     f"qos.subscription_depth:={RECORDING_IMAGE_DEPTH}", f"qos.publisher_depth:={RECORDING_OUTPUT_DEPTH}",
-                     f"sync.max_pending_frames:={RECORDING_PENDING_FRAMES}", f"sync.max_wait_ms:={RECORDING_MAX_WAIT_MS}"]
-        node_args = _cli("run", "--config", str(config), "--ros-args", *(x for p in recording for x in ("-p", p)))
+        # a recording run wants every frame, correctly paired: the bundled recording parameters (its comments say why)
+        recording = config_dir() / RECORDING_PARAMS
+        node_args = _cli("run", "--config", str(config), "--ros-args", "--params-file", str(recording))
         procs["node"] = (_start(node_args, env, logs / "node.log"), logs / "node.log")
         procs["recorder"] = (_start(_cli("record", "-o", str(session), "--topics", *record_topics), env, logs / "record.log"),
                              logs / "record.log")

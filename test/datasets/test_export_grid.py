@@ -139,12 +139,32 @@ def test_a_missing_frame_is_one_duplicate_and_a_gap_beyond_max_age_refuses_the_b
     code, printed, err = export(capsys, stalled, tmp_path / "stalled", 30)
     assert code == 2 and printed == ""
     assert err.startswith(f"roi-node export: error: {stalled}: no frame within 100 ms before grid time ")
-    assert err.strip().endswith("raise --max-age-ms or lower --fps") and len(err.strip().splitlines()) == 1
+    assert err.strip().endswith("raise --max-age-ms or lower --fps (--skip-gaps leaves such a bag out)")
+    assert len(err.strip().splitlines()) == 1
     assert not (tmp_path / "stalled").exists() and sorted(p.name for p in tmp_path.iterdir()) == ["missing"]
     code, printed, err = export(capsys, stalled, tmp_path / "held", 30, "--max-age-ms", "200")
     assert code == 0, err
     shown = check_grid(tmp_path / "held", stalled, 30)
     assert repeats(shown) == grid_report(tmp_path / "held")["duplicated"] > 1  # the stall is held, and counted
+
+    # --skip-gaps: the stalled bag is left out, named with its gap, and the good one before and after it exported
+    code = main(["export", "lerobot", str(missing), str(stalled), str(missing), "-o", str(tmp_path / "skipped"), "--fps", "30",
+                 "--task", TASK, "--codec", "h264", "--skip-gaps"])
+    printed, err = capsys.readouterr()
+    assert code == 0, err
+    gap_line = f"skipped {stalled}: no frame within 100 ms before grid time "
+    assert [line for line in printed.splitlines() if line.startswith("skipped ")] == [
+        line for line in printed.splitlines() if line.startswith(gap_line)] and gap_line in printed
+    assert "wrote " in printed and ": 2 episode(s)," in printed
+    provenance = json.loads((tmp_path / "skipped/meta/roi_node_provenance.json").read_text())["episodes"]
+    assert [Path(e["source"]["path"]) for e in provenance] == [missing.resolve(), missing.resolve()]
+    assert [e["episode_index"] for e in provenance] == [0, 1]
+    assert frames(tmp_path / "skipped")["episode_index"].count(1) == len(shown := frames(tmp_path / "missing")["episode_index"])
+    assert len(shown) > 0
+    code, printed, err = export(capsys, stalled, tmp_path / "none_left", 30, "--skip-gaps")  # nothing left to export
+    assert code == 2 and printed == "" and len(err.strip().splitlines()) == 1
+    assert err.startswith(f"roi-node export: error: every bag has a gap in its frames, nothing to export: {stalled}: no frame ")
+    assert not (tmp_path / "none_left").exists()
 
 
 def test_the_demos_recording_at_the_camera_rate_exports_without_drops_or_duplicates(

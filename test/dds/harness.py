@@ -296,11 +296,18 @@ def graph_probe(domain_id: int) -> Iterator[Node]:
 
 
 def every_frame_accounted(collector: Collector) -> bool:
-    """The newest /diagnostics (once a second) saw the stream end and counts every record that arrived: what a test
-    reads from it then is final (the node sends no last report when it is stopped)."""
+    """The newest /diagnostics (once a second) saw the stream end, holds no frame pending in the node (every frame it
+    took is published or counted as dropped) and counts every record that arrived: what a test reads from it then is
+    final (the node sends no last report when it is stopped).
+
+    Without the pending check it held early on a loaded machine: the stream had ended more than a period before, so
+    no frame came in that window, while the node's worker was still behind on frames waiting in its pending queue
+    (up to 64 under LOSSLESS_TRANSPORT) and the collector had every record published so far.
+    """
     inputs = diagnostics_values(collector.diagnostics, "roi_node: input")
     totals = inputs.get("totals", {})
-    return bool(totals) and inputs["frame_rate_in_hz"] == 0.0 and totals.get("frames_out", 0) == len(collector.metadata)
+    settled = totals.get("frames_in", 0) == totals.get("frames_out", 0) + sum(inputs.get("dropped_by_reason", {}).values())
+    return bool(totals) and inputs["frame_rate_in_hz"] == 0.0 and settled and totals.get("frames_out", 0) == len(collector.metadata)
 
 
 def diagnostics_values(arrays: list[DiagnosticArray], status_name: str) -> dict[str, Any]:

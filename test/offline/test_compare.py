@@ -50,3 +50,23 @@ def test_the_live_only_latency_is_not_compared(bags: BagSet, tmp_path: Path) -> 
     live_bag = write_metadata_bag(tmp_path / "live", live)
     result = compare_live_offline(live_bag, bags.smooth)
     assert result.frames == len(live) and not result.differences
+
+
+def test_frames_the_live_node_never_received_are_counted_and_the_rest_match_by_stamp(bags: BagSet, tmp_path: Path) -> None:
+    """A node that missed the first frames the recorder caught numbers its frames from its own first: matched by stamp,
+    its records equal the replay's but for frame_index; a live frame the replay lacks is a difference."""
+    missed = 3
+    live = []
+    for index, text in enumerate(metadata_texts(bags.smooth)[missed:]):
+        doc = FrameRecord.from_json(text).as_dict()
+        assert doc["frame_index"] == index + missed
+        doc["frame_index"] = index  # the live node's own count
+        live.append(doc)
+    late_start = compare_live_offline(write_metadata_bag(tmp_path / "late", live), bags.smooth)
+    assert late_start.equal, late_start.differences
+    assert (late_start.frames, late_start.offline_only) == (len(live), missed)
+    extra = {**live[-1], "stamp_ns": live[-1]["stamp_ns"] + 10**9}
+    extra["stamp"] = {"sec": extra["stamp_ns"] // 10**9, "nanosec": extra["stamp_ns"] % 10**9}
+    unmatched = compare_live_offline(write_metadata_bag(tmp_path / "extra", [*live, extra]), bags.smooth)
+    assert unmatched.differences == [f"1 live frames are not in the replay, the first stamps [{extra['stamp_ns']}]"]
+    assert not unmatched.equal

@@ -14,10 +14,13 @@ import numpy as np
 import pytest
 import yaml
 from mcap_ros2.reader import read_ros2_messages
+from rclpy.executors import SingleThreadedExecutor
 from rosbags.highlevel import AnyReader
+from sensor_msgs.msg import Image
 
 from roi_node import __version__
 from roi_node.bagio.writer import typestore
+from roi_node.offline.compare import compare_live_offline
 from roi_node.offline.replay import replay_bag
 from test.conftest import CONFIG, REPO
 from test.dds.harness import (
@@ -30,6 +33,7 @@ from test.dds.harness import (
     process,
     publish,
     ros_env,
+    start_publisher,
     wait_until,
 )
 
@@ -212,3 +216,39 @@ def test_play_drives_a_live_node_like_the_recording(tmp_path: Path, session: tup
     replayed = [comparable(json.dumps(r)) for r in collector.metadata]
     assert [r["stamp_ns"] for r in replayed] == [r["stamp_ns"] for r in recorded]
     assert replayed == recorded
+
+
+def test_a_node_started_after_the_camera_equals_the_replay_by_stamp_with_the_recording_params(tmp_path: Path) -> None:
+    """The recorder catches frames sent before the node's reader existed; the node numbers its frames from its own
+    first. Run with the shipped recording parameters, every frame the node took from then on equals the replay's by
+    stamp (frame_index aside: one constant shift, the frames it never received), and those frames are counted."""
+    domain = next_domain()
+    env = ros_env(domain)
+    bag, offline = tmp_path / "session", tmp_path / "offline"
+    params = CONFIG / "roi_node.recording.params.yaml"
+    spec = {"frames": 100, "rate_hz": 10.0, "min_subscribers": 2, "linger_s": 3.0}  # the recorder and the probe below
+    with graph_probe(domain) as probe:
+        images: list[object] = []
+        probe.create_subscription(Image, "image_raw", images.append, 10)
+        executor = SingleThreadedExecutor(context=probe.context)
+        executor.add_node(probe)
+        with process(["-m", "roi_node.cli", "record", "-o", str(bag), "--topics", *INPUTS, *OUTPUTS], env, tmp_path / "rec.log"):
+            publisher = start_publisher(tmp_path, env, spec, log=tmp_path / "pub.log")  # it waits for the recorder and the probe
+            try:
+                assert wait_until(lambda: executor.spin_once(timeout_sec=0.05) or bool(images), 60.0), (tmp_path / "pub.log").read_text()
+                with process(["-m", "roi_node.cli", "run", "--config", str(BIMANUAL), "--ros-args", "--params-file", str(params)],
+                             env, tmp_path / "node.log") as node:
+                    assert publisher.wait(timeout=120) == 0, (tmp_path / "pub.log").read_text()
+                    assert node.poll() is None, (tmp_path / "node.log").read_text()
+            finally:
+                if publisher.poll() is None:
+                    publisher.kill()
+                    publisher.wait()
+    replay_bag(bag, offline, BIMANUAL, image_topic="/image_raw", joint_topics=["/joint_states"])
+    comparison = compare_live_offline(bag, offline)
+    assert comparison.equal, comparison.differences
+    assert comparison.frames >= 1 and comparison.offline_only >= 1
+    live = {r["stamp_ns"]: r["frame_index"] for r in (json.loads(m.data) for _, m in read_rosbags(bag)["/roi/metadata"])}
+    replayed = {r["stamp_ns"]: r["frame_index"] for r in (json.loads(m.data) for _, m in read_rosbags(offline)["/roi/metadata"])}
+    shifts = {replayed[stamp] - index for stamp, index in live.items()}  # one shift: nothing lost once the node took frames
+    assert len(shifts) == 1 and 1 <= shifts.pop() <= comparison.offline_only, shifts
