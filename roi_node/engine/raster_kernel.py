@@ -1,0 +1,65 @@
+"""The z-buffer rasteriser of the visibility render (numba, one thread, no fast-math).
+
+Triangles arrive as projected pixel corners with inverse depths; each is
+sampled on a grid of pixel centres (every `stride`-th pixel of a window), and
+at each sample the nearest triangle's label is kept (largest 1/z, which is
+linear in the image for a pinhole projection). A second buffer marks the
+samples the gripper's own triangles cover whatever lies in front, the
+denominator of the visible fraction. Same inputs, same buffers: no fast-math
+and a fixed triangle order, so the live node and replay agree.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from roi_node.engine.area_kernels import _jit
+
+
+@_jit
+def rasterize(
+    corners_px: np.ndarray,  # T x 3 x 2 projected corners
+    inverse_depth: np.ndarray,  # T x 3, 1/z (1/m), all > 0
+    labels: np.ndarray,  # T, the label of each triangle (a link index)
+    is_gripper: np.ndarray,  # T, bool
+    x0_px: float,
+    y0_px: float,
+    stride_px: int,
+    columns: int,
+    rows: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(nearest label per sample, -1 where none; whether a gripper triangle covers the sample)."""
+    depth = np.zeros((rows, columns), dtype=np.float64)
+    nearest = np.full((rows, columns), -1, dtype=np.int64)
+    gripper = np.zeros((rows, columns), dtype=np.bool_)
+    half = (stride_px - 1) / 2.0
+    for t in range(corners_px.shape[0]):
+        ax, ay = corners_px[t, 0, 0], corners_px[t, 0, 1]
+        bx, by = corners_px[t, 1, 0], corners_px[t, 1, 1]
+        cx, cy = corners_px[t, 2, 0], corners_px[t, 2, 1]
+        area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+        if area == 0.0:
+            continue
+        i_lo = max(0, math.ceil((min(ax, bx, cx) - x0_px - half) / stride_px))
+        i_hi = min(columns - 1, math.floor((max(ax, bx, cx) - x0_px - half) / stride_px))
+        j_lo = max(0, math.ceil((min(ay, by, cy) - y0_px - half) / stride_px))
+        j_hi = min(rows - 1, math.floor((max(ay, by, cy) - y0_px - half) / stride_px))
+        za, zb, zc = inverse_depth[t, 0], inverse_depth[t, 1], inverse_depth[t, 2]
+        for j in range(j_lo, j_hi + 1):
+            py = y0_px + stride_px * j + half
+            for i in range(i_lo, i_hi + 1):
+                px = x0_px + stride_px * i + half
+                wa = ((bx - px) * (cy - py) - (by - py) * (cx - px)) / area
+                wb = ((cx - px) * (ay - py) - (cy - py) * (ax - px)) / area
+                wc = 1.0 - wa - wb
+                if wa < 0.0 or wb < 0.0 or wc < 0.0:
+                    continue
+                if is_gripper[t]:
+                    gripper[j, i] = True
+                z = wa * za + wb * zb + wc * zc
+                if z > depth[j, i]:
+                    depth[j, i] = z
+                    nearest[j, i] = labels[t]
+    return nearest, gripper

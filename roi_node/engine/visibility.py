@@ -1,0 +1,211 @@
+"""How much of each arm's gripper the camera sees: the robot's URDF geometry rendered at the frame's FK pose.
+
+Per frame, every robot is posed by FK of the frame's joint state (a joint the
+state lacks is drawn at zero), its link triangles (engine/robot_geometry.py)
+are projected through the camera model, distortion included, and rasterised
+with a z-buffer on a grid inside each arm's crop window (engine/raster_kernel.py).
+The gripper is the link the arm's ee frame names and every link under it. Its
+visible fraction is the share of the gripper's own silhouette (the pixels it
+covers whatever lies in front) where the gripper is the nearest surface; the
+hidden rest is split by what is in front: the arm's own links, another arm's,
+or the body (links no single arm owns: a torso, a head, a shared base).
+
+Only the robots are drawn: objects not in the URDF (the manipulated object, a
+person) hide nothing here. A value that could be wrong is not given: a link
+whose geometry did not load, a gripper without geometry, robot geometry
+behind the camera's near plane (a camera inside or against the robot) leave
+the fraction unknown, with the reason as its status.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from roi_node.engine.camera import CameraModel
+from roi_node.engine.config import RigConfig
+from roi_node.engine.kinematics import RobotKinematics
+from roi_node.engine.metadata import RATIO_DECIMALS, rnd
+from roi_node.engine.raster_kernel import rasterize
+from roi_node.engine.records import VisibilityRecord, VisibilityStatus
+from roi_node.engine.robot_geometry import load_robot_geometry
+from roi_node.engine.transforms import Transform
+
+RASTER_SIDE = 160  # samples along the longer side of a crop window: the grid's stride is the window side / this
+GRIPPER, OWN_ARM, OTHER_ARM, BODY = 0, 1, 2, 3
+
+
+@dataclass(frozen=True)
+class _Robot:
+    robot_id: str
+    kinematics: RobotKinematics
+    prefix: str
+    links: tuple[str, ...]  # links with geometry, in the order of their labels
+    first_label: int
+
+
+@dataclass(frozen=True)
+class _Triangles:
+    """One frame's triangles in front of the camera, in the model's face order."""
+
+    corners_px: np.ndarray  # T x 3 x 2
+    inverse_depth: np.ndarray  # T x 3, 1/m
+    labels: np.ndarray  # T, link labels
+
+
+@dataclass(frozen=True)
+class _Arm:
+    arm_id: str
+    groups: np.ndarray  # label -> GRIPPER, OWN_ARM, OTHER_ARM or BODY for this arm
+    has_gripper: bool
+
+
+class VisibilityModel:
+    """The rig's robots as triangles, labelled per link; `measure` renders one frame for every arm."""
+
+    def __init__(self, rig: RigConfig, kinematics: Mapping[str, RobotKinematics]) -> None:
+        vertices: list[np.ndarray] = []
+        vertex_labels: list[np.ndarray] = []
+        faces: list[np.ndarray] = []
+        names: list[str] = []
+        self.summary: list[str] = []
+        self._robots: list[_Robot] = []
+        self.unloaded = False
+        count = 0
+        for robot in rig.robots:
+            kin = kinematics[robot.id]
+            geometry = load_robot_geometry(kin.urdf_text, kin.urdf_path)
+            self.summary.append(geometry.summary(robot.id))
+            self.unloaded |= bool(geometry.unloaded)
+            links = tuple(link for link in geometry.links if link in kin.frame_names)
+            self._robots.append(_Robot(robot.id, kin, robot.joint_prefix, links, len(names)))
+            for link in links:
+                g = geometry.links[link]
+                faces.append(g.faces + count)
+                vertices.append(g.vertices_m)
+                vertex_labels.append(np.full(len(g.vertices_m), len(names), dtype=np.int64))
+                count += len(g.vertices_m)
+                names.append(f"{robot.id}/{link}")
+        self.link_names = tuple(names)
+        self._vertices = np.vstack(vertices) if vertices else np.zeros((0, 3))
+        self._vertex_labels = np.concatenate(vertex_labels) if vertex_labels else np.zeros(0, dtype=np.int64)
+        self._faces = np.vstack(faces) if faces else np.zeros((0, 3), dtype=np.int64)
+        self._face_labels = self._vertex_labels[self._faces[:, 0]]
+        self._arms = tuple(self._arm(rig, kinematics, arm.id) for arm in rig.arms)
+
+    def _arm(self, rig: RigConfig, kinematics: Mapping[str, RobotKinematics], arm_id: str) -> _Arm:
+        owners: dict[str, set[str]] = {}  # "<robot>/<link>" -> the arms whose chain or gripper holds it
+        grippers: dict[str, frozenset[str]] = {}
+        for arm in rig.arms:
+            kin = kinematics[arm.robot]
+            grippers[arm.id] = frozenset(f"{arm.robot}/{link}" for link in kin.links_below(arm.ee_frame))
+            for link in (*kin.links_to_root(arm.ee_frame), *kin.links_below(arm.ee_frame)):
+                owners.setdefault(f"{arm.robot}/{link}", set()).add(arm.id)
+        groups = np.full(len(self.link_names), BODY, dtype=np.int64)
+        for label, name in enumerate(self.link_names):
+            owner = owners.get(name, set())
+            if name in grippers[arm_id]:
+                groups[label] = GRIPPER
+            elif owner == {arm_id}:
+                groups[label] = OWN_ARM
+            elif len(owner) == 1:
+                groups[label] = OTHER_ARM
+        return _Arm(arm_id, groups, bool((groups == GRIPPER).any()))
+
+    def measure(
+        self,
+        camera: CameraModel,
+        z_min_m: float,
+        cam_T_bases: Mapping[str, Transform | None],
+        positions: Mapping[str, float],
+        windows: Mapping[str, tuple[int, int, int, int] | None],
+    ) -> dict[str, VisibilityRecord]:
+        """Per arm id, its gripper's visibility inside `windows[arm]` (x0, y0, x1 exclusive, y1; None: no ROI)."""
+        arms = [a for a in self._arms if windows.get(a.arm_id) is not None]
+        out = {a.arm_id: VisibilityRecord(VisibilityStatus.NO_PROJECTION) for a in self._arms if a not in arms}
+        status = self._frame_status(cam_T_bases)
+        triangles = None
+        if status is None and arms:
+            triangles = self._project(camera, z_min_m, cam_T_bases, positions)
+            status = VisibilityStatus.CAMERA_INSIDE_ROBOT if triangles is None else None
+        for arm in arms:
+            if status is not None or not arm.has_gripper:
+                out[arm.arm_id] = VisibilityRecord(status or VisibilityStatus.NO_GRIPPER_GEOMETRY)
+                continue
+            window = windows[arm.arm_id]
+            assert triangles is not None and window is not None
+            out[arm.arm_id] = self._render_arm(arm, triangles, window, camera)
+        return out
+
+    def _frame_status(self, cam_T_bases: Mapping[str, Transform | None]) -> VisibilityStatus | None:
+        if self.unloaded:
+            return VisibilityStatus.MESH_NOT_LOADED
+        if any(cam_T_bases.get(r.robot_id) is None for r in self._robots):
+            return VisibilityStatus.NO_POSE
+        return None
+
+    def _project(
+        self, camera: CameraModel, z_min_m: float, cam_T_bases: Mapping[str, Transform | None], positions: Mapping[str, float]
+    ) -> _Triangles | None:
+        """Every triangle in front of the camera; None when one reaches behind its near plane."""
+        rotations, translations = [], []
+        for robot in self._robots:
+            kin = robot.kinematics
+            q = {j: float(positions.get(robot.prefix + j, 0.0)) for j in kin.joint_names() if j in kin.movable_joints}
+            cam_T_base = cam_T_bases[robot.robot_id]
+            assert cam_T_base is not None
+            for pose in kin.fk(q, robot.links):
+                cam_T_link = cam_T_base @ pose
+                rotations.append(cam_T_link.rotation)
+                translations.append(cam_T_link.translation_m)
+        if not rotations:
+            return _Triangles(np.zeros((0, 3, 2)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
+        rot, trans = np.asarray(rotations)[self._vertex_labels], np.asarray(translations)[self._vertex_labels]
+        points = np.einsum("nij,nj->ni", rot, self._vertices) + trans
+        uv, valid = camera.project(points, z_min_m)
+        tri_valid = valid[self._faces]
+        behind = (points[:, 2] <= z_min_m)[self._faces].all(axis=1)
+        if (~tri_valid.all(axis=1) & ~behind).any():
+            return None
+        faces = self._faces[~behind]
+        return _Triangles(uv[faces], 1.0 / points[:, 2][faces], self._face_labels[~behind])
+
+    def _render_arm(
+        self, arm: _Arm, triangles: _Triangles, window: tuple[int, int, int, int], camera: CameraModel
+    ) -> VisibilityRecord:
+        x0, y0 = max(window[0], 0), max(window[1], 0)
+        x1, y1 = min(window[2], camera.width_px), min(window[3], camera.height_px)
+        if x1 <= x0 or y1 <= y0:
+            return VisibilityRecord(VisibilityStatus.NOT_IN_WINDOW, gripper_area_px=0)
+        stride = max(1, math.ceil(max(x1 - x0, y1 - y0) / RASTER_SIDE))
+        columns, rows = math.ceil((x1 - x0) / stride), math.ceil((y1 - y0) / stride)
+        low, high = triangles.corners_px.min(axis=1), triangles.corners_px.max(axis=1)
+        near = (high[:, 0] >= x0 - 0.5) & (low[:, 0] <= x1 - 0.5) & (high[:, 1] >= y0 - 0.5) & (low[:, 1] <= y1 - 0.5)
+        labels = triangles.labels[near]
+        nearest, gripper = rasterize(
+            triangles.corners_px[near], triangles.inverse_depth[near], labels, arm.groups[labels] == GRIPPER,
+            float(x0), float(y0), stride, columns, rows,
+        )
+        silhouette = int(gripper.sum())
+        if silhouette == 0:
+            return VisibilityRecord(VisibilityStatus.NOT_IN_WINDOW, gripper_area_px=0)
+        front = nearest[gripper]
+        front_groups = arm.groups[front]
+        shares = np.bincount(front_groups, minlength=4) / silhouette
+        hidden = front[front_groups != GRIPPER]
+        occluding = self.link_names[int(np.bincount(hidden).argmax())] if len(hidden) else None
+        return VisibilityRecord(
+            VisibilityStatus.MEASURED,
+            visible_fraction=rnd(float(shares[GRIPPER]), RATIO_DECIMALS),
+            gripper_area_px=silhouette * stride * stride,
+            occluded_by=tuple(rnd(float(s), RATIO_DECIMALS) or 0.0 for s in shares[1:]),  # type: ignore[arg-type]
+            occluding_link=occluding,
+        )
+
+
+def summary_lines(model: VisibilityModel | None) -> Sequence[str]:
+    """What the render draws, one line per robot, for the log at start (nothing when visibility is off)."""
+    return () if model is None else tuple(model.summary)
