@@ -20,10 +20,12 @@ from roi_node.engine.area_kernels import _jit
 
 @_jit
 def rasterize(
-    corners_px: np.ndarray,  # T x 3 x 2 projected corners
-    inverse_depth: np.ndarray,  # T x 3, 1/z (1/m), all > 0
-    labels: np.ndarray,  # T, the label of each triangle (a link index)
-    is_gripper: np.ndarray,  # T, bool
+    corners_px: np.ndarray,  # V x 2 projected vertices
+    inverse_depth: np.ndarray,  # V, 1/z (1/m)
+    faces: np.ndarray,  # T x 3 vertex indices
+    drawn: np.ndarray,  # T, bool: every corner in front of the camera
+    face_labels: np.ndarray,  # T, the label of each triangle (a link index)
+    gripper_labels: np.ndarray,  # per label, bool
     x0_px: float,
     y0_px: float,
     stride_px: int,
@@ -35,18 +37,23 @@ def rasterize(
     nearest = np.full((rows, columns), -1, dtype=np.int64)
     gripper = np.zeros((rows, columns), dtype=np.bool_)
     half = (stride_px - 1) / 2.0
-    for t in range(corners_px.shape[0]):
-        ax, ay = corners_px[t, 0, 0], corners_px[t, 0, 1]
-        bx, by = corners_px[t, 1, 0], corners_px[t, 1, 1]
-        cx, cy = corners_px[t, 2, 0], corners_px[t, 2, 1]
-        area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-        if area == 0.0:
+    for t in range(faces.shape[0]):
+        if not drawn[t]:
             continue
+        a, b, c = faces[t, 0], faces[t, 1], faces[t, 2]
+        ax, ay = corners_px[a, 0], corners_px[a, 1]
+        bx, by = corners_px[b, 0], corners_px[b, 1]
+        cx, cy = corners_px[c, 0], corners_px[c, 1]
         i_lo = max(0, math.ceil((min(ax, bx, cx) - x0_px - half) / stride_px))
         i_hi = min(columns - 1, math.floor((max(ax, bx, cx) - x0_px - half) / stride_px))
         j_lo = max(0, math.ceil((min(ay, by, cy) - y0_px - half) / stride_px))
         j_hi = min(rows - 1, math.floor((max(ay, by, cy) - y0_px - half) / stride_px))
-        za, zb, zc = inverse_depth[t, 0], inverse_depth[t, 1], inverse_depth[t, 2]
+        area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+        if i_lo > i_hi or j_lo > j_hi or area == 0.0:
+            continue
+        label = face_labels[t]
+        is_gripper = gripper_labels[label]
+        za, zb, zc = inverse_depth[a], inverse_depth[b], inverse_depth[c]
         for j in range(j_lo, j_hi + 1):
             py = y0_px + stride_px * j + half
             for i in range(i_lo, i_hi + 1):
@@ -56,10 +63,10 @@ def rasterize(
                 wc = 1.0 - wa - wb
                 if wa < 0.0 or wb < 0.0 or wc < 0.0:
                     continue
-                if is_gripper[t]:
+                if is_gripper:
                     gripper[j, i] = True
                 z = wa * za + wb * zb + wc * zc
                 if z > depth[j, i]:
                     depth[j, i] = z
-                    nearest[j, i] = labels[t]
+                    nearest[j, i] = label
     return nearest, gripper

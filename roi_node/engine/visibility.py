@@ -51,9 +51,9 @@ class _Robot:
 class _Triangles:
     """One frame's triangles in front of the camera, in the model's face order."""
 
-    corners_px: np.ndarray  # T x 3 x 2
-    inverse_depth: np.ndarray  # T x 3, 1/m
-    labels: np.ndarray  # T, link labels
+    corners_px: np.ndarray  # V x 2, each vertex projected (0 where not drawn)
+    inverse_depth: np.ndarray  # V, 1/m
+    drawn: np.ndarray  # T, bool: the face is wholly in front of the camera
 
 
 @dataclass(frozen=True)
@@ -162,16 +162,16 @@ class VisibilityModel:
                 rotations.append(cam_T_link.rotation)
                 translations.append(cam_T_link.translation_m)
         if not rotations:
-            return _Triangles(np.zeros((0, 3, 2)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
+            return _Triangles(np.zeros((0, 2)), np.zeros(0), np.zeros(0, dtype=np.bool_))
         rot, trans = np.asarray(rotations)[self._vertex_labels], np.asarray(translations)[self._vertex_labels]
         points = np.einsum("nij,nj->ni", rot, self._vertices) + trans
         uv, valid = camera.project(points, z_min_m)
-        tri_valid = valid[self._faces]
-        behind = (points[:, 2] <= z_min_m)[self._faces].all(axis=1)
-        if (~tri_valid.all(axis=1) & ~behind).any():
+        behind = points[:, 2] <= z_min_m
+        f0, f1, f2 = self._faces[:, 0], self._faces[:, 1], self._faces[:, 2]
+        drawn = valid[f0] & valid[f1] & valid[f2]
+        if (~drawn & ~(behind[f0] & behind[f1] & behind[f2])).any():
             return None
-        faces = self._faces[~behind]
-        return _Triangles(uv[faces], 1.0 / points[:, 2][faces], self._face_labels[~behind])
+        return _Triangles(np.nan_to_num(uv), 1.0 / np.where(valid, points[:, 2], 1.0), drawn)
 
     def _render_arm(
         self, arm: _Arm, triangles: _Triangles, window: tuple[int, int, int, int], camera: CameraModel
@@ -182,11 +182,8 @@ class VisibilityModel:
             return VisibilityRecord(VisibilityStatus.NOT_IN_WINDOW, gripper_area_px=0)
         stride = max(1, math.ceil(max(x1 - x0, y1 - y0) / RASTER_SIDE))
         columns, rows = math.ceil((x1 - x0) / stride), math.ceil((y1 - y0) / stride)
-        low, high = triangles.corners_px.min(axis=1), triangles.corners_px.max(axis=1)
-        near = (high[:, 0] >= x0 - 0.5) & (low[:, 0] <= x1 - 0.5) & (high[:, 1] >= y0 - 0.5) & (low[:, 1] <= y1 - 0.5)
-        labels = triangles.labels[near]
         nearest, gripper = rasterize(
-            triangles.corners_px[near], triangles.inverse_depth[near], labels, arm.groups[labels] == GRIPPER,
+            triangles.corners_px, triangles.inverse_depth, self._faces, triangles.drawn, self._face_labels, arm.groups == GRIPPER,
             float(x0), float(y0), stride, columns, rows,
         )
         silhouette = int(gripper.sum())
