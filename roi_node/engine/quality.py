@@ -11,6 +11,8 @@ an ROI (the method keeps every frame); it is metadata for monitoring.
 
 from __future__ import annotations
 
+HIDDEN_BELOW = 0.5  # a gripper less visible than this is hidden: validate counts such frames, the overlay marks them
+
 
 def in_frame_ratio(inside_px: int, window_area_px: int) -> float:
     """Share of the crop window that lies inside the image."""
