@@ -21,8 +21,8 @@ import numpy as np
 
 from roi_node.bagio.bag_status import BagStatus
 from roi_node.engine.metadata import Lineage
-from roi_node.engine.records import ArmRecord, FrameRecord
 from roi_node.engine.quality import HIDDEN_BELOW
+from roi_node.engine.records import ArmRecord, FrameRecord
 from roi_node.engine.sync import STATUS_ORDER
 
 NAN = float("nan")
