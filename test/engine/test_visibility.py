@@ -112,3 +112,32 @@ def test_a_camera_inside_the_robot_is_unknown(tmp_path: Path) -> None:
     right = record.arm("right")
     assert right.projection_valid and right.visibility is not None
     assert right.visibility.status == VisibilityStatus.CAMERA_INSIDE_ROBOT and right.visibility.visible_fraction is None
+
+
+def test_validate_counts_hidden_frames_and_leaves_unknown_ones_out(tmp_path: Path) -> None:
+    """Records of a rendered pipeline through validate's statistics: the hidden frames are those below HIDDEN_BELOW,
+    the distribution is over the measured frames only."""
+    from roi_node.engine.quality import HIDDEN_BELOW
+    from roi_node.quality.stats import BagStats
+
+    pipeline = _pipeline(tmp_path, "rig_demo_bimanual.yaml")
+    camera = pipeline.camera
+    assert camera is not None
+    image = np.zeros((camera.height_px, camera.width_px, 3), np.uint8)
+    rng = np.random.default_rng(3)
+    stats = BagStats()
+    fractions: dict[str, list[float]] = {"left": [], "right": []}
+    for i in range(12):
+        positions = {n: float(rng.uniform(*pipeline.joint_limits[n])) for n in pipeline.state_joints if n in pipeline.joint_limits}
+        record = pipeline.process(image, 1_000_000 + i * 33_000_000, i, ok_sync(positions)).record
+        stats.add(record, i)
+        for arm in record.arms:
+            if arm.visibility is not None and arm.visibility.visible_fraction is not None:
+                fractions[arm.arm_id].append(arm.visibility.visible_fraction)
+    metrics = stats.finish().arm_metrics
+    for arm_id, seen in fractions.items():
+        hidden = sum(f < HIDDEN_BELOW for f in seen)
+        assert metrics[arm_id]["visibility_measured_frames"] == len(seen) > 0
+        assert metrics[arm_id]["hidden_frames"] == hidden
+        assert metrics[arm_id]["hidden_ratio"] == pytest.approx(hidden / len(seen))
+        assert metrics[arm_id]["visible_fraction_min"] == pytest.approx(min(seen))
