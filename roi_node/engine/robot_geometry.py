@@ -61,8 +61,9 @@ class RobotGeometry:
         return line
 
 
-def load_robot_geometry(urdf_text: str, urdf_path: Path) -> RobotGeometry:
-    """Every link's geometry of one URDF (see the module docstring for the order of preference)."""
+def load_robot_geometry(urdf_text: str, urdf_path: Path, grid_cells: int = GRID_CELLS) -> RobotGeometry:
+    """Every link's geometry of one URDF (see the module docstring for the order of preference); meshes thinned on a
+    grid of `grid_cells` along their longest side."""
     try:
         root = ET.fromstring(urdf_text)
     except ET.ParseError as exc:
@@ -80,7 +81,7 @@ def load_robot_geometry(urdf_text: str, urdf_path: Path) -> RobotGeometry:
             if not elements:
                 continue
             try:
-                links[name] = _link_geometry(name, elements, kind, urdf_path)
+                links[name] = _link_geometry(name, elements, kind, urdf_path, grid_cells)
             except _GeometryError as exc:
                 problems.append(f"{kind}: {exc}")
                 continue
@@ -96,7 +97,7 @@ class _GeometryError(Exception):
     """One geometry element of a link that cannot be turned into triangles (the message says why)."""
 
 
-def _link_geometry(link: str, elements: list[ET.Element], kind: str, urdf_path: Path) -> LinkGeometry:
+def _link_geometry(link: str, elements: list[ET.Element], kind: str, urdf_path: Path, grid_cells: int) -> LinkGeometry:
     vertices: list[Float64Array] = []
     faces: list[np.ndarray] = []
     count = 0
@@ -104,7 +105,7 @@ def _link_geometry(link: str, elements: list[ET.Element], kind: str, urdf_path: 
         shape = el.find("geometry")
         if shape is None or len(shape) == 0:
             raise _GeometryError("no <geometry>")
-        v, f = _shape_triangles(shape[0], urdf_path)
+        v, f = _shape_triangles(shape[0], urdf_path, grid_cells)
         v = _origin(el.find("origin")).apply(v)
         vertices.append(v)
         faces.append(f + count)
@@ -112,10 +113,10 @@ def _link_geometry(link: str, elements: list[ET.Element], kind: str, urdf_path: 
     return LinkGeometry(link, np.vstack(vertices), np.vstack(faces).astype(np.int64), kind)
 
 
-def _shape_triangles(shape: ET.Element, urdf_path: Path) -> tuple[Float64Array, np.ndarray]:
+def _shape_triangles(shape: ET.Element, urdf_path: Path, grid_cells: int) -> tuple[Float64Array, np.ndarray]:
     if shape.tag == "mesh":
         scale = _floats(shape.get("scale", "1 1 1"), 3, "mesh scale")
-        return _thin(*_load_mesh(resolve_mesh_path(shape.get("filename", ""), urdf_path)), scale)
+        return _thin(*_load_mesh(resolve_mesh_path(shape.get("filename", ""), urdf_path)), scale, grid_cells)
     if shape.tag == "box":
         return _box(_floats(shape.get("size", ""), 3, "box size"))
     if shape.tag == "cylinder":
@@ -158,11 +159,11 @@ def _load_mesh(path: Path) -> tuple[Float64Array, np.ndarray]:
     return vertices, faces
 
 
-def _thin(vertices: Float64Array, faces: np.ndarray, scale: Float64Array) -> tuple[Float64Array, np.ndarray]:
+def _thin(vertices: Float64Array, faces: np.ndarray, scale: Float64Array, grid_cells: int) -> tuple[Float64Array, np.ndarray]:
     """Vertex clustering: vertices in one grid cell merge to their mean; triangles that collapse are dropped."""
     vertices = vertices * scale
     low, high = vertices.min(axis=0), vertices.max(axis=0)
-    cell = max(float((high - low).max()) / GRID_CELLS, 1e-9)
+    cell = max(float((high - low).max()) / grid_cells, 1e-9)
     keys = np.floor((vertices - low) / cell).astype(np.int64)
     _, cluster = np.unique(keys, axis=0, return_inverse=True)
     cluster = cluster.reshape(-1)

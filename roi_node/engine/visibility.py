@@ -31,7 +31,7 @@ from roi_node.engine.kinematics import RobotKinematics
 from roi_node.engine.metadata import RATIO_DECIMALS, rnd
 from roi_node.engine.raster_kernel import rasterize
 from roi_node.engine.records import VisibilityRecord, VisibilityStatus
-from roi_node.engine.robot_geometry import load_robot_geometry
+from roi_node.engine.robot_geometry import GRID_CELLS, load_robot_geometry
 from roi_node.engine.transforms import Transform
 
 RASTER_SIDE = 160  # samples along the longer side of a crop window: the grid's stride is the window side / this
@@ -66,7 +66,8 @@ class _Arm:
 class VisibilityModel:
     """The rig's robots as triangles, labelled per link; `measure` renders one frame for every arm."""
 
-    def __init__(self, rig: RigConfig, kinematics: Mapping[str, RobotKinematics]) -> None:
+    def __init__(self, rig: RigConfig, kinematics: Mapping[str, RobotKinematics], grid_cells: int = GRID_CELLS) -> None:
+        """`grid_cells`: how finely meshes are thinned (the simulator draws with a finer grid than the node measures)."""
         vertices: list[np.ndarray] = []
         vertex_labels: list[np.ndarray] = []
         faces: list[np.ndarray] = []
@@ -77,7 +78,7 @@ class VisibilityModel:
         count = 0
         for robot in rig.robots:
             kin = kinematics[robot.id]
-            geometry = load_robot_geometry(kin.urdf_text, kin.urdf_path)
+            geometry = load_robot_geometry(kin.urdf_text, kin.urdf_path, grid_cells)
             self.summary.append(geometry.summary(robot.id))
             self.unloaded |= bool(geometry.unloaded)
             links = tuple(link for link in geometry.links if link in kin.frame_names)
@@ -139,6 +140,36 @@ class VisibilityModel:
             assert triangles is not None and window is not None
             out[arm.arm_id] = self._render_arm(arm, triangles, window, camera)
         return out
+
+    def render(
+        self,
+        camera: CameraModel,
+        z_min_m: float,
+        cam_T_bases: Mapping[str, Transform | None],
+        positions: Mapping[str, float],
+        window: tuple[int, int, int, int],
+        stride_px: int = 1,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...]] | None:
+        """The label of the nearest link at every `stride_px`-th pixel of `window` (-1: none; `link_names` names them)
+        and, per arm, the pixels its gripper covers whatever is in front; None when the frame cannot be drawn."""
+        if self._frame_status(cam_T_bases) is not None:
+            return None
+        triangles = self._project(camera, z_min_m, cam_T_bases, positions)
+        if triangles is None:
+            return None
+        columns, rows = math.ceil((window[2] - window[0]) / stride_px), math.ceil((window[3] - window[1]) / stride_px)
+        nearest, covered = np.full((rows, columns), -1, dtype=np.int64), []
+        for arm in self._arms:
+            nearest, gripper = rasterize(
+                triangles.corners_px, triangles.inverse_depth, self._faces, triangles.drawn, self._face_labels,
+                arm.groups == GRIPPER, float(window[0]), float(window[1]), stride_px, columns, rows,
+            )
+            covered.append(gripper)
+        return nearest, tuple(covered)
+
+    def gripper_labels(self, arm_index: int) -> tuple[int, ...]:
+        """The labels (indices into `link_names`) of the links of arm `arm_index`'s gripper."""
+        return tuple(int(i) for i in np.flatnonzero(self._arms[arm_index].groups == GRIPPER))
 
     def _frame_status(self, cam_T_bases: Mapping[str, Transform | None]) -> VisibilityStatus | None:
         if self.unloaded:
