@@ -192,6 +192,10 @@ class RobotKinematics:
 
     def fk(self, positions: Mapping[str, float], frames: Sequence[str]) -> list[Transform]:
         """Poses `base_T_frame` of `frames` for joint `positions` (radians / metres by name)."""
+        return [Transform.from_matrix(m) for m in self.fk_matrices(positions, frames)]
+
+    def fk_matrices(self, positions: Mapping[str, float], frames: Sequence[str]) -> np.ndarray:
+        """`fk` as one N x 4 x 4 array (the visibility render poses every link each frame)."""
         robot = self._robot
         for name, value in positions.items():
             robot.set_joint(name, float(value))
@@ -199,7 +203,7 @@ class RobotKinematics:
             if joint.mimic_of is not None and joint.mimic_of in positions and joint.name in self.movable_joints:
                 robot.set_joint(joint.name, joint.mimic_multiplier * float(positions[joint.mimic_of]) + joint.mimic_offset)
         robot.update_kinematics()
-        return [Transform.from_matrix(np.asarray(robot.get_T_world_frame(f))) for f in frames]
+        return np.array([robot.get_T_world_frame(f) for f in frames], dtype=np.float64).reshape(-1, 4, 4)
 
 
 def _load_placo(urdf_text: str, where: str) -> placo.RobotWrapper:

@@ -28,7 +28,7 @@ from roi_node.engine.errors import KinematicsError
 from roi_node.engine.robot_models import example_robot_data_root
 from roi_node.engine.transforms import Float64Array, Transform
 
-GRID_CELLS = 12  # clustering grid: cells along the mesh's longest side (a few hundred triangles for a link)
+GRID_CELLS = 10  # clustering grid: cells along the mesh's longest side (a few hundred triangles for a link)
 CYLINDER_SIDES = 12
 SPHERE_RINGS = 6
 

@@ -74,6 +74,7 @@ class VisibilityModel:
         names: list[str] = []
         self.summary: list[str] = []
         self._robots: list[_Robot] = []
+        self._vertex_ranges: list[tuple[int, int]] = []  # per label: its vertices' rows
         self.unloaded = False
         count = 0
         for robot in rig.robots:
@@ -88,6 +89,7 @@ class VisibilityModel:
                 faces.append(g.faces + count)
                 vertices.append(g.vertices_m)
                 vertex_labels.append(np.full(len(g.vertices_m), len(names), dtype=np.int64))
+                self._vertex_ranges.append((count, count + len(g.vertices_m)))
                 count += len(g.vertices_m)
                 names.append(f"{robot.id}/{link}")
         self.link_names = tuple(names)
@@ -182,20 +184,19 @@ class VisibilityModel:
         self, camera: CameraModel, z_min_m: float, cam_T_bases: Mapping[str, Transform | None], positions: Mapping[str, float]
     ) -> _Triangles | None:
         """Every triangle in front of the camera; None when one reaches behind its near plane."""
-        rotations, translations = [], []
+        poses = []
         for robot in self._robots:
             kin = robot.kinematics
             q = {j: float(positions.get(robot.prefix + j, 0.0)) for j in kin.joint_names() if j in kin.movable_joints}
             cam_T_base = cam_T_bases[robot.robot_id]
             assert cam_T_base is not None
-            for pose in kin.fk(q, robot.links):
-                cam_T_link = cam_T_base @ pose
-                rotations.append(cam_T_link.rotation)
-                translations.append(cam_T_link.translation_m)
-        if not rotations:
+            poses.append(cam_T_base.matrix() @ kin.fk_matrices(q, robot.links))
+        if not poses:
             return _Triangles(np.zeros((0, 2)), np.zeros(0), np.zeros(0, dtype=np.bool_))
-        rot, trans = np.asarray(rotations)[self._vertex_labels], np.asarray(translations)[self._vertex_labels]
-        points = np.einsum("nij,nj->ni", rot, self._vertices) + trans
+        cam_T_links = np.concatenate(poses)
+        points = np.empty_like(self._vertices)
+        for label, (start, end) in enumerate(self._vertex_ranges):
+            points[start:end] = self._vertices[start:end] @ cam_T_links[label, :3, :3].T + cam_T_links[label, :3, 3]
         uv, valid = camera.project(points, z_min_m)
         behind = points[:, 2] <= z_min_m
         f0, f1, f2 = self._faces[:, 0], self._faces[:, 1], self._faces[:, 2]
