@@ -47,6 +47,16 @@ def timed(fn: Callable[[int], object], n: int) -> np.ndarray:
     return np.asarray(out)
 
 
+def interleaved(steps: tuple[Callable[[int], object], ...], i: int) -> list[float]:
+    """Each step's wall time on frame i, ms, one after the other."""
+    out = []
+    for step in steps:
+        t0 = time.perf_counter()
+        step(i)
+        out.append((time.perf_counter() - t0) * 1e3)
+    return out
+
+
 def stats(ms: np.ndarray) -> str:
     return f"median {np.median(ms):7.3f} ms  p99 {np.percentile(ms, 99):7.3f} ms"
 
@@ -89,10 +99,14 @@ def bench_rig(name: str, frames: int, ray_frames: int) -> None:
     first_arm = rig.arms[0].id
     print(f"{name}: {core.camera.width_px}x{core.camera.height_px}, {len(model.link_names)} links, "
           f"{len(model._faces)} triangles; {frames} frames; {model.summary}")
-    core_ms = timed(lambda i: core.process(image, i, i, syncs[i]), frames)
-    one_ms = timed(lambda i: model.measure(core.camera, rig.camera.z_min_m, cam_T_bases, poses[i],  # type: ignore[arg-type]
-                                           {first_arm: windows[i][first_arm]}), frames)
-    all_ms = timed(lambda i: model.measure(core.camera, rig.camera.z_min_m, cam_T_bases, poses[i], windows[i]), frames)  # type: ignore[arg-type]
+    camera = core.camera
+    steps: tuple[Callable[[int], object], ...] = (
+        lambda i: core.process(image, i, i, syncs[i]),
+        lambda i: model.measure(camera, rig.camera.z_min_m, cam_T_bases, poses[i], {first_arm: windows[i][first_arm]}),  # type: ignore[arg-type]
+        lambda i: model.measure(camera, rig.camera.z_min_m, cam_T_bases, poses[i], windows[i]),  # type: ignore[arg-type]
+    )
+    # interleaved frame by frame, so a shared machine's load weighs on the three alike
+    core_ms, one_ms, all_ms = (np.asarray(t) for t in zip(*(interleaved(steps, i) for i in range(frames)), strict=True))
     print(f"  core pipeline (visibility off)       {stats(core_ms)}")
     median, p99 = np.median(one_ms) / np.median(core_ms), np.percentile(one_ms, 99) / np.percentile(core_ms, 99)
     print(f"  visibility, arm {first_arm!r} alone          {stats(one_ms)}  | / core: median {median:.2f}x, p99 {p99:.2f}x "

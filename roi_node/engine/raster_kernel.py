@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from roi_node.engine.area_kernels import _jit
+from roi_node.engine.area_kernels import _jit, _jit_inline
 
 
 @_jit
@@ -24,7 +24,8 @@ def rasterize(
     inverse_depth: np.ndarray,  # V, 1/z (1/m)
     faces: np.ndarray,  # T x 3 vertex indices
     drawn: np.ndarray,  # T, bool: every corner in front of the camera
-    face_labels: np.ndarray,  # T, the label of each triangle (a link index)
+    face_ranges: np.ndarray,  # L x 2: each label's faces are faces[start:end] (faces are grouped by label)
+    label_boxes: np.ndarray,  # L x 4: min x, min y, max x, max y of each label's projected vertices
     gripper_labels: np.ndarray,  # per label, bool
     x0_px: float,
     y0_px: float,
@@ -37,7 +38,23 @@ def rasterize(
     nearest = np.full((rows, columns), -1, dtype=np.int64)
     gripper = np.zeros((rows, columns), dtype=np.bool_)
     half = (stride_px - 1) / 2.0
-    for t in range(faces.shape[0]):
+    x_end, y_end = x0_px + stride_px * columns, y0_px + stride_px * rows
+    for label in range(face_ranges.shape[0]):
+        box = label_boxes[label]
+        if box[2] < x0_px or box[0] > x_end or box[3] < y0_px or box[1] > y_end:
+            continue  # a whole link outside the window
+        _draw_faces(corners_px, inverse_depth, faces, drawn, face_ranges[label, 0], face_ranges[label, 1], label,
+                    gripper_labels[label], x0_px, y0_px, stride_px, columns, rows, half, depth, nearest, gripper)
+    return nearest, gripper
+
+
+@_jit_inline
+def _draw_faces(
+    corners_px: np.ndarray, inverse_depth: np.ndarray, faces: np.ndarray, drawn: np.ndarray, start: int, end: int, label: int,
+    is_gripper: bool, x0_px: float, y0_px: float, stride_px: int, columns: int, rows: int, half: float,
+    depth: np.ndarray, nearest: np.ndarray, gripper: np.ndarray,
+) -> None:
+    for t in range(start, end):
         if not drawn[t]:
             continue
         a, b, c = faces[t, 0], faces[t, 1], faces[t, 2]
@@ -51,8 +68,6 @@ def rasterize(
         area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
         if i_lo > i_hi or j_lo > j_hi or area == 0.0:
             continue
-        label = face_labels[t]
-        is_gripper = gripper_labels[label]
         za, zb, zc = inverse_depth[a], inverse_depth[b], inverse_depth[c]
         for j in range(j_lo, j_hi + 1):
             py = y0_px + stride_px * j + half
@@ -69,4 +84,3 @@ def rasterize(
                 if z > depth[j, i]:
                     depth[j, i] = z
                     nearest[j, i] = label
-    return nearest, gripper

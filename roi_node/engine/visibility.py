@@ -44,7 +44,7 @@ class _Robot:
     kinematics: RobotKinematics
     prefix: str
     links: tuple[str, ...]  # links with geometry, in the order of their labels
-    first_label: int
+    joints: tuple[str, ...]  # the movable joints FK sets (a joint the frame lacks at zero)
 
 
 @dataclass(frozen=True)
@@ -54,6 +54,7 @@ class _Triangles:
     corners_px: np.ndarray  # V x 2, each vertex projected (0 where not drawn)
     inverse_depth: np.ndarray  # V, 1/m
     drawn: np.ndarray  # T, bool: the face is wholly in front of the camera
+    label_boxes: np.ndarray  # L x 4, each link's projected vertices' bounding box (px)
 
 
 @dataclass(frozen=True)
@@ -83,7 +84,8 @@ class VisibilityModel:
             self.summary.append(geometry.summary(robot.id))
             self.unloaded |= bool(geometry.unloaded)
             links = tuple(link for link in geometry.links if link in kin.frame_names)
-            self._robots.append(_Robot(robot.id, kin, robot.joint_prefix, links, len(names)))
+            joints = tuple(j for j in kin.joint_names() if j in kin.movable_joints)
+            self._robots.append(_Robot(robot.id, kin, robot.joint_prefix, links, joints))
             for link in links:
                 g = geometry.links[link]
                 faces.append(g.faces + count)
@@ -97,6 +99,9 @@ class VisibilityModel:
         self._vertex_labels = np.concatenate(vertex_labels) if vertex_labels else np.zeros(0, dtype=np.int64)
         self._faces = np.vstack(faces) if faces else np.zeros((0, 3), dtype=np.int64)
         self._face_labels = self._vertex_labels[self._faces[:, 0]]
+        counts = np.bincount(self._face_labels, minlength=len(names))
+        self._face_ranges = np.stack([np.cumsum(counts) - counts, np.cumsum(counts)], axis=1).astype(np.int64)
+        self._vertex_starts = np.asarray([start for start, _ in self._vertex_ranges], dtype=np.int64)
         self._arms = tuple(self._arm(rig, kinematics, arm.id) for arm in rig.arms)
 
     def _arm(self, rig: RigConfig, kinematics: Mapping[str, RobotKinematics], arm_id: str) -> _Arm:
@@ -163,8 +168,8 @@ class VisibilityModel:
         nearest, covered = np.full((rows, columns), -1, dtype=np.int64), []
         for arm in self._arms:
             nearest, gripper = rasterize(
-                triangles.corners_px, triangles.inverse_depth, self._faces, triangles.drawn, self._face_labels,
-                arm.groups == GRIPPER, float(window[0]), float(window[1]), stride_px, columns, rows,
+                triangles.corners_px, triangles.inverse_depth, self._faces, triangles.drawn, self._face_ranges,
+                triangles.label_boxes, arm.groups == GRIPPER, float(window[0]), float(window[1]), stride_px, columns, rows,
             )
             covered.append(gripper)
         return nearest, tuple(covered)
@@ -187,12 +192,12 @@ class VisibilityModel:
         poses = []
         for robot in self._robots:
             kin = robot.kinematics
-            q = {j: float(positions.get(robot.prefix + j, 0.0)) for j in kin.joint_names() if j in kin.movable_joints}
+            q = {j: float(positions.get(robot.prefix + j, 0.0)) for j in robot.joints}
             cam_T_base = cam_T_bases[robot.robot_id]
             assert cam_T_base is not None
             poses.append(cam_T_base.matrix() @ kin.fk_matrices(q, robot.links))
         if not poses:
-            return _Triangles(np.zeros((0, 2)), np.zeros(0), np.zeros(0, dtype=np.bool_))
+            return _Triangles(np.zeros((0, 2)), np.zeros(0), np.zeros(0, dtype=np.bool_), np.zeros((0, 4)))
         cam_T_links = np.concatenate(poses)
         points = np.empty_like(self._vertices)
         for label, (start, end) in enumerate(self._vertex_ranges):
@@ -203,7 +208,11 @@ class VisibilityModel:
         drawn = valid[f0] & valid[f1] & valid[f2]
         if (~drawn & ~(behind[f0] & behind[f1] & behind[f2])).any():
             return None
-        return _Triangles(np.nan_to_num(uv), 1.0 / np.where(valid, points[:, 2], 1.0), drawn)
+        uv = np.nan_to_num(uv)
+        starts = self._vertex_starts
+        boxes = np.stack([np.minimum.reduceat(uv[:, 0], starts), np.minimum.reduceat(uv[:, 1], starts),
+                          np.maximum.reduceat(uv[:, 0], starts), np.maximum.reduceat(uv[:, 1], starts)], axis=1)
+        return _Triangles(uv, 1.0 / np.where(valid, points[:, 2], 1.0), drawn, boxes)
 
     def _render_arm(
         self, arm: _Arm, triangles: _Triangles, window: tuple[int, int, int, int], camera: CameraModel
@@ -215,7 +224,8 @@ class VisibilityModel:
         stride = max(1, math.ceil(max(x1 - x0, y1 - y0) / RASTER_SIDE))
         columns, rows = math.ceil((x1 - x0) / stride), math.ceil((y1 - y0) / stride)
         nearest, gripper = rasterize(
-            triangles.corners_px, triangles.inverse_depth, self._faces, triangles.drawn, self._face_labels, arm.groups == GRIPPER,
+            triangles.corners_px, triangles.inverse_depth, self._faces, triangles.drawn, self._face_ranges, triangles.label_boxes,
+            arm.groups == GRIPPER,
             float(x0), float(y0), stride, columns, rows,
         )
         silhouette = int(gripper.sum())
