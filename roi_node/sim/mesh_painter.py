@@ -6,13 +6,15 @@ thinning and sampling are part of what a test against it measures. Each
 pixel keeps the nearest link's label (`MeshFrame.link_mask`), and each arm's
 gripper silhouette is kept whatever lies in front, so a frame knows how much
 of every gripper it shows. The capsule painter (sim/painter.py) stays what
-`roi-node sim` draws, so simulated bags keep their bytes.
+`roi-node sim` draws by default (`--draw meshes` draws this), so simulated bags
+keep their bytes.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 
@@ -21,6 +23,14 @@ from roi_node.engine.config import RigConfig
 from roi_node.engine.kinematics import RobotKinematics
 from roi_node.engine.transforms import Transform
 from roi_node.engine.visibility import VisibilityModel
+
+
+class Drawing(StrEnum):
+    """How the simulator draws the robots."""
+
+    CAPSULES = "capsules"  # capsule chains and a generic gripper (sim/painter.py): what simulated bags were recorded with
+    MESHES = "meshes"  # the URDF's meshes, every pixel labelled with its link (this module)
+
 
 MESH_GRID_CELLS = 48  # cells along a mesh's longest side: four times the node's grid
 LINK_GREY = 200.0
@@ -66,12 +76,13 @@ class MeshFrame:
         return self.link_names[int(counts.argmax())], float(counts.max() / len(front))
 
     def paint(self, background: np.ndarray) -> np.ndarray:
-        """The background with every link in grey and every gripper dark."""
+        """The background with every link in its own light grey (neighbours tell apart) and every gripper dark."""
+        colours = np.repeat(LINK_GREY - (np.arange(len(self.link_names), dtype=np.float64) * 37.0) % 60.0, 3).reshape(-1, 3)
+        for labels in self.gripper_links.values():
+            colours[list(labels)] = GRIPPER_RGB
         frame = background.copy()
         drawn = self.labels >= 0
-        frame[drawn] = LINK_GREY
-        for labels in self.gripper_links.values():
-            frame[np.isin(self.labels, list(labels))] = GRIPPER_RGB
+        frame[drawn] = colours[self.labels[drawn]].astype(np.uint8)
         return frame
 
 

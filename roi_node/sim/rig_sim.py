@@ -18,6 +18,7 @@ random state, the same events on every run.
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import math
 from collections.abc import Callable, Iterator
@@ -38,6 +39,7 @@ from roi_node.sim.choreography import script_rig
 from roi_node.sim.command_follow import CommandFollower, CommandIssue
 from roi_node.sim.layout import plan_layout
 from roi_node.sim.look import Look
+from roi_node.sim.mesh_painter import Drawing, MeshPainter
 from roi_node.sim.painter import RigPainter
 from roi_node.sim.scene import render_static_scene
 from roi_node.sim.truth import FrameTruth, gripper_truth
@@ -117,8 +119,11 @@ class SimRig:
         start_ns: int = 0,
         intrinsics: CameraModel | None = None,
         look: Look | None = None,
+        drawing: Drawing = Drawing.CAPSULES,
     ) -> None:
         """`camera_delay_ms=None` uses the rig's `camera.delay_ms`, so the pipeline's capture time is right.
+        `drawing`: the robots as capsule chains (the default, which simulated bags were recorded with) or from their
+        URDF meshes (sim/mesh_painter.py; each frame's link masks in `FrameTruth.meshes`).
 
         Every stamp is `start_ns` + an offset; `start_ns` may be reassigned
         before streaming (a live publisher sets it to the wall clock).
@@ -162,6 +167,7 @@ class SimRig:
         reference_depth = float(np.median(self.view.cam_T_world.apply(np.array(bases))[:, 2]))
         self.painter = RigPainter(self.scene, max(reference_depth, self.view.z_near_m))
         self.follower: CommandFollower | None = None  # set by `follow_commands`: the state then follows commands
+        self.mesh_painter = MeshPainter(self.rig, camera) if drawing is Drawing.MESHES else None
 
     def follow_commands(self, max_speed_rad_s: float, on_first: Callable[[CommandIssue, str], None]) -> CommandFollower:
         """From now on every joint state and frame shows the followed state (sim/command_follow.py) instead of the script.
@@ -212,6 +218,8 @@ class SimRig:
     def render(self, capture_ns: int, frame_index: int = 0) -> tuple[np.ndarray, FrameTruth]:
         """The frame captured at capture_ns and its truth; with a Look, blurred over the exposure, lit and noisy."""
         truth, projected = self._project(capture_ns)
+        if self.mesh_painter is not None:
+            return self._paint_meshes(capture_ns, frame_index, truth)
         if self.look.default:
             return self.painter.paint(projected), truth
         if self.look.blurred:
@@ -223,6 +231,22 @@ class SimRig:
             frame /= len(offsets)
         else:
             frame = self.painter.paint(projected)
+        return self.look.finish(frame, frame_index, (capture_ns - self.start_ns) / NS_PER_S, self.seed), truth
+
+    def _paint_meshes(self, capture_ns: int, frame_index: int, truth: FrameTruth) -> tuple[np.ndarray, FrameTruth]:
+        """The robots drawn from their meshes over the static scene (a Look's light and noise, no motion blur)."""
+        assert self.mesh_painter is not None
+        positions = dict(zip(self.state_joints, (float(v) for v in self._scripted_state(capture_ns)), strict=True))
+        if self.follower is not None:
+            positions = dict(zip(self.state_joints, (float(v) for v in self.follower.positions(capture_ns)), strict=True))
+        drawn = self.mesh_painter.draw(positions)
+        if drawn is None:
+            raise ConfigError(f"sim: {self.rig.source}: the robots cannot be drawn from their meshes ("
+                              f"{'; '.join(self.mesh_painter.model.summary)}); draw capsules instead")
+        frame = drawn.paint(self.scene.background)
+        truth = dataclasses.replace(truth, meshes=drawn)
+        if self.look.default:
+            return frame, truth
         return self.look.finish(frame, frame_index, (capture_ns - self.start_ns) / NS_PER_S, self.seed), truth
 
     def _project(self, capture_ns: int) -> tuple[FrameTruth, list[ProjectedCapsule]]:

@@ -62,3 +62,18 @@ def test_each_links_mask_is_where_it_is_nearest_and_a_gripper_link_lies_in_its_s
     assert sum(int(m.sum()) for m in masks.values()) == int((drawn.labels >= 0).sum())
     hand = masks["left_panda/panda_hand"]
     assert hand.any() and not (hand & ~drawn.gripper_covered["left"]).any()
+
+
+def test_the_simulator_draws_the_meshes_when_asked_and_its_truth_carries_every_links_mask() -> None:
+    from roi_node.sim.mesh_painter import Drawing
+
+    capsules = SimRig("rig_baxter.yaml", seed=1)
+    meshes = SimRig("rig_baxter.yaml", seed=1, drawing=Drawing.MESHES)
+    capture_ns = meshes.capture_ns(10)
+    frame, truth = meshes.render(capture_ns)
+    assert capsules.render(capture_ns)[1].meshes is None and truth.meshes is not None
+    drawn = truth.meshes.labels >= 0
+    background = meshes.scene.background
+    assert drawn.mean() > 0.05 and np.array_equal(frame[~drawn], background[~drawn])
+    hand = truth.meshes.link_mask("baxter/left_gripper_base_link")
+    assert hand.any() and (frame[hand] == frame[hand][0]).all(), "a gripper link is drawn in the gripper's colour"
