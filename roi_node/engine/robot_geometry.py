@@ -140,7 +140,8 @@ def resolve_mesh_path(filename: str, urdf_path: Path) -> Path:
         for candidate in (folder / rest if folder.name == package else None, folder / package / rest):
             if candidate is not None and candidate.is_file():
                 return candidate
-    raise _GeometryError(f"{filename}: no folder named {package!r} beside the URDF or in example-robot-data")
+    raise _GeometryError(f"{filename}: no such file in a folder named {package!r} above the URDF, in one beside those, "
+                         "or in example-robot-data")
 
 
 def _load_mesh(path: Path) -> tuple[Float64Array, np.ndarray]:

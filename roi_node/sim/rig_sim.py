@@ -168,6 +168,9 @@ class SimRig:
         self.painter = RigPainter(self.scene, max(reference_depth, self.view.z_near_m))
         self.follower: CommandFollower | None = None  # set by `follow_commands`: the state then follows commands
         self.mesh_painter = MeshPainter(self.rig, camera) if drawing is Drawing.MESHES else None
+        if self.mesh_painter is not None and self.mesh_painter.model.unloaded:
+            unloaded = [line for line in self.mesh_painter.model.summary if "UNKNOWN" in line]
+            raise ConfigError(f"sim: {self.rig.source}: cannot draw the meshes: {unloaded[0]}")
 
     def follow_commands(self, max_speed_rad_s: float, on_first: Callable[[CommandIssue, str], None]) -> CommandFollower:
         """From now on every joint state and frame shows the followed state (sim/command_follow.py) instead of the script.
