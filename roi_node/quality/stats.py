@@ -191,6 +191,7 @@ class ArmSeries:
     in_frame: np.ndarray
     padding: np.ndarray
     confidence: np.ndarray
+    visible: np.ndarray | None = None  # the gripper's visible fraction (NaN: unknown); set for a bag's own series
 
     @property
     def present(self) -> np.ndarray:
@@ -320,6 +321,7 @@ class BagStats:
                 in_frame=f(c.in_frame),
                 padding=f(c.padding),
                 confidence=f(c.confidence),
+                visible=f(c.visible),
             )
             for arm_id, c in self._arms.items()
         }
@@ -342,7 +344,7 @@ class BagStats:
         scale_steps = steps(scale, consecutive) / scale[1:][consecutive]
         blank = present & (arm.in_frame == 0.0)
         n_present = int(present.sum())
-        visible = np.frombuffer(columns.visible, dtype=np.float64) if len(columns.visible) else np.zeros(0)
+        visible = arm.visible if arm.visible is not None else np.zeros(0)
         measured = int(np.isfinite(visible).sum())
         hidden = int((visible < HIDDEN_BELOW).sum())  # NaN compares False
         metrics: dict[str, Metric] = {
