@@ -34,6 +34,7 @@ from roi_node.engine.records import VisibilityRecord, VisibilityStatus
 from roi_node.engine.robot_geometry import GRID_CELLS, load_robot_geometry
 from roi_node.engine.transforms import Transform
 
+SPHERE_MARGIN = 2.0  # a link's pixel radius bound: its sphere's pinhole radius times this (lens magnification)
 RASTER_SIDE = 160  # samples along the longer side of a crop window: the grid's stride is the window side / this
 GRIPPER, OWN_ARM, OTHER_ARM, BODY = 0, 1, 2, 3
 
@@ -102,6 +103,12 @@ class VisibilityModel:
         counts = np.bincount(self._face_labels, minlength=len(names))
         self._face_ranges = np.stack([np.cumsum(counts) - counts, np.cumsum(counts)], axis=1).astype(np.int64)
         self._vertex_starts = np.asarray([start for start, _ in self._vertex_ranges], dtype=np.int64)
+        ranges = self._vertex_ranges
+        self._sphere_centres = np.array([(self._vertices[a:b].min(axis=0) + self._vertices[a:b].max(axis=0)) / 2 for a, b in ranges])
+        self._sphere_centres = self._sphere_centres.reshape(-1, 3)
+        self._sphere_radii = np.array(
+            [np.linalg.norm(self._vertices[a:b] - c, axis=1).max() for (a, b), c in zip(ranges, self._sphere_centres, strict=True)]
+        )
         self._arms = tuple(self._arm(rig, kinematics, arm.id) for arm in rig.arms)
 
     def _arm(self, rig: RigConfig, kinematics: Mapping[str, RobotKinematics], arm_id: str) -> _Arm:
@@ -137,7 +144,7 @@ class VisibilityModel:
         status = self._frame_status(cam_T_bases)
         triangles = None
         if status is None and arms:
-            triangles = self._project(camera, z_min_m, cam_T_bases, positions)
+            triangles = self._project(camera, z_min_m, cam_T_bases, positions, [w for a in arms if (w := windows[a.arm_id])])
             status = VisibilityStatus.CAMERA_INSIDE_ROBOT if triangles is None else None
         for arm in arms:
             if status is not None or not arm.has_gripper:
@@ -161,7 +168,7 @@ class VisibilityModel:
         and, per arm, the pixels its gripper covers whatever is in front; None when the frame cannot be drawn."""
         if self._frame_status(cam_T_bases) is not None:
             return None
-        triangles = self._project(camera, z_min_m, cam_T_bases, positions)
+        triangles = self._project(camera, z_min_m, cam_T_bases, positions, [window])
         if triangles is None:
             return None
         columns, rows = math.ceil((window[2] - window[0]) / stride_px), math.ceil((window[3] - window[1]) / stride_px)
@@ -186,9 +193,14 @@ class VisibilityModel:
         return None
 
     def _project(
-        self, camera: CameraModel, z_min_m: float, cam_T_bases: Mapping[str, Transform | None], positions: Mapping[str, float]
+        self,
+        camera: CameraModel,
+        z_min_m: float,
+        cam_T_bases: Mapping[str, Transform | None],
+        positions: Mapping[str, float],
+        windows: Sequence[tuple[int, int, int, int]],
     ) -> _Triangles | None:
-        """Every triangle in front of the camera; None when one reaches behind its near plane."""
+        """The triangles of every link that may reach into `windows`; None when one reaches behind the near plane."""
         poses = []
         for robot in self._robots:
             kin = robot.kinematics
@@ -199,10 +211,18 @@ class VisibilityModel:
         if not poses:
             return _Triangles(np.zeros((0, 2)), np.zeros(0), np.zeros(0, dtype=np.bool_), np.zeros((0, 4)))
         cam_T_links = np.concatenate(poses)
-        points = np.empty_like(self._vertices)
-        for label, (start, end) in enumerate(self._vertex_ranges):
+        near = self._near_windows(camera, z_min_m, cam_T_links, windows)
+        points = np.zeros_like(self._vertices)
+        points[:, 2] = -1.0  # a link far from every window stays unprojected, as if behind the camera
+        rows = []
+        for label in np.flatnonzero(near):
+            start, end = self._vertex_ranges[label]
             points[start:end] = self._vertices[start:end] @ cam_T_links[label, :3, :3].T + cam_T_links[label, :3, 3]
-        uv, valid = camera.project(points, z_min_m)
+            rows.append(np.arange(start, end))
+        uv, valid = np.zeros((len(points), 2)), np.zeros(len(points), dtype=np.bool_)
+        if rows:
+            projected = np.concatenate(rows)
+            uv[projected], valid[projected] = camera.project(points[projected], z_min_m)
         behind = points[:, 2] <= z_min_m
         f0, f1, f2 = self._faces[:, 0], self._faces[:, 1], self._faces[:, 2]
         drawn = valid[f0] & valid[f1] & valid[f2]
@@ -212,7 +232,26 @@ class VisibilityModel:
         starts = self._vertex_starts
         boxes = np.stack([np.minimum.reduceat(uv[:, 0], starts), np.minimum.reduceat(uv[:, 1], starts),
                           np.maximum.reduceat(uv[:, 0], starts), np.maximum.reduceat(uv[:, 1], starts)], axis=1)
+        boxes[~near] = (np.inf, np.inf, -np.inf, -np.inf)  # never overlaps a window
         return _Triangles(uv, 1.0 / np.where(valid, points[:, 2], 1.0), drawn, boxes)
+
+    def _near_windows(
+        self, camera: CameraModel, z_min_m: float, cam_T_links: np.ndarray, windows: Sequence[tuple[int, int, int, int]]
+    ) -> np.ndarray:
+        """Per label, whether the link may reach into a window: its bounding sphere's centre projected (distortion
+        included), widened by SPHERE_MARGIN times the sphere's pinhole radius in pixels; a sphere that reaches the
+        near plane, or whose centre does not project, is always kept."""
+        centres = np.einsum("lij,lj->li", cam_T_links[:, :3, :3], self._sphere_centres) + cam_T_links[:, :3, 3]
+        depth = centres[:, 2] - self._sphere_radii
+        uv, valid = camera.project(centres, z_min_m)
+        keep = ~valid | (depth <= z_min_m)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            radius_px = SPHERE_MARGIN * self._sphere_radii * max(camera.k[0, 0], camera.k[1, 1], camera.fx_px) / depth
+        for x0, y0, x1, y1 in windows:
+            keep |= valid & (uv[:, 0] + radius_px >= x0 - 1) & (uv[:, 0] - radius_px <= x1) & (uv[:, 1] + radius_px >= y0 - 1) & (
+                uv[:, 1] - radius_px <= y1
+            )
+        return keep
 
     def _render_arm(
         self, arm: _Arm, triangles: _Triangles, window: tuple[int, int, int, int], camera: CameraModel
