@@ -4,6 +4,7 @@ Per frame, every robot is posed by FK of the frame's joint state (a joint the
 state lacks is drawn at zero), its link triangles (engine/robot_geometry.py)
 are projected through the camera model, distortion included, and rasterised
 with a z-buffer on a grid inside each arm's crop window (engine/raster_kernel.py).
+Only links whose bounding sphere may reach a window are posed and projected.
 The gripper is the link the arm's ee frame names and every link under it. Its
 visible fraction is the share of the gripper's own silhouette (the pixels it
 covers whatever lies in front) where the gripper is the nearest surface; the
@@ -12,9 +13,9 @@ or the body (links no single arm owns: a torso, a head, a shared base).
 
 Only the robots are drawn: objects not in the URDF (the manipulated object, a
 person) hide nothing here. A value that could be wrong is not given: a link
-whose geometry did not load, a gripper without geometry, robot geometry
-behind the camera's near plane (a camera inside or against the robot) leave
-the fraction unknown, with the reason as its status.
+whose geometry did not load, a gripper without geometry, robot geometry that
+reaches across the camera's near plane (a camera inside or against the robot)
+leave the fraction unknown, with the reason as its status.
 """
 
 from __future__ import annotations
@@ -283,7 +284,3 @@ class VisibilityModel:
             occluding_link=occluding,
         )
 
-
-def summary_lines(model: VisibilityModel | None) -> Sequence[str]:
-    """What the render draws, one line per robot, for the log at start (nothing when visibility is off)."""
-    return () if model is None else tuple(model.summary)
