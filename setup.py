@@ -42,7 +42,8 @@ setup(
         # backports.zstd: multi-frame zstd chunks, as rosbags reads them (bagio/indexed_mcap.py)
         "bag": ["rosbags>=0.10,<0.12", "mcap>=1.2", "mcap-ros2-support>=0.5", "lz4>=4", "zstandard>=0.22", "zlib-ng>=0.5",
                 "backports.zstd>=1.0; python_version<'3.14'"],
-        "robots": ["example-robot-data>=4.1"],
+        # trimesh reads the URDF meshes the visibility render draws (pycollada: its .dae reader)
+        "robots": ["example-robot-data>=4.1", "trimesh>=4", "pycollada>=0.8"],
         # `roi-node export lerobot`: parquet + video without torch (PyAV's wheels bundle SVT-AV1 and x264)
         "export": ["av>=14", "pyarrow>=15"],
         # `roi-node sign` / `verify`: OpenSSF model-signing; its certificate verifier imports pyOpenSSL, which 1.1 does not declare

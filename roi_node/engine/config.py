@@ -200,6 +200,7 @@ class RigConfig:
     raw: dict[str, Any] = field(repr=False, compare=False)
     # how many cameras the rig file has: a rig narrowed to one of them (`for_camera`) keeps the names of a rig of several
     camera_count: int = 1
+    visibility: bool = False  # `visibility.enabled`: each arm's gripper visibility rendered from the URDF (engine/visibility.py)
 
     @property
     def camera(self) -> CameraConfig:
@@ -399,7 +400,7 @@ def load_rig_config(path: str | os.PathLike[str]) -> RigConfig:
     file = resolve_config_file(path)
     doc = read_yaml(file, "rig config")
     root = _Node(doc, "", file)
-    root.check_keys(("schema", "rig_id", "camera", "cameras", "robots", "arms", "output", "sync"))
+    root.check_keys(("schema", "rig_id", "camera", "cameras", "robots", "arms", "output", "sync", "visibility"))
     schema = root.text("schema")
     if schema != RIG_SCHEMA:
         raise root.fail("schema", f"expected {RIG_SCHEMA!r}, got {schema!r}")
@@ -426,6 +427,7 @@ def load_rig_config(path: str | os.PathLike[str]) -> RigConfig:
         sync=sync,
         raw=dict(doc),
         camera_count=len(cameras),
+        visibility=_load_visibility(root.child("visibility")) if root.has("visibility") else False,
     )
 
 
@@ -622,6 +624,11 @@ def _load_output(node: _Node) -> OutputConfig:
         global_enabled=global_enabled,
         global_size_px=global_size,
     )
+
+
+def _load_visibility(node: _Node) -> bool:
+    node.check_keys(("enabled",))
+    return node.boolean("enabled", False)
 
 
 def load_sync(data: Mapping[str, Any], where: str, file: Path) -> SyncConfig:

@@ -115,6 +115,7 @@ class RobotKinematics:
             except OSError as exc:
                 raise KinematicsError(f"{urdf_path}: cannot read URDF: {exc.strerror or exc}") from exc
         check_urdf_structure(urdf_text, where)
+        self.urdf_text = urdf_text
         self.urdf_sha256 = hashlib.sha256(urdf_text.encode()).hexdigest()
         self._joints = parse_joints(urdf_text, where)
         self._joint_by_child = {j.child: j for j in self._joints.values()}
@@ -149,14 +150,27 @@ class RobotKinematics:
 
     def joints_below(self, joint: str) -> tuple[str, ...]:
         """Movable joints in the subtree that `joint` moves (a wrist joint: the hand and its fingers), URDF order."""
-        subtree = {self._joints[joint].child}
-        frontier = [self._joints[joint].child]
+        subtree = self.links_below(self._joints[joint].child)
+        return tuple(j.name for j in self._joints.values() if j.parent in subtree and j.type in MOVABLE_JOINT_TYPES)
+
+    def links_below(self, frame: str) -> frozenset[str]:
+        """The link `frame` names (a joint: the link it moves) and every link under it."""
+        subtree = {self._joints[frame].child if frame in self._joints else frame}
+        frontier = list(subtree)
         while frontier:
-            link = frontier.pop()
-            for child in self._children.get(link, ()):
+            for child in self._children.get(frontier.pop(), ()):
                 subtree.add(child)
                 frontier.append(child)
-        return tuple(j.name for j in self._joints.values() if j.parent in subtree and j.type in MOVABLE_JOINT_TYPES)
+        return frozenset(subtree)
+
+    def links_to_root(self, frame: str) -> tuple[str, ...]:
+        """The link `frame` names and its ancestors up to the URDF root."""
+        link = self._joints[frame].child if frame in self._joints else frame
+        path = [link]
+        while link in self._joint_by_child and self._joint_by_child[link].parent not in path:
+            link = self._joint_by_child[link].parent
+            path.append(link)
+        return tuple(path)
 
     def joint_names(self) -> tuple[str, ...]:
         """Movable joints (mimic joints included), in URDF order."""
@@ -178,6 +192,10 @@ class RobotKinematics:
 
     def fk(self, positions: Mapping[str, float], frames: Sequence[str]) -> list[Transform]:
         """Poses `base_T_frame` of `frames` for joint `positions` (radians / metres by name)."""
+        return [Transform.from_matrix(m) for m in self.fk_matrices(positions, frames)]
+
+    def fk_matrices(self, positions: Mapping[str, float], frames: Sequence[str]) -> np.ndarray:
+        """`fk` as one N x 4 x 4 array (the visibility render poses every link each frame)."""
         robot = self._robot
         for name, value in positions.items():
             robot.set_joint(name, float(value))
@@ -185,7 +203,7 @@ class RobotKinematics:
             if joint.mimic_of is not None and joint.mimic_of in positions and joint.name in self.movable_joints:
                 robot.set_joint(joint.name, joint.mimic_multiplier * float(positions[joint.mimic_of]) + joint.mimic_offset)
         robot.update_kinematics()
-        return [Transform.from_matrix(np.asarray(robot.get_T_world_frame(f))) for f in frames]
+        return np.array([robot.get_T_world_frame(f) for f in frames], dtype=np.float64).reshape(-1, 4, 4)
 
 
 def _load_placo(urdf_text: str, where: str) -> placo.RobotWrapper:

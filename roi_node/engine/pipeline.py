@@ -41,7 +41,7 @@ from roi_node.engine.metadata import (
     rnd,
     rnd_list,
 )
-from roi_node.engine.quality import confidence, in_frame_ratio, padding_ratio
+from roi_node.engine.quality import confidence, in_frame_ratio, padding_ratio, seen_confidence
 from roi_node.engine.records import ArmFlag, ArmRecord, BaseRecord, FrameRecord, PoseRecord, SyncRecord, TeleopRecord
 from roi_node.engine.resample import crop_resize, place_in_output
 from roi_node.engine.roi_policy import roi_geometry
@@ -49,6 +49,7 @@ from roi_node.engine.short_repr import short_repr
 from roi_node.engine.stamps import MAX_STAMP_NS
 from roi_node.engine.sync import SyncPolicy, SyncResult, SyncStatus
 from roi_node.engine.transforms import Transform
+from roi_node.engine.visibility import VisibilityModel
 
 JOINT_DECIMALS = 9
 SYNC_FLAGS = {
@@ -158,6 +159,7 @@ class RoiPipeline:
         # a fixed camera and fixed bases: the camera's view of every base is one transform, found once
         self.cam_T_world = None if self._mount is not None else camera_config.world_T_cam.inverse()
         self._arms = tuple(self._arm_model(arm, kinematics[arm.robot]) for arm in rig.arms)
+        self.visibility = VisibilityModel(rig, kinematics) if rig.visibility else None
         mount_joints = () if self._mount is None else tuple(self._mount.prefix + j for j in self._mount.chain)
         self.required_joints: tuple[str, ...] = unique_in_order(
             [*(arm.prefix + j for arm in self._arms for j in arm.chain), *mount_joints]
@@ -319,6 +321,8 @@ class RoiPipeline:
         thread = self._global_view_thread if output.global_enabled else None
         pending_global = thread.submit(*place_global) if thread is not None else None
         rois = tuple(self._process_arm(arm, camera, image, sync, flagged_joints, poses) for arm in self._arms)
+        if self.visibility is not None:
+            rois = self._with_visibility(self.visibility, rois, camera, sync, poses)
         global_view = None
         if output.global_enabled:
             global_view = (pending_global.result() if pending_global is not None else place_in_output(*place_global[1:])).image
@@ -341,6 +345,33 @@ class RoiPipeline:
             bases=tuple(_base_record(b) for b in bases),
         )
         return FrameResult(int(stamp_ns), int(frame_index), rois, global_view, record, record.to_json())
+
+    def _with_visibility(
+        self, model: VisibilityModel, rois: tuple[ArmRoi, ...], camera: CameraModel, sync: SyncResult, poses: _FramePoses | None
+    ) -> tuple[ArmRoi, ...]:
+        """The ROIs with each gripper's visibility in their records, and their confidence lowered by a hidden gripper."""
+        if poses is None:
+            assert self.cam_T_world is not None
+            cam_T_bases: dict[str, Transform | None] = {r.id: self.cam_T_world @ r.world_T_base for r in self.rig.robots}
+        else:
+            cam_T_world = poses.cam_T_world
+            cam_T_bases = {
+                r.id: None if cam_T_world is None or r.id not in poses.world_T_base else cam_T_world @ poses.world_T_base[r.id]
+                for r in self.rig.robots
+            }
+        windows = {roi.arm_id: roi.record.crop_box if roi.record.projection_valid else None for roi in rois}
+        seen = model.measure(camera, self.rig.camera.z_min_m, cam_T_bases, sync.positions, windows)
+        return tuple(
+            dataclasses.replace(
+                roi,
+                record=dataclasses.replace(
+                    roi.record,
+                    visibility=seen[roi.arm_id],
+                    confidence=rnd(seen_confidence(roi.record.confidence, seen[roi.arm_id].visible_fraction), RATIO_DECIMALS) or 0.0,
+                ),
+            )
+            for roi in rois
+        )
 
     def _within_limits(self, sync: SyncResult) -> tuple[SyncResult, frozenset[str]]:
         """`sync` without its positions beyond their URDF limits, and their names; every position read must be a

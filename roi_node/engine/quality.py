@@ -3,11 +3,15 @@
 confidence = projection_valid * in_frame_ratio * sync_factor, with
 sync_factor = 1 / (1 + (residual_ms / max_skew_ms)^2): 1 for a perfectly
 synchronised frame, 0.5 at the configured skew limit, falling off beyond it;
-0 when no joint state was available. Low confidence never drops or replaces
+0 when no joint state was available. With `visibility.enabled` it is further
+multiplied by the gripper's visible fraction (a hidden gripper is not a
+confident ROI); an unknown fraction leaves it as it is. Low confidence never drops or replaces
 an ROI (the method keeps every frame); it is metadata for monitoring.
 """
 
 from __future__ import annotations
+
+HIDDEN_BELOW = 0.5  # a gripper less visible than this is hidden: validate counts such frames, the overlay marks them
 
 
 def in_frame_ratio(inside_px: int, window_area_px: int) -> float:
@@ -30,3 +34,8 @@ def confidence(projection_valid: bool, in_frame: float, residual_ms: float | Non
     if not projection_valid:
         return 0.0
     return in_frame * sync_factor(residual_ms, max_skew_ms)
+
+
+def seen_confidence(confidence_value: float, visible_fraction: float | None) -> float:
+    """The confidence of an arm whose gripper is this visible (None: unknown, unchanged)."""
+    return confidence_value if visible_fraction is None else confidence_value * visible_fraction

@@ -64,6 +64,48 @@ class PoseRecord:
         return cls(tuple(doc["xyz"]), tuple(doc["quat_xyzw"]))
 
 
+class VisibilityStatus(StrEnum):
+    """Whether an arm's gripper visibility was measured, and why not."""
+
+    MEASURED = "measured"
+    NOT_IN_WINDOW = "gripper_not_in_window"  # no gripper pixel inside the crop window (or the image)
+    NO_PROJECTION = "no_projection"  # the arm has no ROI this frame (see its flags)
+    NO_GRIPPER_GEOMETRY = "no_gripper_geometry"  # no link under the ee frame has geometry
+    MESH_NOT_LOADED = "mesh_not_loaded"  # a link's geometry loaded in neither its visual nor its collision form
+    CAMERA_INSIDE_ROBOT = "camera_inside_robot"  # robot geometry reaches behind the camera's near plane
+    NO_POSE = "no_pose"  # a robot's joints or base pose are missing, so it cannot be drawn
+
+
+OCCLUDER_GROUPS = ("own_arm", "other_arm", "body")
+
+
+@dataclass(frozen=True)
+class VisibilityRecord:
+    """How much of an arm's gripper the camera sees inside its crop window (config: `visibility.enabled`)."""
+
+    status: str  # VisibilityStatus
+    visible_fraction: float | None = None  # visible gripper pixels / gripper pixels with nothing in front
+    gripper_area_px: int | None = None  # gripper pixels with nothing in front, inside the window
+    occluded_by: tuple[float, float, float] | None = None  # shares of the gripper hidden by OCCLUDER_GROUPS
+    occluding_link: str | None = None  # the link that hides the most of it (`<robot id>/<link>`)
+
+    def as_dict(self) -> dict[str, Any]:
+        shares = None if self.occluded_by is None else dict(zip(OCCLUDER_GROUPS, self.occluded_by, strict=True))
+        return {
+            "status": self.status,
+            "visible_fraction": self.visible_fraction,
+            "gripper_area_px": self.gripper_area_px,
+            "occluded_by": shares,
+            "occluding_link": self.occluding_link,
+        }
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> VisibilityRecord:
+        shares = doc["occluded_by"]
+        occluded = None if shares is None else tuple(shares[g] for g in OCCLUDER_GROUPS)
+        return cls(doc["status"], doc["visible_fraction"], doc["gripper_area_px"], occluded, doc["occluding_link"])
+
+
 @dataclass(frozen=True)
 class ArmRecord:
     """One arm's ROI on one frame; pixel values in original-image pixels, lengths in metres."""
@@ -87,9 +129,10 @@ class ArmRecord:
     roi_to_image: tuple[float, ...] | None  # 2x3 row-major: output pixel -> original-image pixel
     flags: tuple[str, ...]
     gripper_joints: tuple[str, ...]  # JointState names of this arm's gripper (keys of joint_positions)
+    visibility: VisibilityRecord | None = None  # only when the rig enables it, so other rigs' records keep their bytes
 
     def as_dict(self) -> dict[str, Any]:
-        return {
+        doc = {
             "arm_id": self.arm_id,
             "projected_center": _list(self.projected_center),
             "offset_center": _list(self.offset_center),
@@ -110,6 +153,9 @@ class ArmRecord:
             "flags": list(self.flags),
             "gripper_joints": list(self.gripper_joints),
         }
+        if self.visibility is not None:
+            doc["visibility"] = self.visibility.as_dict()
+        return doc
 
     @classmethod
     def from_dict(cls, doc: dict[str, Any]) -> ArmRecord:
@@ -134,6 +180,7 @@ class ArmRecord:
             roi_to_image=_tuple(doc["roi_to_image"]),
             flags=tuple(doc["flags"]),
             gripper_joints=tuple(doc["gripper_joints"]),
+            visibility=VisibilityRecord.from_dict(doc["visibility"]) if "visibility" in doc else None,
         )
 
 

@@ -244,6 +244,9 @@ class StreamNode(Node):
             f"inputs {', '.join(inputs)}; outputs {outputs}; sync {self.rig.sync.policy} "
             f"max_skew {self.rig.sync.max_skew_ms:g} ms max_wait {self.rig.sync.max_wait_ms:g} ms"
         )
+        pipeline = self.streams[0].engine.pipeline if self.streams else None
+        for line in () if pipeline is None or pipeline.visibility is None else pipeline.visibility.summary:
+            self.get_logger().info(line)
 
     @staticmethod
     def _lineage_note(stream: CameraStream) -> str:

@@ -195,6 +195,9 @@ class _CameraReplay:
         self.engine = StreamEngine(rig.for_camera(self.camera_id), intrinsics_from_stream=self.from_bag,
                                    max_pending=camera.frame_count + 1)
         self.stats = self.engine.stats  # read for the summary; the engine keeps every count
+        visibility = None if self.engine.pipeline is None else self.engine.pipeline.visibility
+        if visibility is not None and replay.progress.enabled and camera is replay.selection.cameras[0]:
+            print("\n".join(visibility.summary), file=replay.progress.stream)  # one line per robot, as the node logs them
         self.out_camera = topics.output_camera(rig, self.camera_id)
         self.frame_where = f"{replay.source}: {camera.image_topic}"
         self._stream_checked = False

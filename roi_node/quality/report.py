@@ -38,6 +38,7 @@ FIGURE_TITLES = {
     "timeseries": "In-frame ratio, padding ratio and confidence over time",
     "jitter": "Centre step per frame vs motion-aware jitter",
     "sync": "Sync residual",
+    "visibility": "Gripper visible fraction over time and its distribution (rigs with visibility enabled)",
 }
 RESULT_MARK = {"pass": "✅ pass", "fail": "❌ FAIL", "no_data": "– no data"}
 
@@ -118,6 +119,8 @@ def write_bag_figures(scan: BagScan, validation: BagValidation, gates: GateSet, 
     images["timeseries"] = figures.timeseries(series, marks)
     images["jitter"] = figures.jitter(series, marks)
     images["sync"] = figures.sync(series, marks)
+    if any(arm.visible is not None and np.isfinite(arm.visible).any() for arm in series.arms.values()):
+        images["visibility"] = figures.visibility(series, marks)
     out = {}
     for name, rgb in images.items():
         path = folder / f"{name}.png"

@@ -21,6 +21,7 @@ import numpy as np
 
 from roi_node.bagio.bag_status import BagStatus
 from roi_node.engine.metadata import Lineage
+from roi_node.engine.quality import HIDDEN_BELOW
 from roi_node.engine.records import ArmRecord, FrameRecord
 from roi_node.engine.sync import STATUS_ORDER
 
@@ -36,6 +37,7 @@ ARM_DISTRIBUTIONS = (
     "center_jitter_px",  # displacement from the time-weighted midpoint of its neighbours: jitter only
     "scale_step",  # relative frame-to-frame change of the window side
     "scale_jitter",  # relative deviation of the side from its neighbours' midpoint
+    "visible_fraction",  # the gripper's visible share (rigs with visibility enabled; unknown values left out)
 )
 ARM_SCALARS = (
     "present_frames",
@@ -48,6 +50,9 @@ ARM_SCALARS = (
     "flagged_frames",
     "flagged_ratio",
     "absent_frames",
+    "visibility_measured_frames",  # frames whose gripper visibility is known
+    "hidden_frames",  # ... of which the gripper is less than HIDDEN_BELOW visible
+    "hidden_ratio",  # hidden_frames / visibility_measured_frames
 )
 BAG_DISTRIBUTIONS = ("sync_residual_ms", "latency_ms", "control_hz", "command_residual")
 BAG_SCALARS = (
@@ -145,6 +150,7 @@ class _ArmColumns:
     def __init__(self, rows_before: int) -> None:
         self.u, self.v, self.cu, self.cv = (array("d", [NAN]) * rows_before for _ in range(4))
         self.scale, self.in_frame, self.padding, self.confidence = (array("d", [NAN]) * rows_before for _ in range(4))
+        self.visible = array("d", [NAN]) * rows_before
         self.flagged = 0
         self.absent = rows_before
         self.flags: Counter[str] = Counter()
@@ -161,6 +167,8 @@ class _ArmColumns:
         self.in_frame.append(arm.in_frame_ratio)
         self.padding.append(arm.padding_ratio)
         self.confidence.append(arm.confidence)
+        seen = None if arm.visibility is None else arm.visibility.visible_fraction
+        self.visible.append(NAN if seen is None else seen)
         flags = arm.flags
         if flags:
             self.flagged += 1
@@ -168,7 +176,7 @@ class _ArmColumns:
         self.interpolation[arm.interpolation] += 1
 
     def add_absent(self) -> None:
-        for column in (self.u, self.v, self.cu, self.cv, self.scale, self.in_frame, self.padding, self.confidence):
+        for column in (self.u, self.v, self.cu, self.cv, self.scale, self.in_frame, self.padding, self.confidence, self.visible):
             column.append(NAN)
         self.absent += 1
 
@@ -183,6 +191,7 @@ class ArmSeries:
     in_frame: np.ndarray
     padding: np.ndarray
     confidence: np.ndarray
+    visible: np.ndarray | None = None  # the gripper's visible fraction (NaN: unknown); set for a bag's own series
 
     @property
     def present(self) -> np.ndarray:
@@ -312,6 +321,7 @@ class BagStats:
                 in_frame=f(c.in_frame),
                 padding=f(c.padding),
                 confidence=f(c.confidence),
+                visible=f(c.visible),
             )
             for arm_id, c in self._arms.items()
         }
@@ -334,6 +344,9 @@ class BagStats:
         scale_steps = steps(scale, consecutive) / scale[1:][consecutive]
         blank = present & (arm.in_frame == 0.0)
         n_present = int(present.sum())
+        visible = arm.visible if arm.visible is not None else np.zeros(0)
+        measured = int(np.isfinite(visible).sum())
+        hidden = int((visible < HIDDEN_BELOW).sum())  # NaN compares False
         metrics: dict[str, Metric] = {
             "present_frames": n_present,
             "valid_frames": int(valid.sum()),
@@ -345,6 +358,9 @@ class BagStats:
             "flagged_frames": columns.flagged,
             "flagged_ratio": columns.flagged / n_present if n_present else None,
             "absent_frames": columns.absent,
+            "visibility_measured_frames": measured,
+            "hidden_frames": hidden,
+            "hidden_ratio": hidden / measured if measured else None,
         }
         for name, values in (
             ("in_frame_ratio", arm.in_frame),
@@ -355,6 +371,7 @@ class BagStats:
             ("center_jitter_px", midpoint_residuals(arm.center, t, consecutive)),
             ("scale_step", scale_steps),
             ("scale_jitter", midpoint_residuals(scale, t, consecutive, relative=True)),
+            ("visible_fraction", visible),
         ):
             metrics.update(_flatten(name, distribution(values)))
         return metrics

@@ -33,6 +33,7 @@ def resolved_rig(rig: RigConfig) -> dict[str, Any]:
             "global_view": {"enabled": rig.output.global_enabled, "size": list(rig.output.global_size_px)},
         },
         "sync": {"policy": rig.sync.policy, "max_skew_ms": rig.sync.max_skew_ms, "max_wait_ms": rig.sync.max_wait_ms},
+        "visibility": {"enabled": rig.visibility},
     }
 
 

@@ -47,6 +47,7 @@ from roi_node.rostools.sim_clock import Clock, SystemClock
 from roi_node.rostools.sim_frames import CapturedFrames, FramesOnTheFly, FrameSource, PrerenderedFrames
 from roi_node.sim.command_follow import CommandIssue
 from roi_node.sim.limits import DEFAULT_MAX_JOINT_SPEED_RAD_S
+from roi_node.sim.mesh_painter import Drawing
 from roi_node.sim.render_budget import DEFAULT_RENDER_BUDGET_MIB, RenderMode, plan_render
 from roi_node.sim.rig_sim import FrameSlot, JointStateEvent, SimRig
 from roi_node.util.progress import Progress
@@ -275,6 +276,7 @@ def run_live(
     late_frames: LateFrames = LateFrames.DROP,
     follow_commands: str | None = None,
     max_joint_speed_rad_s: float = DEFAULT_MAX_JOINT_SPEED_RAD_S,
+    drawing: Drawing = Drawing.CAPSULES,
 ) -> int:
     """`follow_commands`: a JointState topic whose position commands the rig follows (sim/command_follow.py)."""
     from roi_node.live.spin import ros_context
@@ -291,7 +293,8 @@ def run_live(
                           "from a topic write a bag (sim --bag OUT) and publish it with roi-node play")
     # built before the clock starts (the scene render takes a while); stamps are offsets from the timeline's zero
     print(f"sim: building the simulated rig of {config} (robots, static scene, choreography)", file=sys.stderr, flush=True)
-    sim = SimRig(rig_config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms)
+    sim = SimRig(rig_config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms,
+                 drawing=drawing)
     follower = None
     if follow_commands is not None:
         follower = sim.follow_commands(max_joint_speed_rad_s, lambda issue, name: _report_first(follow_commands, issue, name))

@@ -20,6 +20,7 @@ from roi_node.bagio.writer import BagWriter
 from roi_node.engine.config import RigConfig
 from roi_node.engine.errors import ConfigError
 from roi_node.sim.look import Look
+from roi_node.sim.mesh_painter import Drawing
 from roi_node.sim.rig_sim import BasePoseEvent, CameraInfoEvent, ImageEvent, JointStateEvent, SimRig
 from roi_node.sim.truth import Visibility
 from roi_node.util.progress import Progress
@@ -61,6 +62,7 @@ def write_sim_bag(
     look: Look | None = None,
     progress: bool = False,
     sharing_policy: bytes | None = None,
+    drawing: Drawing = Drawing.CAPSULES,
 ) -> SimBagSummary:
     """Simulate `duration_s` seconds of the rig into an MCAP bag at `out_path` (a bag directory).
 
@@ -74,7 +76,8 @@ def write_sim_bag(
     # refuses an existing output before the slow setup
     bag = BagWriter(Path(out_path), overwrite=overwrite, compression=chunk_compression, sharing_policy=sharing_policy)
     sim = SimRig(
-        rig_config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms, start_ns=start_ns, look=look
+        rig_config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms, start_ns=start_ns, look=look,
+        drawing=drawing,
     )
     return _drain(sim, bag, duration_s, fmt, Progress(f"sim {bag.path.name}", sim.frame_count(duration_s), progress))
 

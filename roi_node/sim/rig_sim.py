@@ -21,6 +21,7 @@ random state, the same events on every run.
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import math
 from collections.abc import Callable, Iterator
@@ -42,6 +43,7 @@ from roi_node.sim.choreography import script_rig
 from roi_node.sim.command_follow import CommandFollower, CommandIssue
 from roi_node.sim.layout import plan_layout
 from roi_node.sim.look import Look
+from roi_node.sim.mesh_painter import Drawing, MeshPainter
 from roi_node.sim.painter import RigPainter
 from roi_node.sim.scene import StaticScene, render_static_scene
 from roi_node.sim.sim_cameras import BASE_PHASE_NS, BASE_RATE_HZ, BaseMotion, SimCamera, base_motions, script_mounts, sim_cameras
@@ -138,9 +140,12 @@ class SimRig:
         start_ns: int = 0,
         intrinsics: CameraModel | None = None,
         look: Look | None = None,
+        drawing: Drawing = Drawing.CAPSULES,
     ) -> None:
         """`camera_delay_ms=None` uses the rig's `delay_ms`, so the pipeline's capture time is right; `camera_delay_ms` and
-        `intrinsics` apply to the first camera.
+        `intrinsics` apply to the first camera. `drawing`: the robots as capsule chains (the default, which simulated
+        bags were recorded with) or from their URDF meshes (sim/mesh_painter.py; each frame's link masks in
+        `FrameTruth.meshes`; a rig of one camera fixed in world and fixed bases).
 
         Every stamp is `start_ns` + an offset; `start_ns` may be reassigned
         before streaming (a live publisher sets it to the wall clock).
@@ -194,6 +199,12 @@ class SimRig:
         self.painter = RigPainter(self.scene, max(reference_depth, self.view.z_near_m))
         self.painters = (self.painter, *(self._painter(c, home, world_T_bases0, bases, texture_seed) for c in self.cameras[1:]))
         self.follower: CommandFollower | None = None  # set by `follow_commands`: the state then follows commands
+        if drawing is Drawing.MESHES and (len(self.cameras) > 1 or self.cameras[0].mount is not None or self.bases):
+            raise ConfigError(f"sim: {self.rig.source}: --draw meshes draws a rig of one camera fixed in world and fixed bases")
+        self.mesh_painter = MeshPainter(self.rig, self.camera) if drawing is Drawing.MESHES else None
+        if self.mesh_painter is not None and self.mesh_painter.model.unloaded:
+            unloaded = [line for line in self.mesh_painter.model.summary if "UNKNOWN" in line]
+            raise ConfigError(f"sim: {self.rig.source}: cannot draw the meshes: {unloaded[0]}")
 
     def _painter(self, camera: SimCamera, home: dict[str, float], world_T_bases: dict[str, Transform],
                  bases: list[Float64Array], texture_seed: int) -> RigPainter:
@@ -283,6 +294,8 @@ class SimRig:
     def render(self, capture_ns: int, frame_index: int = 0, camera_index: int = 0) -> tuple[np.ndarray, FrameTruth]:
         """A camera's frame captured at capture_ns and its truth; with a Look, blurred over the exposure, lit and noisy."""
         truth, projected = self._project(capture_ns, camera_index)
+        if self.mesh_painter is not None:
+            return self._paint_meshes(capture_ns, frame_index, truth)
         painter = self.painters[camera_index]
         if self.look.default:
             return painter.paint(projected), truth
@@ -295,6 +308,22 @@ class SimRig:
             frame /= len(offsets)
         else:
             frame = painter.paint(projected)
+        return self.look.finish(frame, frame_index, (capture_ns - self.start_ns) / NS_PER_S, self.seed), truth
+
+    def _paint_meshes(self, capture_ns: int, frame_index: int, truth: FrameTruth) -> tuple[np.ndarray, FrameTruth]:
+        """The robots drawn from their meshes over the static scene (a Look's light and noise, no motion blur)."""
+        assert self.mesh_painter is not None
+        positions = dict(zip(self.state_joints, (float(v) for v in self._scripted_state(capture_ns)), strict=True))
+        if self.follower is not None:
+            positions = dict(zip(self.state_joints, (float(v) for v in self.follower.positions(capture_ns)), strict=True))
+        drawn = self.mesh_painter.draw(positions)
+        if drawn is None:
+            raise ConfigError(f"sim: {self.rig.source}: the robots cannot be drawn from their meshes ("
+                              f"{'; '.join(self.mesh_painter.model.summary)}); draw capsules instead")
+        frame = drawn.paint(self.scene.background)
+        truth = dataclasses.replace(truth, meshes=drawn)
+        if self.look.default:
+            return frame, truth
         return self.look.finish(frame, frame_index, (capture_ns - self.start_ns) / NS_PER_S, self.seed), truth
 
     def camera_view(self, capture_ns: int, camera_index: int = 0) -> CameraView:

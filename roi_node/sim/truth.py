@@ -16,6 +16,7 @@ import numpy as np
 
 from roi_node.engine.transforms import Float64Array
 from roi_node.sim.capsules import GRIPPER_PARTS, CameraView, ProjectedCapsule
+from roi_node.sim.mesh_painter import MeshFrame
 
 _DIRECTIONS = 8
 # A disc's circumscribed octagon: the hull contains every drawn pixel of the round caps.
@@ -53,6 +54,7 @@ class FrameTruth:
     capture_ns: int
     positions: dict[str, float]
     grippers: tuple[GripperTruth, ...]
+    meshes: MeshFrame | None = None  # the robots drawn from their meshes: each link's mask (SimRig drawing=meshes)
 
     def gripper(self, arm_id: str) -> GripperTruth:
         return next(g for g in self.grippers if g.arm_id == arm_id)

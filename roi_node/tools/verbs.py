@@ -32,6 +32,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 def _cmd_sim(args: argparse.Namespace) -> int:
     from roi_node.engine.resources import default_rig_path, resolve_config_file
+    from roi_node.sim.mesh_painter import Drawing
 
     config = resolve_config_file(args.config) if args.config else default_rig_path()
     if args.bag:
@@ -48,7 +49,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
             config, Path(args.bag), duration_s=args.duration, rate_hz=args.rate_hz, joint_rate_hz=args.joint_rate_hz,
             seed=args.seed, overwrite=args.overwrite, compressed=args.compressed or False, chunk_compression=args.compression,
             camera_delay_ms=args.camera_delay_ms, progress=True,
-            sharing_policy=None if args.sharing is None else checked_policy_bytes(Path(args.sharing)),
+            sharing_policy=None if args.sharing is None else checked_policy_bytes(Path(args.sharing)), drawing=Drawing(args.draw),
         )
         print(f"roi-node sim: wrote {summary.path}: {summary.frames} frames on {', '.join(summary.image_topics)}, "
               f"{summary.joint_states} joint states")
@@ -66,7 +67,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     return run_live(config, duration_s=args.duration, rate_hz=args.rate_hz, joint_rate_hz=args.joint_rate_hz, seed=args.seed,
                     min_subscribers=args.min_subscribers, ros_args=args.ros_args, camera_delay_ms=args.camera_delay_ms,
                     render_budget_mib=budget, late_frames=LateFrames(args.late_frames), follow_commands=args.follow_commands,
-                    max_joint_speed_rad_s=args.max_joint_speed_rad_s)
+                    max_joint_speed_rad_s=args.max_joint_speed_rad_s, drawing=Drawing(args.draw))
 
 
 def _cmd_stress(args: argparse.Namespace) -> int:
@@ -94,6 +95,9 @@ def _cmd_stress(args: argparse.Namespace) -> int:
         print(f"{sweep['name']}: {where}; trips {', '.join(t['trips'] for t in sweep['taxonomy']) or 'nothing'}")
     print(f"wrote {out / 'stress.json'} and {len(figures)} figures in {result['elapsed_s']:g} s")
     return 0
+
+
+SIM_DRAWINGS = ("capsules", "meshes")  # sim/mesh_painter.py's Drawing, named here so the CLI starts without numba
 
 
 def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -139,6 +143,9 @@ def register(verbs: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
                      default=DEFAULT_MAX_JOINT_SPEED_RAD_S, metavar="RAD_S",
                      help=f"--follow-commands: per-joint speed limit, rad/s (m/s for prismatic fingers) "
                      f"(default: {DEFAULT_MAX_JOINT_SPEED_RAD_S:g})")
+    sim.add_argument("--draw", choices=SIM_DRAWINGS, default=SIM_DRAWINGS[0],
+                     help="the robots as capsule chains (the default) or from their URDF meshes, as the visibility "
+                     "render draws them (docs/metadata.md, visibility)")
     sim.set_defaults(func=_cmd_sim)
 
     demo = verbs.add_parser(

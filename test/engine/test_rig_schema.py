@@ -58,6 +58,7 @@ def _bases() -> dict[str, dict[str, Any]]:
     several["cameras"] = [several.pop("camera"), head]
     several["robots"][0]["base_in_world"] = {"topic": "odom", "type": "tf", "max_skew_ms": 30, "parent_frame": "map",
                                              "child_frame": "left_base"}
+    several["visibility"] = {"enabled": True}
     return {"bimanual": bimanual, "fixed_offset_m": other, "several_cameras": several}
 
 

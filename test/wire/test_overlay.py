@@ -132,3 +132,34 @@ def test_the_sample_foxglove_layout_shows_topics_the_node_publishes_for_the_bund
     shown = {c["imageMode"]["imageTopic"] for k, c in layout["configById"].items() if k.startswith("Image!") and k != "Image!camera"}
     assert shown == {"/roi/left/image_raw", "/roi/right/image_raw", "/roi/global/image_raw"} and shown <= published
     assert layout["configById"]["RawMessages!metadata"]["topicPath"].split(".")[0] in published
+
+
+def test_the_visibility_bar_is_as_long_as_the_visible_share_and_a_hidden_gripper_has_its_colour(tmp_path: Path) -> None:
+    """The bimanual rig with visibility on, over random poses: every measured arm draws its bar; the arms whose gripper
+    is less than half visible are coloured `hidden`, the others not."""
+    import yaml
+
+    from roi_node.engine.quality import HIDDEN_BELOW
+    from test.support.rigs import ok_sync, write_rig
+
+    doc = yaml.safe_load((CONFIG / "rig_demo_bimanual.yaml").read_text())
+    doc["visibility"] = {"enabled": True}
+    rendered = RoiPipeline(load_rig_config(write_rig(tmp_path, doc)))
+    image = np.zeros((rendered.camera.height_px, rendered.camera.width_px, 3), np.uint8)
+    rng = np.random.default_rng(7)
+    statuses = set()
+    for _ in range(6):
+        positions = {n: float(rng.uniform(*rendered.joint_limits[n])) for n in rendered.state_joints if n in rendered.joint_limits}
+        record = rendered.process(image, STAMP_NS, 0, ok_sync(positions)).record
+        by_colour = segments_by_colour(deserialize_message(overlay_cdr(record, FRAME_ID), ImageMarker))
+        for arm in record.arms:
+            fraction = None if arm.visibility is None else arm.visibility.visible_fraction
+            if not arm.projection_valid or fraction is None or arm.flags:
+                continue
+            hidden = fraction < HIDDEN_BELOW
+            statuses.add(hidden)
+            colour = rgba32(OverlayStatus.HIDDEN if hidden else OverlayStatus.OK)
+            x0, _, x1, y1 = (float(v) for v in arm.crop_box)
+            bars = [s for s in by_colour[colour] if s[0] == (x0, y1 - 4.0) and s[1][1] == y1 - 4.0]
+            assert fraction == 0.0 or bars[0][1][0] == pytest.approx(x0 + fraction * (x1 - x0), abs=1e-3)
+    assert statuses == {True, False}

@@ -4,6 +4,7 @@ trajectory: where did each ROI centre go over the image (and outside it)?
 timeseries: when was each arm out of frame, padded, or of low confidence?
 jitter: how much does the ROI shake once real motion is taken out?
 sync: how far were frames from their joint samples?
+visibility: how much of each gripper did the camera see, over time and overall (rigs with visibility enabled)?
 """
 
 from __future__ import annotations
@@ -152,6 +153,23 @@ def sync(series: BagSeries, thresholds: Mapping[str, Sequence[Threshold]]) -> np
         img, _box(0, 30, PANEL_W + 100, PANEL_H), {"residual": series.residual_ms}, "sync residual", "ms",
         _gate_lines(thresholds, "sync_residual_ms"),
     )
+    return img
+
+
+def visibility(series: BagSeries, thresholds: Mapping[str, Sequence[Threshold]]) -> np.ndarray:
+    """Each gripper's visible fraction over time (gaps where unknown) beside its distribution, per arm."""
+    t = series.time_s()
+    data = {arm_id: arm.visible for arm_id, arm in series.arms.items() if arm.visible is not None}
+    img = canvas(2 * PANEL_W, PANEL_H + 30)
+    t_range = (float(t.min()), float(t.max())) if len(t) else (0.0, 1.0)
+    ax = Axes(img, _box(0, 30, PANEL_W, PANEL_H), t_range, (-0.02, 1.02), title="gripper visible fraction", x_label="time (s)")
+    for i, values in enumerate(data.values()):
+        ax.line(t, values, _colour(i), 2)
+    marks = _gate_lines(thresholds, "visible_fraction")
+    for label, value in marks:
+        ax.hline(value, (200, 0, 0), label)
+    _histogram(img, _box(PANEL_W, 30, PANEL_W, PANEL_H), data, "visible fraction", "visible share of the gripper", marks)
+    legend(img, [(arm_id, _colour(i)) for i, arm_id in enumerate(series.arms)], (MARGIN[0], 20))
     return img
 
 
