@@ -193,10 +193,14 @@ def test_the_parameter_table_is_the_nodes_parameters_with_their_defaults() -> No
 def test_the_metadata_tables_are_the_schemas_keys() -> None:
     schema = json.loads(_text(CONFIG / "metadata.schema.json"))
     frame_keys = {_code_name(row[0]) for row in _table_rows(DOCS / "metadata.md", "key") if row}
-    arm_table = _text(DOCS / "metadata.md").split("## Arm keys")[1]
+    doc = _text(DOCS / "metadata.md")
+    arm_table = doc.split("## Arm keys")[1].split("\n## ")[0]
     arm_keys = set(re.findall(r"^\| `([a-z_]+)` \|", arm_table, re.M))
     assert frame_keys == set(schema["properties"])
     assert arm_keys == set(schema["$defs"]["arm"]["properties"])
+    visibility_table = doc.split("## Visibility")[1].split("\n## ")[0]
+    visibility_keys = set(re.findall(r"^\| `([a-z_]+)` \|", visibility_table, re.M))
+    assert visibility_keys == set(schema["$defs"]["arm"]["properties"]["visibility"]["properties"])
     interpolation = next(line for line in arm_table.splitlines() if line.startswith("| `interpolation` |"))
     for choice in schema["$defs"]["arm"]["properties"]["interpolation"]["enum"]:
         assert f"`{choice}`" in interpolation, choice

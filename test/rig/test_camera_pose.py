@@ -283,7 +283,8 @@ def test_write_keeps_the_old_rig_when_the_new_one_would_not_load(
     assert "wrote" not in out
     assert code == 2
     assert err == (f"roi-node camera-pose: error: {rig}: camera.extrinsics: the updated rig would not load ({rig}: rig_idd: "
-                   "unknown key; expected one of schema, rig_id, camera, cameras, robots, arms, output, sync); left unchanged\n")
+                   "unknown key; expected one of schema, rig_id, camera, cameras, robots, arms, output, sync, visibility); "
+                   "left unchanged\n")
     assert rig.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["front_intrinsics.yaml", "rig.yaml"]
 
