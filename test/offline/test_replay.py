@@ -597,7 +597,9 @@ def test_a_ctrl_c_at_the_worst_moment_of_waiting_for_the_workers_stops_the_batch
     locks that waiting on the futures takes) is a KeyboardInterrupt nowhere: as a KeyboardInterrupt it left the lock
     held, the pool's thread waited on it forever, and replay never exited (once in a fresh-clone run)."""
     rig = small_rig(tmp_path)
-    first = write_bag(tmp_path / "a", RoiPipeline(load_rig_config(rig)), frames=30).path
+    # long enough bags that the two workers cannot finish the first two and take the third while this process, which
+    # waits on the futures right after submitting them, is descheduled (a busy core once let 30-frame bags all finish)
+    first = write_bag(tmp_path / "a", RoiPipeline(load_rig_config(rig)), frames=600).path
     sources = [first, *(Path(shutil.copytree(first, tmp_path / name)) for name in ("b", "c"))]
     run = subprocess.run([sys.executable, "-c", WORST_MOMENT_CTRL_C, *map(str, sources), str(tmp_path / "out"), str(rig)],
                          cwd=REPO, capture_output=True, text=True, timeout=120)
