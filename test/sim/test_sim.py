@@ -28,6 +28,8 @@ from roi_node.sim.scene import Sprite, StaticScene
 from roi_node.sim.surfaces import pixel_rays
 from roi_node.sim.truth import Visibility
 from roi_node.wire.image_codec import image_from_compressed, image_from_msg
+from test.conftest import CONFIG
+from test.support.rigs import scaled_rig
 from test.support.simrig import (
     DEFAULT_RIG,
     STRONG_DISTORTION,
@@ -335,3 +337,17 @@ def test_pipeline_rois_contain_the_drawn_gripper(sim_10hz: SimRig) -> None:
                 out_ratios.append(arm["in_frame_ratio"])
     assert min(inside.values()) >= 40
     assert out_ratios and min(out_ratios) < 0.5
+
+
+@pytest.mark.parametrize("bundled", sorted(CONFIG.glob("rig_*.yaml")), ids=lambda p: p.stem)
+def test_every_bundled_arm_passes_a_partial_and_a_full_exit_within_40_s(bundled: Path, tmp_path: Path) -> None:
+    """docs/new-robot.md: a 40 s bag shows each arm's partial exit and, where its reach can take the gripper out of
+    the camera's view, its full exit (every bundled arm but the TIAGo's right arm, which no pose takes out)."""
+    sim = SimRig(scaled_rig(bundled, tmp_path, 0.25), seed=0, rate_hz=5.0)
+    seen: dict[str, set[Visibility]] = {arm.id: set() for arm in sim.arms}
+    for k in range(sim.frame_count(40.0)):
+        for gripper in sim.ground_truth(sim.capture_ns(k)).grippers:
+            seen[gripper.arm_id].add(gripper.visibility)
+    for arm, kinds in seen.items():
+        assert Visibility.PARTIAL in kinds, (arm, kinds)
+        assert (Visibility.OUT in kinds) != (bundled.stem.startswith("rig_tiago") and arm == "right"), (arm, kinds)
