@@ -280,12 +280,32 @@ def test_commanded_joint_states_give_the_teleop_residual(
     assert residuals == pytest.approx([0.01 * np.sqrt(14)] * 3, abs=1e-6)
 
 
+SLOW_FRAMES_REPLAY = """
+import sys
+import time
+
+from roi_node.cli import main
+from roi_node.offline import replay
+
+frame = replay._CameraReplay.frame
+
+
+def slow_frame(self, *args):
+    time.sleep(0.01)  # at least 10 ms a frame, in the forked workers too, however fast the machine
+    return frame(self, *args)
+
+
+replay._CameraReplay.frame = slow_frame
+sys.exit(main(sys.argv[1:]))
+"""
+
+
 def test_ctrl_c_leaves_a_finalized_readable_bag_holding_what_was_done(tmp_path: Path) -> None:
     rig = small_rig(tmp_path)
     spec = write_bag(tmp_path / "long", RoiPipeline(load_rig_config(rig)), frames=2000)
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "roi_node.cli", "replay", str(spec.path), "-o", str(out), "--config", str(rig)],
+        [sys.executable, "-c", SLOW_FRAMES_REPLAY, "replay", str(spec.path), "-o", str(out), "--config", str(rig)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -495,14 +515,16 @@ def test_forked_and_spawned_workers_give_the_bytes_of_a_replay_in_this_process(
         assert _roi_payloads(out / f"{source.name}_roi") == _roi_payloads(replayed[source.name].output_path)
 
 
+
+
 def test_a_killed_worker_fails_the_unfinished_bags_by_name_and_leaves_no_temporary_output(tmp_path: Path) -> None:
     rig = small_rig(tmp_path)
     pipeline = RoiPipeline(load_rig_config(rig))
     first = write_bag(tmp_path / "long_a", pipeline, frames=800).path  # a few seconds per bag
     sources = [first, Path(shutil.copytree(first, tmp_path / "long_b"))]
     out = tmp_path / "out"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "roi_node.cli", "replay", *map(str, sources), "-o", str(out), "--config", str(rig), "--workers", "2"],
+    proc = subprocess.Popen(  # the replay as `roi-node replay`, each frame slowed: a starved test still finds it running
+        [sys.executable, "-c", SLOW_FRAMES_REPLAY, "replay", *map(str, sources), "-o", str(out), "--config", str(rig), "--workers", "2"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     deadline = time.monotonic() + 120
@@ -538,7 +560,7 @@ def test_an_early_ctrl_c_starts_no_bag_and_fails_none(tmp_path: Path) -> None:
     sources = [first, *(Path(shutil.copytree(first, tmp_path / name)) for name in ("long_b", "long_c"))]
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "roi_node.cli", "replay", *map(str, sources), "-o", str(out), "--config", str(rig), "--workers", "2"],
+        [sys.executable, "-c", SLOW_FRAMES_REPLAY, "replay", *map(str, sources), "-o", str(out), "--config", str(rig), "--workers", "2"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as from a shell (see the Ctrl-C test above)
     )
