@@ -14,7 +14,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -23,7 +22,7 @@ import pytest
 
 from roi_node.sim.rig_sim import SimRig
 from test.conftest import REPO
-from test.dds.harness import next_domain, ros_env
+from test.dds.harness import next_domain, ros_env, wait_until
 from test.sim.test_sim_follow import COMMAND_TOPIC, SEED, Commander, _target
 from test.support.simrig import DEFAULT_RIG, scaled_camera_rig
 
@@ -51,12 +50,8 @@ class Lines:
 
 
 def _wait(condition: Callable[[], bool], proc: subprocess.Popen[str], timeout_s: float = 120.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline or proc.poll() is not None:
-            return False
-        time.sleep(0.02)
-    return True
+    """Until `condition` holds while the child runs (False: the deadline passed or the child ended first)."""
+    return wait_until(lambda: condition() or proc.poll() is not None, timeout_s) and condition()
 
 
 @pytest.mark.parametrize(

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -22,7 +21,7 @@ from roi_node.live.node import RoiNode
 from roi_node.offline.replay import replay_bag
 from roi_node.wire import topics
 from test.conftest import CONFIG
-from test.dds.harness import next_domain
+from test.dds.harness import next_domain, wait_until
 from test.support.bagtools import IMAGE_TOPIC, JOINT_TOPIC, BagSpec, write_bag
 from test.support.rigs import write_rig
 from test.wire.test_frame_way_out import _content, _NotingPublisher, _recorded, _written
@@ -84,14 +83,12 @@ def test_live_and_replay_publish_the_same_visibility_records(node: RoiNode, bag:
         if topic == IMAGE_TOPIC:
             node._on_image(stream, deserialize_message(raw, Image))
     stats = stream.engine.stats
-    deadline = time.monotonic() + WAIT_S
-    settled = False
-    while not settled and time.monotonic() < deadline:
+
+    def settled() -> bool:
         with node._lock:
-            settled = stats.frames_in == FRAMES and stats.frames_out + sum(stats.drops.values()) == FRAMES
-        if not settled:
-            time.sleep(0.01)
-    assert settled, f"the node settled {stats.frames_out} out + {dict(stats.drops)} dropped of {stats.frames_in} in"
+            return stats.frames_in == FRAMES and stats.frames_out + sum(stats.drops.values()) == FRAMES
+
+    assert wait_until(settled, WAIT_S), f"the node settled {stats.frames_out} out + {dict(stats.drops)} dropped of {stats.frames_in} in"
     with lock:
         live = list(sent)
     assert [t for t, _ in live] == [t for t, _ in offline]
