@@ -48,7 +48,8 @@ $(LEROBOT_STAMP): setup.py setup.cfg package.xml
 	$(PYTHON) -m venv $(LEROBOT_VENV)
 	$(LEROBOT_VENV)/bin/python -m pip install --quiet --upgrade pip
 	# ros: the live parity test (test/datasets/lerobot/test_policy_parity.py) and a LeRobot policy fed by a running node need rclpy
-	$(LEROBOT_VENV)/bin/python -m pip install --quiet "lerobot==$(LEROBOT_VERSION)" -e ".[ros,bag,robots,export]" pytest pytest-timeout
+	# async: LeRobot's PolicyServer, which the grpc:// test (test/datasets/lerobot/test_policy_grpc.py) runs
+	$(LEROBOT_VENV)/bin/python -m pip install --quiet "lerobot[async]==$(LEROBOT_VERSION)" -e ".[ros,bag,robots,export,grpc]" pytest pytest-timeout
 	# the placo that resolves next to lerobot's pins links urdfdom 4 and tinyxml2 10, which its metadata does not enforce
 	$(LEROBOT_VENV)/bin/python -m pip install --quiet "cmeel-urdfdom<5" "cmeel-tinyxml2<11"
 	touch $(LEROBOT_STAMP)

@@ -50,6 +50,9 @@ setup(
         "sign": ["model-signing>=1.1,<2", "pyOpenSSL>=24"],
         # `--ray`: one task per bag on a Ray cluster; 2.52 is the first with token authentication (RAY_AUTH_TOKEN)
         "cluster": ["ray>=2.52,<3"],
+        # `--policy grpc://`: LeRobot's async-inference PolicyServer (messages framed by hand: no protobuf, no lerobot);
+        # torch reads the tensors its action chunks are pickled as
+        "grpc": ["grpcio>=1.66", "torch>=2.2"],
         "dev": [
             "pytest>=8,<9",  # pytest 9 renamed the node id pytest-xdist's loadgroup rewrites (its groups are ignored)
             "pytest-timeout>=2.3",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from roi_node.engine.errors import ConfigError, RoiNodeError
+from roi_node.engine.errors import ConfigError, InputDataError, RoiNodeError
 
 
 class PolicyFeaturesError(ConfigError):
@@ -32,3 +32,24 @@ class StopRequestedError(RoiNodeError):
     def __init__(self, waiting_for: str) -> None:
         super().__init__(f"stopped while waiting for {waiting_for}")
         self.waiting_for = waiting_for
+
+
+class RefusedPickleError(InputDataError):
+    """A pickle from a policy server naming a class or function outside the allow-list (safe_unpickle.py): refused
+    before anything it names is imported or called."""
+
+    def __init__(self, source: str, module: str, name: str) -> None:
+        super().__init__(f"{source}: refused a pickle naming {module}.{name}: not one of the classes LeRobot's action "
+                         "messages need, nothing of it was loaded")
+        self.source = source
+        self.module = module
+        self.name = name
+
+
+class RemotePolicyError(InputDataError):
+    """A policy server that cannot be reached, refused a request, or answered something that is no action chunk."""
+
+    def __init__(self, server: str, problem: str) -> None:
+        super().__init__(f"--policy {server}: {problem}")
+        self.server = server
+        self.problem = problem

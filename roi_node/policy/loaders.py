@@ -1,4 +1,5 @@
-"""`--policy`: a Python callable `module:function`, or a LeRobot pretrained-policy folder (config.json + model.safetensors).
+"""`--policy`: a Python callable `module:function`, a LeRobot pretrained-policy folder (config.json + model.safetensors),
+or a LeRobot policy server, `grpc://HOST:PORT?...` (remote_grpc.py).
 
 Either becomes a `LoadedPolicy` whose `act(batch)` takes one observation
 batch (keys as LeRobotDataset.__getitem__ gives them) and returns what
@@ -14,6 +15,10 @@ here, when such a policy is asked for, so the base install never needs them.
 Its saved pre/post-processors (normalization) are applied when the folder
 has them; the chunk returned is at most the config's n_action_steps, the
 horizon the policy was trained to execute.
+
+A grpc:// server's client is loaded where a callable is (`load_callable`,
+before the preflight): loading it opens no weights, since it connects and
+has the server load its checkpoint at its first act.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ PREPROCESSOR_JSON = "policy_preprocessor.json"
 class PolicyKind(StrEnum):
     CALLABLE = "callable"
     LEROBOT = "lerobot"
+    GRPC = "grpc"
 
 
 @dataclass(frozen=True)
@@ -49,14 +55,16 @@ class LoadedPolicy:
 
 
 def policy_kind(spec: str) -> PolicyKind:
-    """A folder (or anything with a path separator that exists) is a LeRobot policy; `module:function` a callable."""
+    """grpc:// is a LeRobot policy server; a folder a LeRobot policy; `module:function` a callable."""
+    if spec.startswith("grpc://"):
+        return PolicyKind.GRPC
     path = Path(spec)
     if path.is_dir():
         return PolicyKind.LEROBOT
     if ":" in spec and not path.exists():
         return PolicyKind.CALLABLE
     raise PolicyLoadError(spec, "expected a LeRobot pretrained-policy folder (config.json + model.safetensors) "
-                                "or a Python callable as module:function")
+                                "or a Python callable as module:function, or a LeRobot policy server as grpc://HOST:PORT?...")
 
 
 def check_lerobot_folder(spec: str) -> Path:
@@ -73,7 +81,12 @@ def check_lerobot_folder(spec: str) -> Path:
 
 
 def load_callable(spec: str) -> LoadedPolicy:
-    """`module:function` imported (the current directory on the path); any import failure is one line naming the module."""
+    """`module:function` imported (the current directory on the path); any import failure is one line naming the module.
+    A grpc:// spec is its server's client (module docstring)."""
+    if policy_kind(spec) is PolicyKind.GRPC:
+        from roi_node.policy.remote_grpc import load_grpc
+
+        return load_grpc(spec)
     module_name, _, function_name = spec.partition(":")
     if not module_name or not function_name:
         raise PolicyLoadError(spec, "expected module:function (a dotted module path, a colon, a function name)")
