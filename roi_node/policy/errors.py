@@ -50,6 +50,6 @@ class RemotePolicyError(InputDataError):
     """A policy server that cannot be reached, refused a request, or answered something that is no action chunk."""
 
     def __init__(self, server: str, problem: str) -> None:
-        super().__init__(f"--policy {server}: {problem}")
+        super().__init__(f"policy server {server}: {problem}")
         self.server = server
         self.problem = problem

@@ -101,7 +101,7 @@ def _varint(value: int) -> bytes:
     return bytes(out)
 
 
-def _bytes_field(number: int, data: bytes) -> bytes:
+def encode_bytes_field(number: int, data: bytes) -> bytes:
     return _varint(number << 3 | 2) + _varint(len(data)) + data
 
 
@@ -136,7 +136,7 @@ def observation_parts(data: bytes) -> Iterator[bytes]:
     """`data` as Observation messages of at most PART_BYTES, marked as lerobot's send_bytes_in_chunks marks them."""
     for start in range(0, max(len(data), 1), PART_BYTES):
         state = TRANSFER_END if start + PART_BYTES >= len(data) else TRANSFER_BEGIN if start == 0 else TRANSFER_MIDDLE
-        yield bytes([0x08, state]) + _bytes_field(2, data[start:start + PART_BYTES])
+        yield bytes([0x08, state]) + encode_bytes_field(2, data[start:start + PART_BYTES])
 
 
 def robot_observation(batch: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
@@ -158,8 +158,7 @@ def robot_observation(batch: Mapping[str, Any]) -> tuple[dict[str, Any], dict[st
 class LeRobotGrpcClient:
     """One run's connection to a PolicyServer; `act` sends the batch and returns the chunk (steps, actions)."""
 
-    def __init__(self, spec: str, target: GrpcTarget) -> None:
-        self.spec = spec
+    def __init__(self, target: GrpcTarget) -> None:
         self.target = target
         self._channel: Any = None
         self._timestep = 0
@@ -173,17 +172,17 @@ class LeRobotGrpcClient:
         self._call("SendObservations", observation_parts(observation), stream=True)
         payload = bytes_field(self._call("GetActions", b""), 1)
         if not payload:
-            raise RemotePolicyError(self.spec, "GetActions answered no actions (the server's inference failed, or no "
+            raise RemotePolicyError(self.target.address, "GetActions answered no actions (the server's inference failed, or no "
                                                "observation reached it within its obs_queue_timeout: its log says which)")
         try:
-            actions = safe_loads(payload, f"--policy {self.spec}")
+            actions = safe_loads(payload, f"GetActions from {self.target.address}")
             if not isinstance(actions, list) or not actions or not all(isinstance(a, TimedAction) for a in actions):
                 raise TypeError(f"{type(actions).__name__}, not a list of TimedActions")
             if actions[0].timestep != timestep:
                 raise ValueError(f"a chunk for observation #{actions[0].timestep}, not for #{timestep} just sent")
             return np.asarray([np.asarray(a.action, dtype=np.float64) for a in actions])
         except (pickle.UnpicklingError, EOFError, TypeError, ValueError, AttributeError, IndexError, ImportError) as exc:
-            raise RemotePolicyError(self.spec, f"GetActions answered {type(exc).__name__}: {str(exc)[:300]}") from exc
+            raise RemotePolicyError(self.target.address, f"GetActions answered {type(exc).__name__}: {str(exc)[:300]}") from exc
 
     def _open(self, features: dict[str, dict[str, Any]]) -> None:
         import grpc
@@ -193,7 +192,7 @@ class LeRobotGrpcClient:
                                                                   ("grpc.max_send_message_length", MAX_MESSAGE_BYTES)])
         self._call("Ready", b"")
         config = lerobot_pickle("RemotePolicyConfig", (t.policy_type, t.checkpoint, features, t.actions_per_chunk, t.device, {}))
-        self._call("SendPolicyInstructions", _bytes_field(1, config), timeout_s=SETUP_TIMEOUT_S)
+        self._call("SendPolicyInstructions", encode_bytes_field(1, config), timeout_s=SETUP_TIMEOUT_S)
 
     def _call(self, method: str, request: Any, *, stream: bool = False, timeout_s: float = CALL_TIMEOUT_S) -> bytes:
         import grpc
@@ -204,7 +203,7 @@ class LeRobotGrpcClient:
         except grpc.RpcError as exc:
             details = (exc.details() or "").splitlines()[0][:300] if hasattr(exc, "details") else str(exc)
             code = exc.code().name if hasattr(exc, "code") else "error"
-            raise RemotePolicyError(self.spec, f"{method} to {self.target.address}: {code}: {details}") from exc
+            raise RemotePolicyError(self.target.address, f"{method}: {code}: {details}") from exc
         return reply
 
 
@@ -217,5 +216,5 @@ def load_grpc(spec: str) -> LoadedPolicy:
         except ImportError as exc:
             raise PolicyLoadError(spec, f"a grpc:// policy needs grpcio and torch ({module} is not installed here): "
                                         "pip install 'roi_node[grpc]', or run it with .venv-lerobot's python") from exc
-    client = LeRobotGrpcClient(spec, target)
+    client = LeRobotGrpcClient(target)
     return LoadedPolicy(spec, PolicyKind.GRPC, client.act, lambda: None)

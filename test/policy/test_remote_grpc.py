@@ -66,7 +66,7 @@ def test_a_chunk_of_timed_actions_loads(lerobot_helpers: None) -> None:
     chunk = np.arange(12, dtype=np.float32).reshape(3, 4)
     payload = chunk_pickle(list(chunk))
     assert b"lerobot.async_inference.helpers" in payload and b"TimedAction" in payload
-    loaded = safe_loads(payload, "--policy " + SERVER)
+    loaded = safe_loads(payload, "GetActions from 127.0.0.1:8080")
     assert [type(a) for a in loaded] == [TimedAction] * 3 and [a.timestep for a in loaded] == [7, 8, 9]
     np.testing.assert_array_equal(np.asarray([a.action for a in loaded]), chunk)
 
@@ -76,10 +76,10 @@ def test_a_pickle_that_would_write_a_file_is_refused_naming_it_and_writes_nothin
     pickle.loads(chunk_pickle([WritesAFile(control)]))  # the payload is real: plain pickle writes the file
     assert control.read_text() == "written by a pickle"
     with pytest.raises(RefusedPickleError) as refused:
-        safe_loads(chunk_pickle([WritesAFile(target)]), "--policy " + SERVER)
+        safe_loads(chunk_pickle([WritesAFile(target)]), "GetActions from 127.0.0.1:8080")
     assert not target.exists()
     assert (refused.value.module, refused.value.name) == ("pathlib", "Path.write_text")
-    assert str(refused.value) == (f"--policy {SERVER}: refused a pickle naming pathlib.Path.write_text: not one of the "
+    assert str(refused.value) == ("GetActions from 127.0.0.1:8080: refused a pickle naming pathlib.Path.write_text: not one of the "
                                   "classes LeRobot's action messages need, nothing of it was loaded")
 
 
