@@ -35,7 +35,7 @@ from roi_node.wire import topics
 from test.dds.harness import LOSSLESS_TRANSPORT, next_domain, node_args, process, ros_env, wait_until
 from test.policy.policy_dataset import RIG, export_dataset
 
-pytest.importorskip("lerobot.async_inference.policy_server")
+pytest.importorskip("lerobot.async_inference.helpers")  # not policy_server: importing it writes logs/ here
 from lerobot.datasets.utils import build_dataset_frame
 
 from test.datasets.lerobot.act_policy import save_random_act
