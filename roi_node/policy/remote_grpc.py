@@ -41,7 +41,6 @@ from roi_node.policy.loaders import LoadedPolicy, PolicyKind
 from roi_node.policy.observations import PIXEL_SCALE, TASK_KEY
 from roi_node.policy.safe_unpickle import TimedAction, safe_loads
 
-SCHEME = "grpc://"
 SERVICE = "/transport.AsyncInference/"
 HELPERS = "lerobot.async_inference.helpers"  # where LeRobot's message classes live
 IMAGE_PREFIX = "observation.images."
@@ -172,8 +171,8 @@ class LeRobotGrpcClient:
         self._call("SendObservations", observation_parts(observation), stream=True)
         payload = bytes_field(self._call("GetActions", b""), 1)
         if not payload:
-            raise RemotePolicyError(self.target.address, "GetActions answered no actions (the server's inference failed, or no "
-                                               "observation reached it within its obs_queue_timeout: its log says which)")
+            raise RemotePolicyError(self.target.address, "GetActions answered no actions (the server's inference failed, or "
+                                                         "no observation reached it within its obs_queue_timeout: its log says which)")
         try:
             actions = safe_loads(payload, f"GetActions from {self.target.address}")
             if not isinstance(actions, list) or not actions or not all(isinstance(a, TimedAction) for a in actions):
@@ -200,10 +199,9 @@ class LeRobotGrpcClient:
         kind = self._channel.stream_unary if stream else self._channel.unary_unary
         try:
             reply: bytes = kind(SERVICE + method)(request, timeout=timeout_s)
-        except grpc.RpcError as exc:
-            details = (exc.details() or "").splitlines()[0][:300] if hasattr(exc, "details") else str(exc)
-            code = exc.code().name if hasattr(exc, "code") else "error"
-            raise RemotePolicyError(self.target.address, f"{method}: {code}: {details}") from exc
+        except grpc.RpcError as exc:  # a failed call's error is its grpc.Call: a status code and the server's details
+            details = str(exc.details() or "").split("\n")[0][:300]
+            raise RemotePolicyError(self.target.address, f"{method}: {exc.code().name}: {details}") from exc
         return reply
 
 
