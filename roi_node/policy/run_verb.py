@@ -37,8 +37,10 @@ def add_run_verb(sub: Any, add_features_arguments: Any) -> None:
     add_features_arguments(run)
     run.add_argument("--policy", required=True, metavar="SPEC",
                      help="a Python callable module:function (takes the observation dict, returns a vector, a (steps, joints) "
-                     "chunk or a mapping joint -> position), or a LeRobot pretrained-policy folder (config.json + "
-                     "model.safetensors; needs lerobot and torch, as in .venv-lerobot)")
+                     "chunk or a mapping joint -> position), a LeRobot pretrained-policy folder (config.json + "
+                     "model.safetensors; needs lerobot and torch, as in .venv-lerobot), or LeRobot's async-inference policy "
+                     "server as grpc://HOST:PORT?policy_type=TYPE&checkpoint=PATH_OR_HUB_ID[&device=D][&actions_per_chunk=N] "
+                     "(needs grpcio and torch: the grpc extra)")
     run.add_argument("--config", required=True, metavar="RIG", help="rig config: the action joints' URDF limits")
     run.add_argument("--command-topic", default=DEFAULT_COMMAND_TOPIC,
                      help=f"JointState position commands are published here (default: {DEFAULT_COMMAND_TOPIC})")
