@@ -7,8 +7,8 @@ from pathlib import Path
 from typing import Any
 
 from roi_node import __version__
+from roi_node.bagio.bag_status import STATUS_KEY
 from roi_node.bagio.reader import TopicStats
-from roi_node.bagio.writer import STATUS_KEY
 from roi_node.engine.metadata import METADATA_SCHEMA
 from roi_node.quality.gates import GateResult, GateSet
 from roi_node.quality.roibag import RoiBag
