@@ -30,7 +30,6 @@ from roi_node.quality.validation_records import (
     ArmValidation,
     BagResult,
     BaselineDrift,
-    CalibrationPart,
     DriftResult,
     TopicCount,
     WindowDrift,
@@ -113,7 +112,7 @@ def judge(
         arms={arm: ArmValidation(metrics, drift_metrics.get(arm, {})) for arm, metrics in summary.arm_metrics.items()},
         details=summary.details,
         drift=DriftResult(baseline_part, WindowDrift(gates.params.window_fraction, windows)),
-        calibration=None if calibration is None else CalibrationPart.from_dict(calibration.as_dict()),
+        calibration=None if calibration is None else calibration.part(),
         rollout=rollout,
     )
     return BagValidation(scan.path, name, results, result)
