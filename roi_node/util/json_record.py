@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import types
 import typing
-from enum import Enum
 from typing import Any, TypeVar, get_args, get_origin, get_type_hints
 
 RecordT = TypeVar("RecordT", bound="JsonRecord")
@@ -30,7 +29,7 @@ def to_json(value: Any) -> Any:
 
 
 def from_json(kind: Any, value: Any) -> Any:
-    """`value` read from JSON as the annotated type `kind`: records, tuples, optionals and enums rebuilt, the rest as is."""
+    """`value` read from JSON as the annotated type `kind`: records, tuples and optionals rebuilt, the rest as is."""
     if value is None:
         return None
     origin, args = get_origin(kind), get_args(kind)
@@ -41,14 +40,10 @@ def from_json(kind: Any, value: Any) -> Any:
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(from_json(args[0], item) for item in value)
         return tuple(from_json(a, item) for a, item in zip(args, value, strict=True))
-    if origin is list:
-        return [from_json(args[0], item) for item in value]
     if origin is dict:
         return {key: from_json(args[1], item) for key, item in value.items()}
     if isinstance(kind, type) and hasattr(kind, "from_dict"):  # a record, generic or with a shape of its own
         return kind.from_dict(value)
-    if isinstance(kind, type) and issubclass(kind, Enum):
-        return kind(value)
     return value
 
 
