@@ -22,8 +22,8 @@ DEBUG_FLAG = "--debug"
 
 VERB_MODULES = (
     "roi_node.rostools.verbs", "roi_node.offline.verbs", "roi_node.quality.verbs", "roi_node.tools.verbs", "roi_node.datasets.verbs",
-    "roi_node.rig.rig_verbs", "roi_node.rostools.tool_verbs",
-    "roi_node.rig.rig_setup_verbs", "roi_node.policy.verbs", "roi_node.trust.verbs",
+    "roi_node.rig.verbs", "roi_node.rostools.tool_verbs",
+    "roi_node.policy.verbs", "roi_node.trust.verbs",
 )
 
 

@@ -58,3 +58,12 @@ def _what_it_holds(doc: object) -> str:
         value = doc.get(INFORMATION_KEY)
         return f"it holds {short_repr(value)}" if INFORMATION_KEY in doc else f"its keys are {short_repr(list(doc))}"
     return f"it holds {short_repr(doc)}"
+
+
+def storage_files(path: Path) -> list[Path]:
+    """The storage files of a bag folder (as metadata.yaml lists them) or the one file given."""
+    if not path.is_dir():
+        return [path]
+    info = folder_information(path)
+    listed = [path / str(name) for name in info.get("relative_file_paths") or []]
+    return listed or sorted(path.glob("*.mcap"))

@@ -16,9 +16,9 @@ from typing import Any
 
 from rosbags.highlevel import AnyReader
 
+from roi_node.bagio.bag_status import STATUS_KEY
 from roi_node.bagio.reader import DESERIALIZE_ERRORS, bag_information, deserialize, open_bag, read_messages, topic_stats
 from roi_node.bagio.rig_attachments import StoredRecords, stored_records
-from roi_node.bagio.writer import STATUS_KEY
 from roi_node.engine.metadata import Lineage
 from roi_node.engine.records import FrameRecord, RecordFormatError
 from roi_node.wire import topics

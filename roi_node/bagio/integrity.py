@@ -7,8 +7,8 @@ metadata and attachment indexes, the statistics), compares the messages per
 topic with metadata.yaml, and opens the bag with rosbags as replay does. A
 damaged chunk is reported with its file, byte offset and the topics whose
 messages it holds, so a user knows what is gone; any other damaged record
-with its kind and byte offset. Readers call `first_damage` to turn "cannot
-read" into that line. The rig a bag carries is checked too (rig_check.py):
+with its kind and byte offset (damage.py gives the first of it as the line
+a reader prints). The rig a bag carries is checked too (rig_check.py):
 its attachments against its record's digests and, in an ROI bag, its URDFs
 against the frames' fk_ver.
 """
@@ -20,14 +20,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from roi_node.bagio.bag_metadata import METADATA_FILE, folder_information
+from roi_node.bagio.bag_metadata import METADATA_FILE, folder_information, storage_files
+from roi_node.bagio.bag_status import RECORDING, STATUS_KEY
 from roi_node.bagio.mcap_structure import ChunkDamage, FileCheck, RecordProblem, check_mcap_file
 from roi_node.bagio.reader import rosbags_refusal
 from roi_node.bagio.rig_check import RigFindings, rig_findings
-from roi_node.bagio.writer import RECORDING, STATUS_KEY
 from roi_node.engine.errors import BagError
 
-__all__ = ["BagCheck", "ChunkDamage", "FileCheck", "RecordProblem", "check_bag", "first_damage", "storage_files"]
+__all__ = ["BagCheck", "ChunkDamage", "FileCheck", "RecordProblem", "check_bag", "storage_files"]
 
 
 @dataclass(frozen=True)
@@ -72,20 +72,6 @@ class BagCheck:
         return out
 
 
-def storage_files(path: Path) -> list[Path]:
-    """The storage files of a bag folder (as metadata.yaml lists them) or the one file given."""
-    if not path.is_dir():
-        return [path]
-    info = folder_information(path)
-    listed = [path / str(name) for name in info.get("relative_file_paths") or []]
-    return listed or sorted(path.glob("*.mcap"))
-
-
-def check_file(path: Path, progress: bool = False) -> FileCheck:
-    """Every record of one MCAP file; `progress`: MiB checked, rate and ETA on stderr."""
-    return check_mcap_file(path, progress)
-
-
 def check_bag(path: Path, progress: bool = False) -> BagCheck:
     """Check every storage file of a bag; counts are compared with metadata.yaml when there is one.
 
@@ -98,7 +84,7 @@ def check_bag(path: Path, progress: bool = False) -> BagCheck:
         raise BagError(f"{path}: no storage files to check")
     if other := [p.name for p in paths if p.suffix != ".mcap"]:
         raise BagError(f"{path}: only MCAP storage can be checked; {', '.join(other)} is not MCAP")
-    files = tuple(check_file(p, progress) for p in paths)
+    files = tuple(check_mcap_file(p, progress) for p in paths)
     problems: list[str] = []
     info = folder_information(path) if path.is_dir() else {}
     meta = path / METADATA_FILE
@@ -125,21 +111,3 @@ def _listed_counts(info: dict[str, Any]) -> dict[str, int]:
         if isinstance(topic, dict) and "name" in topic and isinstance(entry.get("message_count", 0), int):
             out[str(topic["name"])] = int(entry.get("message_count", 0))
     return out
-
-
-def first_damage(path: Path) -> str | None:
-    """The first damaged chunk (or unreadable file) of a bag, as one line; None when the storage checks out."""
-    try:
-        if any(p.suffix != ".mcap" for p in storage_files(path)):
-            return None  # sqlite3 storage: the reader's own reason is all there is
-        result = check_bag(path)
-    except BagError as exc:
-        return str(exc)
-    for f in result.files:
-        if f.damage:
-            d = f.damage[0]
-            others = len(f.damage) - 1
-            return d.line() + (f" (and {others} more damaged chunks; `roi-node inspect --check {path}` lists them)" if others else "")
-        if f.problems:
-            return f.problems[0].line()
-    return None

@@ -27,8 +27,10 @@ from rosbags.rosbag2 import ReaderError
 from rosbags.serde import SerdeError
 
 from roi_node.bagio.bag_metadata import folder_information
+from roi_node.bagio.bag_status import RECORDING, STATUS_KEY
+from roi_node.bagio.damage import first_damage
 from roi_node.bagio.indexed_mcap import CrcLedger, indexed_messages
-from roi_node.bagio.writer import RECORDING, STATUS_KEY, typestore
+from roi_node.bagio.typestore import typestore
 from roi_node.engine.errors import BagError
 from roi_node.engine.stamps import stamp_to_ns
 
@@ -79,8 +81,6 @@ def check_bag_path(path: Path) -> None:
 
 def _unreadable(path: Path, exc: BaseException) -> BagError:
     """One line: the damaged chunk (file, offset, topics) when the storage check finds one, else the reader's reason."""
-    from roi_node.bagio.integrity import first_damage
-
     if path.exists() and (damage := first_damage(path)) is not None:
         return BagError(f"{path}: cannot read the bag: {damage}")
     detail = str(exc).strip() or type(exc).__name__

@@ -35,9 +35,8 @@ from rosbags.rosbag2 import ReaderError
 from rosbags.rosbag2.metadata import parse_qos
 
 from roi_node.bagio.bag_files import sharing_policy_bytes
-from roi_node.bagio.bag_metadata import BagMetadataError
+from roi_node.bagio.bag_metadata import BagMetadataError, storage_files
 from roi_node.bagio.bag_status import BagStatus
-from roi_node.bagio.integrity import storage_files
 from roi_node.bagio.mcap_file import Compression, TopicSpec
 from roi_node.bagio.rig_attachments import RigInputs, leading_rig_inputs
 from roi_node.bagio.writer import BagWriter, qos_profile

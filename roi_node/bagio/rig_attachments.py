@@ -33,7 +33,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, BinaryIO
+from typing import Any, BinaryIO
 
 import yaml
 from mcap.exceptions import McapError
@@ -42,6 +42,7 @@ from mcap.records import AttachmentIndex
 
 from roi_node import __version__
 from roi_node.bagio.crc import crc32
+from roi_node.bagio.mcap_file import McapFileWriter
 from roi_node.bagio.mcap_records import MAGIC, RECORD_PREFIX, Opcode
 from roi_node.bagio.mcap_records import attachment as attachment_record
 from roi_node.bagio.mcap_records import metadata as metadata_record
@@ -49,9 +50,6 @@ from roi_node.bagio.member_names import MemberNameError, check_member_name, memb
 from roi_node.bagio.reader import bag_information
 from roi_node.engine.config import RigConfig
 from roi_node.engine.errors import BagError, ConfigError, RoiNodeError, UsageError
-
-if TYPE_CHECKING:
-    from roi_node.bagio.mcap_file import McapFileWriter
 
 RIG_METADATA_NAME = "roi_node.rig"
 VERSION_KEY = "roi_node_version"

@@ -28,39 +28,29 @@ from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
 import yaml
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2.metadata import dump_qos_v9
-from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from roi_node.bagio.bag_files import SHARING_POLICY_FILE
-from roi_node.bagio.bag_status import BagStatus
+from roi_node.bagio.bag_status import RECORDING, STATUS_KEY, BagStatus
 from roi_node.bagio.mcap_file import Compression, McapFileWriter, TopicSpec
+from roi_node.bagio.rig_attachments import RigInputs
 from roi_node.bagio.storage_io import StorageOpener, open_storage, reserve_space
+from roi_node.bagio.typestore import typestore
 from roi_node.engine.errors import BagWriteError
 from roi_node.util.atomic_output import check_target, commit, keep_interrupted, remove_path, temporary_sibling
 
-if TYPE_CHECKING:
-    from roi_node.bagio.rig_attachments import RigInputs
-
 ROSBAG2_VERSION: Literal[9] = 9
-STATUS_KEY = "roi_node.status"
-RECORDED_BY_KEY = "roi_node.recorded_by"  # custom_data of a `record` bag: the roi_node version that recorded it
-RECORDING = BagStatus.RECORDING
 METADATA_NAME = "metadata.yaml"
 RESERVE_NAME = ".roi_node_space_reserve"
 RESERVE_BYTES = 4 << 20
 CHUNK_MAX_AGE_NS = 500_000_000  # in place, a chunk older than this goes to disk even if not full
 _ZERO = QosTime(0, 0)
 INFINITE_DURATION = QosTime(2147483647, 4294967295)  # rmw's "infinite" as rosbag2 records it
-
-
-def typestore() -> Typestore:
-    """The one typestore every bag in roi_node is written and read with."""
-    return get_typestore(Stores.ROS2_JAZZY)
 
 
 def qos_profile(reliable: bool, depth: int = 10, transient_local: bool = False) -> Qos:

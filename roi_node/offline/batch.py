@@ -25,7 +25,7 @@ import cv2
 
 from roi_node.bagio.bag_status import BagStatus
 from roi_node.bagio.reader import BAG_FILE_SUFFIXES
-from roi_node.bagio.writer import typestore
+from roi_node.bagio.typestore import typestore
 from roi_node.engine.errors import BagError, RoiNodeError
 from roi_node.offline.replay import PartialOutputDiscardedError, ReplayInterrupted, replay_bag
 from roi_node.offline.summary import ReplaySummary

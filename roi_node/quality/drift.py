@@ -12,11 +12,11 @@ first and last part of one bag ("window"), the distributions are compared
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from roi_node.quality.stats import ArmSeries, BagSeries
+from roi_node.util.json_record import JsonRecord
 
 DRIFT_QUANTITIES = ("center_shift_px", "scale_shift", "in_frame_shift", "padding_shift")
 DRIFT_KINDS = ("baseline", "window")
@@ -26,7 +26,7 @@ MIN_WINDOW_FRAMES = 3
 
 
 @dataclass(frozen=True)
-class ArmDrift:
+class ArmDrift(JsonRecord):
     """Candidate minus reference for one arm; None where either side has no valid frames."""
 
     mode: str  # paired | distribution
@@ -44,16 +44,6 @@ class ArmDrift:
             f"{kind}_scale_shift": None if self.scale_ratio is None else abs(self.scale_ratio - 1.0),
             f"{kind}_in_frame_shift": None if self.in_frame_delta is None else abs(self.in_frame_delta),
             f"{kind}_padding_shift": None if self.padding_delta is None else abs(self.padding_delta),
-        }
-
-    def as_dict(self) -> dict[str, Any]:
-        return {
-            "mode": self.mode,
-            "frames": self.frames,
-            "center_offset_px": None if self.center_offset_px is None else list(self.center_offset_px),
-            "scale_ratio": self.scale_ratio,
-            "in_frame_delta": self.in_frame_delta,
-            "padding_delta": self.padding_delta,
         }
 
 

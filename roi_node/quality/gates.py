@@ -16,7 +16,6 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from roi_node.engine.errors import ConfigError
 from roi_node.engine.metadata import HASH_PREFIX
@@ -25,6 +24,7 @@ from roi_node.engine.yaml_file import read_yaml
 from roi_node.quality.drift import DRIFT_METRICS
 from roi_node.quality.rollout import ROLLOUT_METRICS
 from roi_node.quality.stats import ARM_METRICS, BAG_METRICS, Metric
+from roi_node.util.json_record import JsonRecord
 
 GATES_SCHEMA = "roi_node/gates/v1"
 # measured by check-calibration from a bag's images (validate --config RIG, on bags that carry their inputs)
@@ -70,12 +70,12 @@ class GateSet:
 
 
 @dataclass(frozen=True)
-class GateResult:
+class GateResult(JsonRecord):
     gate: str
-    op: str
-    threshold: float
     arm: str  # arm id, or BAG_SCOPE
     value: Metric
+    op: str
+    threshold: float
     status: str  # pass | fail | no_data
 
     @property
@@ -88,9 +88,6 @@ class GateResult:
     def line(self) -> str:
         """The one line `roi-node validate` prints for a failing gate."""
         return f"gate {self.gate} failed: arm {self.arm}: value {format_value(self.value)}, threshold {self.threshold_text()}"
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"gate": self.gate, "arm": self.arm, "value": self.value, "op": self.op, "threshold": self.threshold, "status": self.status}
 
 
 def format_value(value: Metric) -> str:
@@ -185,7 +182,7 @@ def _verdict(gate: Gate, arm: str, value: Metric) -> GateResult:
         status = "pass" if value >= gate.threshold else "fail"
     else:
         status = "pass" if value <= gate.threshold else "fail"
-    return GateResult(gate.metric, gate.op, gate.threshold, arm, value, status)
+    return GateResult(gate.metric, arm, value, gate.op, gate.threshold, status)
 
 
 def gate_threshold(gates: GateSet, metric: str, op: str) -> float | None:

@@ -27,8 +27,9 @@ from roi_node.wire import topics
 if TYPE_CHECKING:
     from roi_node.quality.drift import ArmDrift
     from roi_node.quality.results import BagScan, BagValidation, ValidationRun
+    from roi_node.quality.rollout import RolloutPart
     from roi_node.quality.samples import Sample
-    from roi_node.quality.validation_records import CalibrationPart, RolloutPart
+    from roi_node.quality.validation_records import CalibrationPart
 
 REPORT_NAME = "REPORT.md"
 JSON_NAME = "validation.json"

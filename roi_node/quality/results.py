@@ -7,14 +7,14 @@ from pathlib import Path
 from typing import Any
 
 from roi_node import __version__
+from roi_node.bagio.bag_status import STATUS_KEY
 from roi_node.bagio.reader import TopicStats
-from roi_node.bagio.writer import STATUS_KEY
 from roi_node.engine.metadata import METADATA_SCHEMA
 from roi_node.quality.gates import GateResult, GateSet
 from roi_node.quality.roibag import RoiBag
 from roi_node.quality.samples import Sample
 from roi_node.quality.stats import BagStats, BagSummary
-from roi_node.quality.validation_records import BagResult, ValidationFormatError, gate_result_from_dict
+from roi_node.quality.validation_records import BagResult, ValidationFormatError
 
 VALIDATION_SCHEMA = "roi_node/validation/v1"
 
@@ -70,7 +70,7 @@ class BagValidation:
         """A `bags[]` entry of validation.json; `passed` is not read, the gates' statuses decide it."""
         result = BagResult.from_dict(doc)
         try:
-            gates = [gate_result_from_dict(g) for g in doc["gates"]]
+            gates = [GateResult.from_dict(g) for g in doc["gates"]]
             figures = dict(doc["figures"])
         except KeyError as exc:
             raise ValidationFormatError(str(exc.args[0]), "missing") from exc

@@ -86,14 +86,14 @@ class Excursion:
 
 
 @dataclass(frozen=True)
-class RolloutSummary:
+class RolloutPart:
     """What a rollout recording adds to its validation: spans, and per arm the jitter and excursions there."""
 
     command_topic: str
     commands: int
     command_period_ms: float | None
+    policy_driven_ratio: float | None  # of the bag's frames; None for a bag without frames
     spans: tuple[PolicySpan, ...]
-    frames: int
     arm_metrics: dict[str, dict[str, Metric]]
     excursions: tuple[Excursion, ...]
 
@@ -101,19 +101,37 @@ class RolloutSummary:
     def policy_driven_frames(self) -> int:
         return sum(s.frames for s in self.spans)
 
+    def arm_excursions(self, arm_id: str) -> tuple[Excursion, ...]:
+        return tuple(e for e in self.excursions if e.arm_id == arm_id)
+
     def as_dict(self) -> dict[str, Any]:
         return {
             "command_topic": self.command_topic,
             "commands": self.commands,
             "command_period_ms": self.command_period_ms,
             "policy_driven_frames": self.policy_driven_frames,
-            "policy_driven_ratio": self.policy_driven_frames / self.frames if self.frames else None,
+            "policy_driven_ratio": self.policy_driven_ratio,
             "spans": [s.as_dict() for s in self.spans],
             "arms": {
-                arm: {"metrics": metrics, "excursions": [e.as_dict() for e in self.excursions if e.arm_id == arm]}
+                arm: {"metrics": metrics, "excursions": [e.as_dict() for e in self.arm_excursions(arm)]}
                 for arm, metrics in self.arm_metrics.items()
             },
         }
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> RolloutPart:
+        return cls(
+            command_topic=doc["command_topic"],
+            commands=doc["commands"],
+            command_period_ms=doc["command_period_ms"],
+            policy_driven_ratio=doc["policy_driven_ratio"],
+            spans=tuple(PolicySpan(s["start_ns"], s["end_ns"], s["commands"], s["frames"]) for s in doc["spans"]),
+            arm_metrics={arm: dict(a["metrics"]) for arm, a in doc["arms"].items()},
+            excursions=tuple(
+                Excursion(arm, e["left_ns"], e["back_ns"], e["min_in_frame"], e["policy_driven"])
+                for arm, a in doc["arms"].items() for e in a["excursions"]
+            ),
+        )
 
 
 def policy_spans(command_log_ns: np.ndarray, gap_periods: float) -> tuple[list[tuple[int, int, int]], float | None]:
@@ -133,7 +151,7 @@ def policy_spans(command_log_ns: np.ndarray, gap_periods: float) -> tuple[list[t
 
 def analyse_rollout(
     series: BagSeries, command_log_ns: np.ndarray, command_topic: str, *, gap_periods: float, in_frame_below: float
-) -> RolloutSummary:
+) -> RolloutPart:
     """The rollout part of a bag's validation from its per-frame series and its commands' log times."""
     raw_spans, period = policy_spans(command_log_ns, gap_periods)
     stamps = series.stamp_ns
@@ -166,8 +184,9 @@ def analyse_rollout(
             RolloutMetric.RECOVERY_S_MAX.value: max(recoveries, default=0.0),
             RolloutMetric.UNRECOVERED.value: sum(1 for e in driven if e.back_ns is None),
         }
-    return RolloutSummary(command_topic, len(command_log_ns), None if period is None else period / 1e6, tuple(spans),
-                          len(stamps), arm_metrics, tuple(excursions))
+    driven_ratio = sum(s.frames for s in spans) / len(stamps) if len(stamps) else None
+    return RolloutPart(command_topic, len(command_log_ns), None if period is None else period / 1e6, driven_ratio, tuple(spans),
+                       arm_metrics, tuple(excursions))
 
 
 def _rms(values: np.ndarray) -> float:

@@ -22,7 +22,7 @@ from roi_node.quality.gates import IMPLAUSIBLE_STAMPS_METRIC, GateParams, GateSe
 from roi_node.quality.report import JSON_NAME, prepare_report_dir, write_bag_figures, write_report
 from roi_node.quality.results import BagScan, BagValidation, ValidationRun
 from roi_node.quality.roibag import RoiBag, cameras_in
-from roi_node.quality.rollout import RolloutSummary, analyse_rollout
+from roi_node.quality.rollout import RolloutPart, analyse_rollout
 from roi_node.quality.rollout_commands import CommandTopic, command_log_times
 from roi_node.quality.samples import SampleChooser
 from roi_node.quality.stats import BagStats
@@ -30,9 +30,7 @@ from roi_node.quality.validation_records import (
     ArmValidation,
     BagResult,
     BaselineDrift,
-    CalibrationPart,
     DriftResult,
-    RolloutPart,
     TopicCount,
     WindowDrift,
 )
@@ -69,7 +67,7 @@ def implausible_stamps(scan: BagScan) -> int | None:
     return int(value)
 
 
-def rollout_of(scan: BagScan, gates: GateSet, command: CommandTopic) -> RolloutSummary | None:
+def rollout_of(scan: BagScan, gates: GateSet, command: CommandTopic) -> RolloutPart | None:
     """The rollout part of a bag that recorded a policy's commands (rollout.py); None for a demonstration."""
     times = command_log_times(scan.path, command, scan.camera)
     if times is None:
@@ -85,7 +83,7 @@ def judge(
     name: str,
     baseline: BagScan | None = None,
     calibration: CalibrationCheck | None = None,
-    rollout: RolloutSummary | None = None,
+    rollout: RolloutPart | None = None,
 ) -> BagValidation:
     """Gates and drift for a scanned bag (and the calibration gates when its check was run, the rollout gates for a rollout)."""
     summary = scan.summary
@@ -114,8 +112,8 @@ def judge(
         arms={arm: ArmValidation(metrics, drift_metrics.get(arm, {})) for arm, metrics in summary.arm_metrics.items()},
         details=summary.details,
         drift=DriftResult(baseline_part, WindowDrift(gates.params.window_fraction, windows)),
-        calibration=None if calibration is None else CalibrationPart.from_dict(calibration.as_dict()),
-        rollout=None if rollout is None else RolloutPart.from_dict(rollout.as_dict()),
+        calibration=None if calibration is None else calibration.part(),
+        rollout=rollout,
     )
     return BagValidation(scan.path, name, results, result)
 

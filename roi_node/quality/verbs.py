@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from roi_node.engine.config import RigConfig
-    from roi_node.quality.validation_records import RolloutPart
+    from roi_node.quality.rollout import RolloutPart
 
 EXIT_GATE_FAILED = 1
 

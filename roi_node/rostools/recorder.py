@@ -39,10 +39,10 @@ from rclpy.subscription import Subscription
 from rosbags.interfaces import Qos
 
 from roi_node import __version__
-from roi_node.bagio.bag_status import BagStatus
+from roi_node.bagio.bag_status import RECORDED_BY_KEY, BagStatus
 from roi_node.bagio.mcap_file import Compression
 from roi_node.bagio.rig_attachments import RigInputs
-from roi_node.bagio.writer import RECORDED_BY_KEY, BagWriteError, BagWriter, SplitPolicy
+from roi_node.bagio.writer import BagWriteError, BagWriter, SplitPolicy
 from roi_node.engine.errors import BagError, ImageError, UsageError
 from roi_node.live.drain import draining_subscription, take_queued
 from roi_node.live.msg_types import message_class, subscription_qos, to_bag_qos

@@ -129,28 +129,16 @@ def _link_length(rig: RigConfig, cm: float) -> Perturbation:
     return Perturbation(rig, urdf_texts={robot.id: _lengthen(text, joint, cm / 100.0)})
 
 
-def _latency(rig: RigConfig, ms: float) -> Perturbation:
-    return Perturbation(rig, latency_ms=ms)
-
-
-def _joint_rate(rig: RigConfig, hz: float) -> Perturbation:
-    return Perturbation(rig, joint_rate_hz=hz)
-
-
-def _jitter(rig: RigConfig, ms: float) -> Perturbation:
-    return Perturbation(rig, stamp_jitter_ms=ms)
-
-
 SWEEPS = (
-    Sweep("latency", "ms", (0, 15, 30, 45, 60, 90, 120, 150, 200), (0, 30, 60, 120, 200), _latency),
+    Sweep("latency", "ms", (0, 15, 30, 45, 60, 90, 120, 150, 200), (0, 30, 60, 120, 200), lambda rig, ms: Perturbation(rig, latency_ms=ms)),
     Sweep("extrinsic_rotation", "deg", (0, 0.25, 0.5, 1, 1.5, 2, 3), (0, 0.5, 1, 2, 3), _turn_camera),
     Sweep("extrinsic_translation", "cm", (0, 0.5, 1, 1.5, 2, 3), (0, 1, 2, 3), _shift_camera),
     Sweep("focal_length_error", "%", (0, 1, 2, 3, 4, 5), (0, 2.5, 5), _focal),
     Sweep("principal_point_error", "px", (0, 2.5, 5, 10, 15, 20), (0, 5, 10, 20), _principal_point),
     Sweep("joint_offset", "deg", (0, 0.5, 1, 2, 3, 4, 5), (0, 1, 2.5, 5), _joint_offset),
     Sweep("link_length_error", "cm", (0, 0.5, 1, 1.5, 2), (0, 1, 2), _link_length),
-    Sweep("joint_rate", "Hz", (200, 100, 66, 50, 33, 25, 20), (200, 50, 20), _joint_rate),
-    Sweep("stamp_jitter", "ms", (0, 2.5, 5, 10, 15, 20, 30), (0, 5, 15, 30), _jitter),
+    Sweep("joint_rate", "Hz", (200, 100, 66, 50, 33, 25, 20), (200, 50, 20), lambda rig, hz: Perturbation(rig, joint_rate_hz=hz)),
+    Sweep("stamp_jitter", "ms", (0, 2.5, 5, 10, 15, 20, 30), (0, 5, 15, 30), lambda rig, ms: Perturbation(rig, stamp_jitter_ms=ms)),
 )
 
 

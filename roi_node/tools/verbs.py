@@ -61,7 +61,8 @@ def _cmd_sim(args: argparse.Namespace) -> int:
         return 0
     if args.sharing is not None:
         raise UsageError("sim: --sharing applies to --bag (a live run publishes; `record --sharing` stores the policy)")
-    from roi_node.rostools.sim_publisher import LateFrames, run_live
+    from roi_node.rostools.rig_publisher import run_live
+    from roi_node.sim.publisher import LateFrames
 
     budget = DEFAULT_RENDER_BUDGET_MIB if args.render_budget_mb is None else args.render_budget_mb
     return run_live(config, duration_s=args.duration, rate_hz=args.rate_hz, joint_rate_hz=args.joint_rate_hz, seed=args.seed,

@@ -30,9 +30,9 @@ import pyarrow.parquet as pq
 from roi_node import __version__
 from roi_node.bagio.bag_files import CLAIMS_FILE, hash_files
 from roi_node.bagio.bag_metadata import folder_information
+from roi_node.bagio.bag_status import RECORDED_BY_KEY
 from roi_node.bagio.inspection import METADATA_TOPIC, inspect_bag
 from roi_node.bagio.rig_attachments import read_rig_inputs
-from roi_node.bagio.writer import RECORDED_BY_KEY
 from roi_node.engine.errors import BagError, ConfigError
 from roi_node.engine.yaml_file import read_yaml
 from roi_node.trust.sharing import read_dataset_sharing, session_policy

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from roi_node.bagio.bag_files import hash_files, sha256_file
-from roi_node.bagio.integrity import first_damage
+from roi_node.bagio.damage import first_damage
 from roi_node.bagio.rig_attachments import read_rig_inputs
 from roi_node.engine.errors import BagError, UsageError
 from roi_node.trust.claims import Kind, claims_file, kind_of, read_claims

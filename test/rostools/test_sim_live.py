@@ -34,9 +34,9 @@ from roi_node.bagio.writer import typestore
 from roi_node.cli import main
 from roi_node.engine.camera import CameraModel
 from roi_node.engine.sync import NS_PER_MS, NS_PER_S
-from roi_node.rostools.sim_clock import SystemClock
-from roi_node.rostools.sim_frames import FramesOnTheFly, PrerenderedFrames
-from roi_node.rostools.sim_publisher import FrameDrop, LateFrames, SimPublisher
+from roi_node.sim.clock import SystemClock
+from roi_node.sim.frames import FramesOnTheFly, PrerenderedFrames
+from roi_node.sim.publisher import FrameDrop, LateFrames, SimPublisher
 from roi_node.sim.render_budget import RenderMode, plan_render
 from roi_node.sim.rig_sim import ImageEvent, JointStateEvent, SimRig
 from roi_node.util.progress import Progress

@@ -35,6 +35,8 @@ from typing import Any
 
 from roi_node.quality.calibration.fit import DelayFit, OffsetFit
 from roi_node.quality.gates import BAG_SCOPE, CALIBRATION_DELAY_GATE, CALIBRATION_OFFSET_GATE, GateSet, gate_threshold
+from roi_node.quality.validation_records import CalibrationArm, CalibrationPart
+from roi_node.quality.validation_records import CannotTell as CannotTellPart
 
 CALIBRATION_SCHEMA = "roi_node/calibration/v2"
 MIN_MOVING_FRAMES = 10
@@ -74,8 +76,6 @@ class Reason:
     kind: CannotTell
     detail: str
 
-    def as_dict(self) -> dict[str, str]:
-        return {"reason": str(self.kind), "detail": self.detail}
 
 
 @dataclass(frozen=True)
@@ -102,6 +102,14 @@ class Tolerances:
 def _round(value: float | None, digits: int) -> float | None:
     """A value for the JSON: None when there is none, or when it is no number (a bootstrap with nothing to resample)."""
     return None if value is None or not math.isfinite(value) else round(value, digits)
+
+
+def _round_pair(values: tuple[float, float] | None) -> tuple[float, float] | None:
+    return None if values is None else (round(values[0], 2), round(values[1], 2))
+
+
+def _cannot_tell(reason: Reason | None) -> CannotTellPart | None:
+    return None if reason is None else CannotTellPart(str(reason.kind), reason.detail)
 
 
 @dataclass(frozen=True)
@@ -244,46 +252,48 @@ class CalibrationCheck:
             out[arm_id] = {CALIBRATION_OFFSET_GATE: _round(self.offset_px(arm_id), 2) if known else None}
         return out
 
-    def as_dict(self) -> dict[str, Any]:
-        estimated = self.delay_estimated and self.delay is not None
-        d = self.delay if estimated else None
-        delay_finding = self.delay_finding
+    def part(self) -> CalibrationPart:
+        """The check as validation.json keeps it and `check-calibration --json` prints it: no value that was not estimated."""
+        d = self.delay if self.delay_estimated else None
         arms = {}
         for arm_id in self.arm_ids:
             fit = self.offset_fit(arm_id) if self.offset_estimated(arm_id) else None
             finding = self.offset_finding(arm_id)
-            arms[arm_id] = {
-                "offset_px": None if fit is None or fit.offset_px is None else [round(v, 2) for v in fit.offset_px],
-                "offset_norm_px": _round(self.offset_px(arm_id), 2),
-                "offset_ci_radius_px": None if fit is None else _round(fit.ci_radius_px, 2),
-                "spread_px": None if fit is None or fit.spread_px is None else [round(v, 2) for v in fit.spread_px],
-                "frames": None if (seen := self.offset_fit(arm_id)) is None else seen.frames,
-                "verdict": str(finding.verdict),
-                "cannot_tell": None if finding.reason is None else finding.reason.as_dict(),
-            }
-        return {
-            "schema": CALIBRATION_SCHEMA,
-            "bag": str(self.bag),
-            "image_topic": self.image_topic,
-            "frames": self.frames,
-            "cannot_tell": None if self.blocked is None else self.blocked.as_dict(),
-            "skeleton_moving_frames": self.skeleton_moving_frames,
-            "moving_frames": None if self.delay is None else self.delay.moving_frames,
-            "delay_ms": None if d is None else round(d.delay_ms, 2),
-            "delay_ci_ms": None if d is None else [round(v, 2) for v in d.ci_ms],
-            "delay_std_ms": None if d is None else _round(d.std_ms, 3),
-            "delay_confidence": _round(self.delay_confidence, 3),
-            "configured_delay_ms": self.configured_delay_ms,
-            "delay_error_ms": _round(self.delay_error_ms, 2),
-            "delay_verdict": str(delay_finding.verdict),
-            "delay_cannot_tell": None if delay_finding.reason is None else delay_finding.reason.as_dict(),
-            "reprojection_offset_px": {a: v["offset_px"] for a, v in arms.items()},
-            "arms": arms,
-            "tolerances": {"delay_ms": self.tolerances.delay_ms, "reprojection_px": self.tolerances.reprojection_px},
-            "verdict": str(self.verdict),
-            "reasons": [str(r) for r in self.reasons()],
-            "hints": self.hints(),
-        }
+            arms[arm_id] = CalibrationArm(
+                offset_px=None if fit is None else _round_pair(fit.offset_px),
+                offset_norm_px=_round(self.offset_px(arm_id), 2),
+                offset_ci_radius_px=None if fit is None else _round(fit.ci_radius_px, 2),
+                spread_px=None if fit is None else _round_pair(fit.spread_px),
+                frames=None if (seen := self.offset_fit(arm_id)) is None else seen.frames,
+                verdict=str(finding.verdict),
+                cannot_tell=_cannot_tell(finding.reason),
+            )
+        return CalibrationPart(
+            schema=CALIBRATION_SCHEMA,
+            bag=str(self.bag),
+            image_topic=self.image_topic,
+            frames=self.frames,
+            cannot_tell=_cannot_tell(self.blocked),
+            skeleton_moving_frames=self.skeleton_moving_frames,
+            moving_frames=None if self.delay is None else self.delay.moving_frames,
+            delay_ms=None if d is None else round(d.delay_ms, 2),
+            delay_ci_ms=None if d is None else _round_pair(d.ci_ms),
+            delay_std_ms=None if d is None else _round(d.std_ms, 3),
+            delay_confidence=_round(self.delay_confidence, 3),
+            configured_delay_ms=self.configured_delay_ms,
+            delay_error_ms=_round(self.delay_error_ms, 2),
+            delay_verdict=str(self.delay_finding.verdict),
+            delay_cannot_tell=_cannot_tell(self.delay_finding.reason),
+            arms=arms,
+            tolerance_delay_ms=self.tolerances.delay_ms,
+            tolerance_reprojection_px=self.tolerances.reprojection_px,
+            verdict=str(self.verdict),
+            reasons=tuple(str(r) for r in self.reasons()),
+            hints=tuple(self.hints()),
+        )
+
+    def as_dict(self) -> dict[str, Any]:
+        return self.part().as_dict()
 
     def lines(self) -> list[str]:
         moving = "" if self.delay is None else f", {self.delay.moving_frames} with arm motion"

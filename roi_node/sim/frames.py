@@ -14,7 +14,7 @@ import threading
 from collections.abc import Callable
 from typing import Generic, Protocol, TypeVar
 
-from roi_node.rostools.sim_clock import Clock
+from roi_node.sim.clock import Clock
 from roi_node.util.progress import Progress
 
 FrameT = TypeVar("FrameT")

@@ -1,4 +1,4 @@
-"""`roi-node sim ... live`: a simulated rig publishing like a camera driver and a robot.
+"""`roi-node sim ... live`: a simulated rig paced like a camera driver and a robot (rostools/rig_publisher.py sends it on DDS).
 
 A real camera delivers a frame every period whatever the machine is doing,
 stamped on the wall clock; when it cannot deliver a frame in time it drops
@@ -16,7 +16,7 @@ sent however late, and the summary counts those sent over a period late and
 says how far behind the latest one went out.
 
 Frames come pre-rendered when the run fits in the render budget, else from a
-renderer thread working ahead (rostools/sim_frames.py, sim/render_budget.py).
+renderer thread working ahead (sim/frames.py, sim/render_budget.py).
 Publishers are reliable (best-effort subscribers receive them too); the clock
 starts once `min_subscribers` subscribers matched.
 
@@ -24,40 +24,28 @@ Following commands (`--follow-commands TOPIC`), the future is unknown, so no
 frame can be rendered ahead: a camera thread renders each frame from the
 followed state at its capture time once the clock has passed it, and sends it
 at its slot (capture + camera delay) or as soon as it is rendered; the same
-dropping rule holds (sim_frames.CapturedFrames), so a machine that cannot
+dropping rule holds (frames.CapturedFrames), so a machine that cannot
 render at the camera's rate shows up as frames not rendered by their slot.
 """
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
-from pathlib import Path
-from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
+from typing import Generic, Protocol, TypeVar
 
 import numpy as np
 
 from roi_node.engine.camera import CameraModel
-from roi_node.engine.config import load_rig_config
-from roi_node.engine.errors import ConfigError
 from roi_node.engine.sync import NS_PER_MS, NS_PER_S
-from roi_node.rostools.sim_clock import Clock, SystemClock
-from roi_node.rostools.sim_frames import CapturedFrames, FramesOnTheFly, FrameSource, PrerenderedFrames
-from roi_node.sim.command_follow import CommandIssue
-from roi_node.sim.limits import DEFAULT_MAX_JOINT_SPEED_RAD_S
-from roi_node.sim.mesh_painter import Drawing
+from roi_node.sim.clock import Clock, SystemClock
+from roi_node.sim.frames import CapturedFrames, FramesOnTheFly, FrameSource, PrerenderedFrames
 from roi_node.sim.render_budget import DEFAULT_RENDER_BUDGET_MIB, RenderMode, plan_render
 from roi_node.sim.rig_sim import FrameSlot, JointStateEvent, SimRig
 from roi_node.util.progress import Progress
-from roi_node.util.stop_signals import interrupt_on_signals
-
-if TYPE_CHECKING:
-    from roi_node.rostools.command_listener import CommandListener
 
 LEAD_NS = 1_000_000_000  # timeline zero lies this far after the start: an on-the-fly renderer gets a head start
-INTERRUPTED_EXIT = 130  # as the CLI's for Ctrl-C; the summary still says what was sent
 
 
 ImageMessageT = TypeVar("ImageMessageT")
@@ -259,80 +247,3 @@ class SimPublisher(Generic[ImageMessageT]):
 
     def _late_ms(self, due_ns: int) -> float:
         return max(0, self.clock.monotonic_ns() - due_ns) / NS_PER_MS
-
-
-@interrupt_on_signals()  # SIGINT/SIGTERM at any phase end the run as an interrupt, with its summary
-def run_live(
-    config: Path,
-    *,
-    duration_s: float,
-    rate_hz: float,
-    joint_rate_hz: float,
-    seed: int,
-    min_subscribers: int,
-    ros_args: list[str],
-    camera_delay_ms: float | None = None,
-    render_budget_mib: float = DEFAULT_RENDER_BUDGET_MIB,
-    late_frames: LateFrames = LateFrames.DROP,
-    follow_commands: str | None = None,
-    max_joint_speed_rad_s: float = DEFAULT_MAX_JOINT_SPEED_RAD_S,
-    drawing: Drawing = Drawing.CAPSULES,
-) -> int:
-    """`follow_commands`: a JointState topic whose position commands the rig follows (sim/command_follow.py)."""
-    from roi_node.live.spin import ros_context
-    from roi_node.rostools.command_listener import CommandListener, check_command_topic
-    from roi_node.rostools.rig_publisher import RigPublisher
-    from roi_node.rostools.writer_history import report_unacknowledged
-
-    if follow_commands is not None:
-        check_command_topic("--follow-commands", follow_commands)
-
-    rig_config = load_rig_config(config)
-    if rig_config.several_cameras or any(r.base_topic is not None for r in rig_config.robots):
-        raise ConfigError(f"{config}: sim live publishes a rig of one camera and fixed bases; for several cameras or a base "
-                          "from a topic write a bag (sim --bag OUT) and publish it with roi-node play")
-    # built before the clock starts (the scene render takes a while); stamps are offsets from the timeline's zero
-    print(f"sim: building the simulated rig of {config} (robots, static scene, choreography)", file=sys.stderr, flush=True)
-    sim = SimRig(rig_config, seed=seed, rate_hz=rate_hz, joint_rate_hz=joint_rate_hz, camera_delay_ms=camera_delay_ms,
-                 drawing=drawing)
-    follower = None
-    if follow_commands is not None:
-        follower = sim.follow_commands(max_joint_speed_rad_s, lambda issue, name: _report_first(follow_commands, issue, name))
-    with ros_context(ros_args, rclpy_signal_handlers=False):  # the context outlives the interrupt
-        rig = RigPublisher(sim.camera, sim.rate_hz, sim.joint_rate_hz)
-        listener = None
-        publisher = SimPublisher(rig, sim, duration_s, render_budget_mib=render_budget_mib, late_frames=late_frames,
-                                 health_check=lambda: _raise_failure(listener))
-        interrupted = False
-        try:
-            if follower is not None and follow_commands is not None:
-                listener = CommandListener(rig.node, follow_commands, lambda names, positions: follower.command(
-                    publisher.sim_now_ns(), names, positions))
-            print(publisher.describe_rendering(), file=sys.stderr, flush=True)
-            publisher.prepare(Progress("sim pre-rendering", publisher.plan.frames, enabled=True))
-            rig.wait_for_subscribers(min_subscribers)
-            publisher.run()
-            report_unacknowledged("sim", rig.wait_for_acknowledgements())
-        except KeyboardInterrupt:
-            interrupted = True
-        finally:
-            if listener is not None:
-                listener.close()
-            rig.close()
-    if follower is not None:
-        issues = follower.issue_summary()
-        print(f"roi-node sim: followed {follower.commands} commands on {follow_commands} at up to "
-              f"{follower.max_speed_rad_s:g} rad/s per joint" + (f"; {issues}" if issues else ""))
-    print(publisher.tally.summary(publisher.start_ns, interrupted=interrupted))
-    return INTERRUPTED_EXIT if interrupted else 0
-
-
-def _report_first(topic: str, issue: CommandIssue, name: str) -> None:
-    """One line per (problem, joint name), the first time it occurs; the run's last lines count them all."""
-    which = f" (joint {name!r})" if name else ""
-    print(f"sim: a command on {topic}{which} {issue}; further ones are counted", file=sys.stderr, flush=True)
-
-
-def _raise_failure(listener: CommandListener | None) -> None:
-    if listener is not None and listener.failure is not None:
-        raise listener.failure
