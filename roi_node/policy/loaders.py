@@ -1,4 +1,5 @@
-"""`--policy`: a Python callable `module:function`, or a LeRobot pretrained-policy folder (config.json + model.safetensors).
+"""`--policy`: a Python callable `module:function`, a LeRobot pretrained-policy folder (config.json + model.safetensors),
+or a policy server's address (`ws://HOST:PORT`: openpi's websocket server, remote_ws.py).
 
 Either becomes a `LoadedPolicy` whose `act(batch)` takes one observation
 batch (keys as LeRobotDataset.__getitem__ gives them) and returns what
@@ -14,6 +15,11 @@ here, when such a policy is asked for, so the base install never needs them.
 Its saved pre/post-processors (normalization) are applied when the folder
 has them; the chunk returned is at most the config's n_action_steps, the
 horizon the policy was trained to execute.
+
+A remote policy (a server) is a `LoadedPolicy` too, with `act_request`: it is
+called with the batch and a `ChunkRequest` (the frame's stamp, the steps that
+will execute while it answers, and those steps themselves), which a transport
+passes on when its server takes them (`takes_prefix`: real-time chunking).
 """
 
 from __future__ import annotations
@@ -27,6 +33,8 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from roi_node.policy.action_errors import PolicyLoadError, policy_did
 
 LEROBOT_FILES = ("config.json", "model.safetensors")
@@ -36,6 +44,20 @@ PREPROCESSOR_JSON = "policy_preprocessor.json"
 class PolicyKind(StrEnum):
     CALLABLE = "callable"
     LEROBOT = "lerobot"
+    WEBSOCKET = "websocket"  # ws://HOST:PORT, openpi's policy server
+
+
+REMOTE_SCHEMES = {"ws": PolicyKind.WEBSOCKET}  # a transport adds its scheme here and its loader in runner.py
+
+
+@dataclass(frozen=True)
+class ChunkRequest:
+    """What a remote policy is told with an observation: the chunk it returns starts at the frame `stamp_ns`;
+    `inference_delay` steps (`prefix`, (d, A) in the action names' order) will execute before it can arrive."""
+
+    stamp_ns: int
+    inference_delay: int
+    prefix: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -46,17 +68,25 @@ class LoadedPolicy:
     kind: PolicyKind
     act: Callable[[Mapping[str, Any]], Any]
     reset: Callable[[], None]
+    act_request: Callable[[Mapping[str, Any], ChunkRequest], Any] | None = None  # a remote policy's call (see module doc)
+    takes_prefix: bool = False  # the server takes inference_delay and prefix (real-time chunking)
 
 
 def policy_kind(spec: str) -> PolicyKind:
-    """A folder (or anything with a path separator that exists) is a LeRobot policy; `module:function` a callable."""
+    """`ws://` a policy server; a folder (or anything with a path separator that exists) is a LeRobot policy;
+    `module:function` a callable."""
+    scheme = spec.partition("://")[0] if "://" in spec else None
+    if scheme is not None:
+        if scheme not in REMOTE_SCHEMES:
+            raise PolicyLoadError(spec, f"no policy transport for {scheme}:// (transports: {', '.join(REMOTE_SCHEMES)})")
+        return REMOTE_SCHEMES[scheme]
     path = Path(spec)
     if path.is_dir():
         return PolicyKind.LEROBOT
     if ":" in spec and not path.exists():
         return PolicyKind.CALLABLE
     raise PolicyLoadError(spec, "expected a LeRobot pretrained-policy folder (config.json + model.safetensors) "
-                                "or a Python callable as module:function")
+                                "or a Python callable as module:function or a server as ws://HOST:PORT")
 
 
 def check_lerobot_folder(spec: str) -> Path:
