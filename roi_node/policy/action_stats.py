@@ -54,6 +54,7 @@ class ActionStats:
     clamps_window: dict[ClampKind, Counter[str]] = field(default_factory=lambda: {k: Counter() for k in ClampKind})
     held_ticks: int = 0  # ticks with no step left and no newer observation to ask the policy with: the last target again
     late_ticks: int = 0  # ticks skipped because the policy computed past them
+    ticks_without_command: int = 0  # before the first chunk, when the state does not name every action joint
     server_timeouts: int = 0  # requests the policy did not answer within --server-timeout-s
     last_command_age_ms: float | None = None
     last_stale_steps: int | None = None
@@ -103,7 +104,7 @@ class ActionStats:
         return _summary(self._stale_steps)
 
     def count_observation_age(self, frame_age_s: float) -> None:
-        """How old a frame was when its observation reached the policy (delivery - header stamp)."""
+        """How old a frame was when its observation was handed to the policy (or sent to its server): now - header stamp."""
         with self._lock:
             self._observation_ages_ms.append(frame_age_s * 1e3)
 
@@ -112,7 +113,7 @@ class ActionStats:
         return _summary(self._latencies_ms)
 
     def observation_age(self) -> LatencySummary | None:
-        """Frame stamp -> observation delivered to the policy."""
+        """Frame stamp -> observation handed to the policy (sent to its server)."""
         with self._lock:
             return _summary(self._observation_ages_ms)
 

@@ -53,6 +53,7 @@ def policy_diagnostics_msg(stamp_ns: int, stats: ActionStats, command_topic: str
         "clamped_by_joint": {kind.value: dict(c) for kind, c in stats.clamps.items()},
         "held_ticks": stats.held_ticks,
         "late_ticks": stats.late_ticks,
+        "ticks_without_command": stats.ticks_without_command,
         "frame_to_first_action_ms": _percentiles(latency),
         "frame_to_observation_ms": _percentiles(observation_age),
         "command_observation_age_ms": _percentiles(stats.command_age()),

@@ -136,7 +136,7 @@ class PolicyWorker:
                 self._error = exc
 
     def _act(self, observation: PolicyObservation) -> PolicyChunk | None:
-        self.stats.count_observation_age(observation.frame_age_s)
+        self.stats.count_observation_age((time.time_ns() - observation.stamp_ns) / 1e9)  # the frame's age as it is sent
         try:
             if self.policy.act_request is not None:
                 request = ChunkRequest(observation.stamp_ns, len(self._prefix), self._prefix)

@@ -270,6 +270,8 @@ def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPubli
                 stats.held_ticks += 1
             if step is not None:
                 publisher.publish_step(step)
+            else:  # no chunk yet and no measured start to hold
+                stats.ticks_without_command += 1
             now_ns = time.monotonic_ns()
             if now_ns >= next_diagnostics_ns:
                 publisher.publish_diagnostics()
