@@ -53,11 +53,13 @@ REMOTE_SCHEMES = {"ws": PolicyKind.WEBSOCKET}  # a transport adds its scheme her
 @dataclass(frozen=True)
 class ChunkRequest:
     """What a remote policy is told with an observation: the chunk it returns starts at the frame `stamp_ns`;
-    `inference_delay` steps (`prefix`, (d, A) in the action names' order) will execute before it can arrive."""
+    `inference_delay` steps (`prefix`, (d, A) in the action names' order) will execute before it can arrive. The
+    transport calls `sent(time.time_ns())` as the observation leaves (frame -> observation sent is measured there)."""
 
     stamp_ns: int
     inference_delay: int
     prefix: np.ndarray
+    sent: Callable[[int], None]
 
 
 @dataclass(frozen=True)

@@ -65,7 +65,8 @@ class LatestObservation:
 @dataclass(frozen=True)
 class PolicyChunk:
     steps: np.ndarray  # (N, A), validated
-    source_stamp_ns: int
+    source_stamp_ns: int  # the frame whose observation it answered
+    received_ns: int  # wall clock when the policy returned it
 
 
 class PolicyWorker:
@@ -136,12 +137,15 @@ class PolicyWorker:
                 self._error = exc
 
     def _act(self, observation: PolicyObservation) -> PolicyChunk | None:
-        self.stats.count_observation_age((time.time_ns() - observation.stamp_ns) / 1e9)  # the frame's age as it is sent
+        def sent(now_ns: int) -> None:  # the frame's age as its observation leaves for the policy
+            self.stats.count_observation_age((now_ns - observation.stamp_ns) / 1e9)
+
         try:
             if self.policy.act_request is not None:
-                request = ChunkRequest(observation.stamp_ns, len(self._prefix), self._prefix)
+                request = ChunkRequest(observation.stamp_ns, len(self._prefix), self._prefix, sent)
                 output = self.policy.act_request(observation.batch, request)
             else:
+                sent(time.time_ns())
                 output = self.policy.act(observation.batch)
         except BaseException as exc:  # sys.exit, KeyboardInterrupt (no signal reaches this thread), GeneratorExit too
             raise PolicyCallError(self.policy.label, observation.stamp_ns, exc) from exc
@@ -152,4 +156,4 @@ class PolicyWorker:
             self.stats.count_refusal(type(exc).__name__, str(exc))
             print(f"roi-node policy run: {exc}", file=sys.stderr, flush=True)
             return None
-        return PolicyChunk(steps, observation.stamp_ns)
+        return PolicyChunk(steps, observation.stamp_ns, time.time_ns())

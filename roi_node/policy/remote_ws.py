@@ -12,8 +12,11 @@ the server's traceback (openpi sends one before it closes): it ends the run.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping, Sequence
 from typing import Any
+
+import numpy as np
 
 from roi_node.engine.errors import InputDataError
 from roi_node.policy.action_errors import PolicyLoadError
@@ -52,6 +55,7 @@ def connect_websocket(spec: str, mapping: ServerMapping, state_names: Sequence[s
         observation = mapping.request(batch, names)
         if takes_prefix:
             observation |= {"inference_delay": request.inference_delay, "prefix": request.prefix}
+        request.sent(time.time_ns())
         answer = client.infer(observation)
         if not isinstance(answer, Mapping) or mapping.actions_key not in answer:
             keys = ", ".join(map(str, answer)) if isinstance(answer, Mapping) else type(answer).__name__
@@ -59,12 +63,6 @@ def connect_websocket(spec: str, mapping: ServerMapping, state_names: Sequence[s
         return answer[mapping.actions_key]
 
     def act(batch: Mapping[str, Any]) -> Any:
-        return act_request(batch, ChunkRequest(0, 0, _empty(action_count)))
+        return act_request(batch, ChunkRequest(0, 0, np.zeros((0, action_count)), lambda now_ns: None))
 
     return LoadedPolicy(spec, PolicyKind.WEBSOCKET, act, client.reset, act_request, takes_prefix)
-
-
-def _empty(action_count: int) -> Any:
-    import numpy as np
-
-    return np.zeros((0, action_count))

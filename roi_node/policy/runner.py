@@ -236,7 +236,7 @@ def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPubli
     if first is not None and (start := _seed_from_state(publisher, first, features)) is not None:
         held = ActionStep(start, first.stamp_ns, first_of_chunk=False)
     worker = PolicyWorker(policy, features.action_names, latest, stats)
-    delay_steps = 0  # the last chunk's stale steps on arrival: the delay real-time chunking plans for
+    delay_steps = 0  # the last chunk's steps past due when it was merged: the delay real-time chunking plans for
     overdue = False  # the server's deadline passed on the open request
     due_ns = time.monotonic_ns()
     next_diagnostics_ns = due_ns + DIAGNOSTICS_PERIOD_NS
@@ -245,9 +245,8 @@ def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPubli
             if latest.error is not None:
                 raise latest.error
             if (chunk := worker.take()) is not None:
-                age_ns = time.time_ns() - chunk.source_stamp_ns
-                delay_steps = min(len(chunk.steps), max(0, round(age_ns / period_ns)))
-                stats.count_stale_steps(delay_steps)
+                stats.count_stale_steps(min(len(chunk.steps), -(-(chunk.received_ns - chunk.source_stamp_ns) // period_ns)))
+                delay_steps = min(len(chunk.steps), max(0, round((time.time_ns() - chunk.source_stamp_ns) / period_ns)))
                 queue.load(chunk.steps, chunk.source_stamp_ns, delay_steps, 0 if policy.takes_prefix else delay_steps)
                 stats.chunks += 1
                 if overdue:

@@ -64,6 +64,7 @@ class OpenpiTestServer:
     def __init__(self, spec: ServerSpec) -> None:
         self.spec = spec
         self.requests: list[dict[str, Any]] = []
+        self.served_s: list[float] = []  # per answer: observation received -> answer sent, the latency as served
         self._lock = threading.Lock()
         self._random = random.Random(0)
         self._closed = threading.Event()
@@ -107,6 +108,8 @@ class OpenpiTestServer:
                 ws.send(packer.pack(self._reply(answer, arrived_s)))
             except ConnectionClosed:
                 return
+            with self._lock:
+                self.served_s.append(time.time() - arrived_s)
 
     def _reply(self, answer: Answer, arrived_s: float) -> dict[str, Any]:
         times = arrived_s + np.arange(self.spec.steps) / self.spec.fps

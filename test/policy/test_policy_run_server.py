@@ -157,9 +157,9 @@ def test_injected_latency_holds_the_contract_and_rtc_smooths_the_chunk_boundarie
         start = rig.listener.count(COMMANDS)
         runner = run(rig, server, log, "--merge", mode, "--refill-below", "15")
         try:
-            assert wait_until(lambda: len(server.received()) >= 12, WAIT_S), log.read_text()
+            assert wait_until(lambda s=server: len(s.received()) >= 12, WAIT_S), log.read_text()  # type: ignore[misc]
             seen = len(rig.listener.messages("/diagnostics"))
-            assert wait_until(lambda: len(rig.listener.messages("/diagnostics")) > seen + 1, WAIT_S)
+            assert wait_until(lambda n=seen: len(rig.listener.messages("/diagnostics")) > n + 1, WAIT_S)  # type: ignore[misc]
             values = status(rig)
         finally:
             stop(runner, log)
@@ -169,11 +169,16 @@ def test_injected_latency_holds_the_contract_and_rtc_smooths_the_chunk_boundarie
         steps = np.diff(positions, axis=0)
         assert values["ticks_without_command"] == 0
         assert np.abs(steps).max() <= MAX_STEP_RAD + 1e-9
+        # the latency as served (injected, plus what a loaded machine adds to the server's sleep) beside the diagnostics:
+        # a chunk is stale by the ceiling of its age on arrival, and its first step waits for the next tick
+        served_ms = float(np.median(server.served_s)) * 1e3
+        assert served_ms >= latency_s * 1e3 * 0.7
         sent_ms = values["frame_to_observation_ms"]["p50"]  # type: ignore[index]
         stale = values["stale_steps_on_arrival"]["p50"]  # type: ignore[index]
         first_ms = values["frame_to_first_action_ms"]["p50"]  # type: ignore[index]
-        assert abs(stale - (sent_ms + latency_s * 1e3) / period_ms) <= 1.0, values
-        assert abs(first_ms - (sent_ms + latency_s * 1e3)) <= period_ms, values
+        shown = {k: v for k, v in values.items() if k.endswith(("_ms", "ticks", "arrival"))} | {"served_ms": served_ms}
+        assert abs(stale - ((sent_ms + served_ms) / period_ms + 0.5)) <= 1.0, shown
+        assert abs(first_ms - (sent_ms + served_ms + period_ms / 2)) <= period_ms, shown
         # chunk boundaries: where the frame behind the command changes; a jump is the change of velocity there
         stamps = [c.header.stamp.sec * 10**9 + c.header.stamp.nanosec for c in commands]
         settled = len(commands) // 3  # past the approach from the measured start
