@@ -5,8 +5,8 @@ many): asked on the control loop's thread, every tick it computed through
 would go without a command. `PolicyWorker` takes a request when the chunk
 runs low, waits for an observation newer than the last one it used, acts on
 it and hands back the validated chunk; meanwhile the loop keeps publishing
-the rest of the current chunk. A refused output (NaN/inf) is counted and the
-next request tries a newer frame; any other failure is kept and raised on
+the rest of the current chunk. A refused output (NaN/inf) is counted (said once
+while it repeats) and the next request tries a newer frame; any other failure is kept and raised on
 the loop's thread by `take`. A remote policy (`act_request`) is also told the
 frame's stamp and the steps that will execute while it answers.
 """
@@ -153,7 +153,8 @@ class PolicyWorker:
         try:
             steps = as_action_chunk(output, self.action_names, f"--policy {self.policy.label}")
         except NonFiniteActionError as exc:
+            if str(exc) != self.stats.refusals().last:  # the same refusal again is counted, not said again
+                print(f"roi-node policy run: {exc}", file=sys.stderr, flush=True)
             self.stats.count_refusal(type(exc).__name__, str(exc))
-            print(f"roi-node policy run: {exc}", file=sys.stderr, flush=True)
             return None
         return PolicyChunk(steps, observation.stamp_ns, time.time_ns())

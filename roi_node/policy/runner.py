@@ -86,6 +86,16 @@ class RunOptions:
     ros_args: tuple[str, ...]
 
 
+@dataclass(frozen=True)
+class LoopOptions:
+    """What the control loop reads of the options."""
+
+    refill_below: int
+    close_timeout_s: float  # a local policy still computing at the end is waited for this long (a server: its deadline)
+    merge: MergeMode = MergeMode.REPLACE
+    server_timeout_s: float = 2.0
+
+
 @dataclass
 class StopSignals:
     """SIGINT/SIGTERM received during a run: each sets `stop` and is named in `received`. While `interrupting`, a
@@ -159,7 +169,8 @@ def _run(features: PolicyFeatures, options: RunOptions, signals: StopSignals, st
             latest = LatestObservation()
             reader = threading.Thread(target=_read_observations, args=(stream, latest, stop), name="policy-observations", daemon=True)
             reader.start()
-            _loop(policy, features, publisher, latest, stop, options)
+            _loop(policy, features, publisher, latest, stop, LoopOptions(options.refill_below, options.observation_timeout_s,
+                                                                         options.merge, options.server_timeout_s))
         except StopRequestedError:
             pass
         finally:
@@ -222,7 +233,7 @@ def _read_observations(stream: PolicyObservationStream, latest: LatestObservatio
 
 
 def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPublisher, latest: LatestObservation,
-          stop: threading.Event, options: RunOptions) -> None:
+          stop: threading.Event, options: LoopOptions) -> None:
     stats = publisher.stats
     queue = ActionChunkQueue(options.refill_below, options.merge)
     period_ns = round(NS_PER_S / features.fps)
@@ -286,7 +297,7 @@ def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPubli
             publisher.publish_step(ActionStep(publisher.previous, held.source_stamp_ns, first_of_chunk=False))
         raise
     finally:
-        worker.close(options.server_timeout_s if remote else options.observation_timeout_s)
+        worker.close(options.server_timeout_s if remote else options.close_timeout_s)
 
 
 def _say(line: str) -> None:

@@ -18,6 +18,7 @@ import signal
 import subprocess
 import sys
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -76,16 +77,30 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
     finally:
         for child in children:
             child.send_signal(signal.SIGINT)
-            child.wait(timeout=30)
+            try:
+                child.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                child.kill()
+                child.wait()
         for log in logs:
             log.close()
         listener.close()
 
 
-def run(rig: Rig, server: OpenpiTestServer, log: Path, *options: str) -> subprocess.Popen[bytes]:
+@contextmanager
+def run(rig: Rig, server: OpenpiTestServer, log: Path, *options: str) -> Iterator[subprocess.Popen[bytes]]:
+    """The runner against `server`; killed at the end if a failed wait left it running, and the server closed."""
     args = ["-m", "roi_node.cli", "policy", "run", "--policy", server.url, "--features", str(rig.dataset), "--config", str(RIG),
             "--command-topic", COMMANDS, "--timeout-s", "60", "--max-step-rad", str(MAX_STEP_RAD), *options]
-    return subprocess.Popen([sys.executable, *args], cwd=REPO, env=rig.env, stdout=log.open("wb"), stderr=subprocess.STDOUT)
+    with log.open("wb") as out:
+        runner = subprocess.Popen([sys.executable, *args], cwd=REPO, env=rig.env, stdout=out, stderr=subprocess.STDOUT)
+        try:
+            yield runner
+        finally:
+            if runner.poll() is None:
+                runner.kill()
+                runner.wait()
+            server.close()
 
 
 def commands_since(rig: Rig, start: int) -> list[JointState]:
@@ -112,13 +127,10 @@ def test_droid_preset_sends_the_declared_inputs_and_the_commands_are_the_chunks(
     server = OpenpiTestServer(ServerSpec(rig.features.action_names, FPS, metadata={"inputs": DROID_INPUTS,
                                                                                    "action_dim": len(rig.features.action_names)}))
     start = rig.listener.count(COMMANDS)
-    runner = run(rig, server, tmp_path / "policy.log", "--server-map", "droid")
-    try:
+    with run(rig, server, tmp_path / "policy.log", "--server-map", "droid") as runner:
         assert wait_until(lambda: len(server.received()) >= 8 and len(commands_since(rig, start)) >= 90, WAIT_S), \
             (tmp_path / "policy.log").read_text()
-    finally:
         stop(runner, tmp_path / "policy.log")
-        server.close()
     views = {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec: chw(m) for m in rig.listener.messages(topics.GLOBAL_IMAGE)}
     wrists = {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec: chw(m) for m in rig.listener.messages(topics.roi_image("left"))}
     records = {r["stamp_ns"]: r for r in (json.loads(m.data) for m in rig.listener.messages(topics.METADATA))}
@@ -155,15 +167,12 @@ def test_injected_latency_holds_the_contract_and_rtc_smooths_the_chunk_boundarie
         server = OpenpiTestServer(ServerSpec(rig.features.action_names, FPS, latency_s=latency_s, jitter=0.3))
         log = tmp_path / f"{mode}.log"
         start = rig.listener.count(COMMANDS)
-        runner = run(rig, server, log, "--merge", mode, "--refill-below", "15")
-        try:
+        with run(rig, server, log, "--merge", mode, "--refill-below", "15") as runner:
             assert wait_until(lambda s=server: len(s.received()) >= 12, WAIT_S), log.read_text()  # type: ignore[misc]
             seen = len(rig.listener.messages("/diagnostics"))
             assert wait_until(lambda n=seen: len(rig.listener.messages("/diagnostics")) > n + 1, WAIT_S)  # type: ignore[misc]
             values = status(rig)
-        finally:
             stop(runner, log)
-            server.close()
         commands = commands_since(rig, start)
         positions = np.array([c.position for c in commands])
         steps = np.diff(positions, axis=0)
@@ -200,9 +209,8 @@ def test_a_failing_server_is_one_line_and_the_robot_is_held(rig: Rig, tmp_path: 
                                          answers_before=5 if answer is Answer.DIE else 0))  # DIE: mid-run
     log = tmp_path / "policy.log"
     start = rig.listener.count(COMMANDS)
-    runner = run(rig, server, log, "--server-timeout-s", "1")
     said = said.format(port=server.port)
-    try:
+    with run(rig, server, log, "--server-timeout-s", "1") as runner:
         if exit_code == 2:
             assert runner.wait(timeout=WAIT_S) == 2, log.read_text()
             lines = tool_lines(log.read_text().strip())
@@ -212,8 +220,6 @@ def test_a_failing_server_is_one_line_and_the_robot_is_held(rig: Rig, tmp_path: 
             before = len(commands_since(rig, start))
             assert wait_until(lambda: len(commands_since(rig, start)) > before + 30, WAIT_S)
             lines = stop(runner, log)
-    finally:
-        server.close()
     assert sum(said in line for line in lines) == 1, lines
     commands = [np.array(c.position) for c in commands_since(rig, start)]
     assert commands, "no command: the robot was not told to hold"
