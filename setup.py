@@ -50,6 +50,10 @@ setup(
         "sign": ["model-signing>=1.1,<2", "pyOpenSSL>=24"],
         # `--ray`: one task per bag on a Ray cluster; 2.52 is the first with token authentication (RAY_AUTH_TOKEN)
         "cluster": ["ray>=2.52,<3"],
+        # `policy run --policy ws://`: openpi's websocket policy servers through openpi-client. openpi-client 0.1.2 pins
+        # numpy<2, which the robots extra's pinocchio wheels (numpy 2.3) exclude, so the Makefile installs it with
+        # --no-deps (its code runs on numpy 2) after these, its own requirements
+        "openpi": ["msgpack>=1.0.5", "websockets>=11", "pillow>=9", "typing-extensions>=4"],
         "dev": [
             "pytest>=8,<9",  # pytest 9 renamed the node id pytest-xdist's loadgroup rewrites (its groups are ignored)
             "pytest-timeout>=2.3",

@@ -60,6 +60,7 @@ class ActionStats:
     last_stale_steps: int | None = None
     _command_ages_ms: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     _stale_steps: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
+    _chunk_ages_ms: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     _latencies_ms: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     _observation_ages_ms: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
@@ -90,6 +91,13 @@ class ActionStats:
     def count_command_age(self, frame_stamp_ns: int, published_ns: int) -> None:
         self.last_command_age_ms = (published_ns - frame_stamp_ns) / 1e6
         self._command_ages_ms.append(self.last_command_age_ms)
+
+    def count_chunk_age(self, frame_stamp_ns: int, received_ns: int) -> None:
+        self._chunk_ages_ms.append((received_ns - frame_stamp_ns) / 1e6)
+
+    def chunk_age(self) -> LatencySummary | None:
+        """Frame stamp -> the chunk answering it received from the policy."""
+        return _summary(self._chunk_ages_ms)
 
     def count_stale_steps(self, steps: int) -> None:
         self.last_stale_steps = steps

@@ -202,8 +202,7 @@ class ActionChunkQueue:
         old = [s.positions for s in self._steps]
         if not old and self.last is not None:
             old = [self.last]
-        if self.mode is MergeMode.AVERAGE:
-            overlap = min(len(old), len(fresh))
+        if self.mode is MergeMode.AVERAGE and (overlap := min(len(old), len(fresh))):
             fresh[:overlap] = AVERAGE_OLD_WEIGHT * np.array(old[:overlap]) + (1 - AVERAGE_OLD_WEIGHT) * fresh[:overlap]
         elif self.mode is MergeMode.RTC and old:
             for i in range(min(blend_steps, len(fresh))):

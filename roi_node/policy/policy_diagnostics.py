@@ -56,6 +56,7 @@ def policy_diagnostics_msg(stamp_ns: int, stats: ActionStats, command_topic: str
         "ticks_without_command": stats.ticks_without_command,
         "frame_to_first_action_ms": _percentiles(latency),
         "frame_to_observation_ms": _percentiles(observation_age),
+        "frame_to_chunk_ms": _percentiles(stats.chunk_age()),
         "command_observation_age_ms": _percentiles(stats.command_age()),
         "last_command_observation_age_ms": stats.last_command_age_ms,
         "stale_steps_on_arrival": _percentiles(stats.stale_steps()),

@@ -256,6 +256,7 @@ def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPubli
             if latest.error is not None:
                 raise latest.error
             if (chunk := worker.take()) is not None:
+                stats.count_chunk_age(chunk.source_stamp_ns, chunk.received_ns)
                 stats.count_stale_steps(min(len(chunk.steps), -(-(chunk.received_ns - chunk.source_stamp_ns) // period_ns)))
                 delay_steps = min(len(chunk.steps), max(0, round((time.time_ns() - chunk.source_stamp_ns) / period_ns)))
                 queue.load(chunk.steps, chunk.source_stamp_ns, delay_steps, 0 if policy.takes_prefix else delay_steps)
