@@ -205,8 +205,11 @@ class ActionChunkQueue:
         if self.mode is MergeMode.AVERAGE and (overlap := min(len(old), len(fresh))):
             fresh[:overlap] = AVERAGE_OLD_WEIGHT * np.array(old[:overlap]) + (1 - AVERAGE_OLD_WEIGHT) * fresh[:overlap]
         elif self.mode is MergeMode.RTC and old:
-            for i in range(min(blend_steps, len(fresh))):
-                weight = (i + 1) / (blend_steps + 1)
+            # over the overlap with a plan still running (never past its end: a held end is no plan); from a plan
+            # that ran dry (the last step) over the whole delay
+            horizon = min(blend_steps, len(old)) if len(old) > 1 else blend_steps
+            for i in range(min(horizon, len(fresh))):
+                weight = (i + 1) / (horizon + 1)
                 fresh[i] = (1 - weight) * old[min(i, len(old) - 1)] + weight * fresh[i]
         self._steps = deque(ActionStep(row, source_stamp_ns, i == 0) for i, row in enumerate(fresh))
 

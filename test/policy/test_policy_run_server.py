@@ -179,15 +179,15 @@ def test_injected_latency_holds_the_contract_and_rtc_smooths_the_chunk_boundarie
         assert values["ticks_without_command"] == 0
         assert np.abs(steps).max() <= MAX_STEP_RAD + 1e-9
         # the latency as served (injected, plus what a loaded machine adds to the server's sleep) beside the diagnostics:
-        # a chunk is stale by the ceiling of its age on arrival, and its first step waits for the next tick
+        # a chunk arrives that long after its observation was sent, is stale by the ceiling of its age on arrival in
+        # periods, and its first step waits for the next tick
         served_ms = float(np.median(server.served_s)) * 1e3
         assert served_ms >= latency_s * 1e3 * 0.7
-        sent_ms = values["frame_to_observation_ms"]["p50"]  # type: ignore[index]
-        stale = values["stale_steps_on_arrival"]["p50"]  # type: ignore[index]
-        first_ms = values["frame_to_first_action_ms"]["p50"]  # type: ignore[index]
-        shown = {k: v for k, v in values.items() if k.endswith(("_ms", "ticks", "arrival"))} | {"served_ms": served_ms}
-        assert abs(stale - ((sent_ms + served_ms) / period_ms + 0.5)) <= 1.0, shown
-        assert abs(first_ms - (sent_ms + served_ms + period_ms / 2)) <= period_ms, shown
+        p50 = {k: v["p50"] for k, v in values.items() if isinstance(v, dict) and "p50" in v}  # type: ignore[index]
+        shown = p50 | {"served_ms": served_ms}
+        assert 0 <= p50["frame_to_chunk_ms"] - (p50["frame_to_observation_ms"] + served_ms) <= period_ms, shown
+        assert abs(p50["stale_steps_on_arrival"] - (p50["frame_to_chunk_ms"] / period_ms + 0.5)) <= 1.0, shown
+        assert 0 <= p50["frame_to_first_action_ms"] - p50["frame_to_chunk_ms"] <= period_ms * 1.5, shown
         # chunk boundaries: where the frame behind the command changes; a jump is the change of velocity there
         stamps = [c.header.stamp.sec * 10**9 + c.header.stamp.nanosec for c in commands]
         settled = len(commands) // 3  # past the approach from the measured start
