@@ -37,6 +37,7 @@ class Answer(StrEnum):
     WRONG_SHAPE = "wrong_shape"  # a chunk one joint short
     NAN = "nan"  # a chunk holding NaN
     WRONG_KEYS = "wrong_keys"  # no `actions`
+    TRACEBACK = "traceback"  # a text frame, as openpi's server sends its traceback before it closes
     DIE = "die"  # after `answers_before` answers its connection is cut, as a killed server's
     SILENT = "silent"  # never answers
 
@@ -96,6 +97,10 @@ class OpenpiTestServer:
             answer = self.spec.answer if count > self.spec.answers_before else Answer.CHUNK
             if answer is Answer.SILENT:
                 self._closed.wait()
+                return
+            if answer is Answer.TRACEBACK:
+                ws.send("Traceback (most recent call last):\n  ...\nValueError: the policy failed")
+                ws.close()
                 return
             if answer is Answer.DIE:  # as a killed server: the socket goes without a closing handshake
                 self._closed.set()

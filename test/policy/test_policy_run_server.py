@@ -199,6 +199,7 @@ def test_injected_latency_holds_the_contract_and_rtc_smooths_the_chunk_boundarie
 
 @pytest.mark.parametrize(("answer", "exit_code", "said"), [
     (Answer.DIE, 2, "raised ConnectionClosedError"),
+    (Answer.TRACEBACK, 2, "raised RuntimeError: Error in inference server: on the observation of frame"),
     (Answer.WRONG_SHAPE, 2, "returned an action of shape (30, 17)"),
     (Answer.WRONG_KEYS, 2, "the server ws://127.0.0.1:{port} answered without 'actions' (it sent action)"),
     (Answer.NAN, 0, "returned a non-finite action (NaN or inf) for left_panda_joint1; refused, not published"),
