@@ -4,9 +4,11 @@ Built from openpi-client's own framing (`msgpack_numpy`): on connect it sends
 its metadata, then answers each observation with one message, a mapping whose
 `actions` is a chunk. It keeps every observation it received. The chunk is a
 slow sinusoid around the hold pose, a function of the time the observation
-arrived plus k frame periods for step k, so chunks asked at different times
-agree where they overlap in time: a runner that executes them on time moves
-smoothly, one that executes stale steps goes back at every chunk boundary.
+arrived plus k frame periods for step k; the left arm's (the DROID preset's
+joints) goes on from the position observed, as a policy's chunk starts where
+it saw the robot. A runner that executes a chunk from its first step goes
+back by the inference's delay at every chunk boundary; one that drops the
+steps stale on arrival goes on.
 `Answer` says how it misbehaves: garbage, a death after some answers, silence.
 """
 
@@ -29,6 +31,7 @@ from websockets.sync.server import Server, ServerConnection, serve
 from examples.hold_pose_policy import HOLD_POSE
 
 AMPLITUDE_RAD = 0.3
+DROID_JOINTS = "observation/joint_position"
 PERIOD_S = 4.0
 
 
@@ -110,15 +113,18 @@ class OpenpiTestServer:
             spread = self.spec.latency_s * self.spec.jitter
             time.sleep(max(0.0, self.spec.latency_s + self._random.uniform(-spread, spread)))
             try:
-                ws.send(packer.pack(self._reply(answer, arrived_s)))
+                ws.send(packer.pack(self._reply(answer, arrived_s, observation)))
             except ConnectionClosed:
                 return
             with self._lock:
                 self.served_s.append(time.time() - arrived_s)
 
-    def _reply(self, answer: Answer, arrived_s: float) -> dict[str, Any]:
+    def _reply(self, answer: Answer, arrived_s: float, observation: dict[str, Any]) -> dict[str, Any]:
         times = arrived_s + np.arange(self.spec.steps) / self.spec.fps
         chunk = trajectory(self.spec.action_names, times)
+        if DROID_JOINTS in observation:  # as a policy does, the arm's motion goes on from where the robot was observed
+            arm = [self.spec.action_names.index(f"left_panda_joint{i}") for i in range(1, 8)]
+            chunk[:, arm] += np.asarray(observation[DROID_JOINTS], dtype=np.float64) - chunk[0, arm]
         if answer is Answer.WRONG_SHAPE:
             return {"actions": chunk[:, :-1]}
         if answer is Answer.NAN:

@@ -44,6 +44,7 @@ FPS = 30
 COMMANDS = "joint_commands"
 MAX_STEP_RAD = 0.3  # wide enough that replace mode's jumps show unclamped
 WAIT_S = 120.0  # bounds the waits; not a speed claim
+STARVED_TICKS = 10  # ticks skipped late in a run beyond which the machine, not the runner, set its timing
 DROID_INPUTS = {"observation/exterior_image_1_left": {"shape": [224, 224, 3], "dtype": "uint8"},
                 "observation/wrist_image_left": {"shape": [224, 224, 3], "dtype": "uint8"},
                 "observation/joint_position": {"shape": [7], "dtype": "float64"},
@@ -148,11 +149,12 @@ def test_droid_preset_sends_the_declared_inputs_and_the_commands_are_the_chunks(
         expected = np.array([positions[n] for n in joints], dtype=np.float32).astype(np.float64)
         assert np.array_equal(request["observation/joint_position"], expected)
         assert request["observation/gripper_position"][0] == np.float64(np.float32(positions["left_panda_finger_joint1"]))
-    # every command after the approach is a step of the server's sinusoid: all swung joints at one phase
+    # every command after the approach is a step of the server's sinusoid: the right arm's joints (which the left-arm
+    # DROID observation does not steer) all at one phase
     names = list(rig.features.action_names)
     from examples.hold_pose_policy import HOLD_POSE
 
-    swung = [i for i, n in enumerate(names) if "finger" not in n]
+    swung = [i for i, n in enumerate(names) if n.startswith("right_panda_joint")]
     for command in commands_since(rig, start)[-30:]:
         assert list(command.name) == names
         phase = (np.array(command.position)[swung] - np.array([HOLD_POSE[names[i]] for i in swung])) / AMPLITUDE_RAD
@@ -178,6 +180,8 @@ def test_injected_latency_holds_the_contract_and_rtc_smooths_the_chunk_boundarie
         steps = np.diff(positions, axis=0)
         assert values["ticks_without_command"] == 0
         assert np.abs(steps).max() <= MAX_STEP_RAD + 1e-9
+        if values["late_ticks"] > STARVED_TICKS:  # what follows compares times and the executed trajectory's ticks
+            pytest.skip(f"{mode}: the machine held the runner past {values['late_ticks']} ticks; latencies not judged")
         # the latency as served (injected, plus what a loaded machine adds to the server's sleep) beside the diagnostics:
         # a chunk arrives that long after its observation was sent, is stale by the ceiling of its age on arrival in
         # periods, and its first step waits for the next tick
@@ -188,7 +192,8 @@ def test_injected_latency_holds_the_contract_and_rtc_smooths_the_chunk_boundarie
         assert 0 <= p50["frame_to_chunk_ms"] - (p50["frame_to_observation_ms"] + served_ms) <= period_ms, shown
         assert abs(p50["stale_steps_on_arrival"] - (p50["frame_to_chunk_ms"] / period_ms + 0.5)) <= 1.0, shown
         assert 0 <= p50["frame_to_first_action_ms"] - p50["frame_to_chunk_ms"] <= period_ms * 1.5, shown
-        # chunk boundaries: where the frame behind the command changes; a jump is the change of velocity there
+        # chunk boundaries: where the frame behind the command changes; a jump is the command's step there less the step
+        # before it (the departure from the motion: a smooth trajectory's steps change little from tick to tick)
         stamps = [c.header.stamp.sec * 10**9 + c.header.stamp.nanosec for c in commands]
         settled = len(commands) // 3  # past the approach from the measured start
         boundaries = [k for k in range(max(settled, 2), len(commands)) if stamps[k] != stamps[k - 1]]
