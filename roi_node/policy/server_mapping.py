@@ -8,7 +8,9 @@ the task prompt goes; the chunk comes back under `actions_key`. Presets follow
 openpi's own clients: `droid` (examples/droid/main.py: the exterior and wrist
 images at 224x224 HWC, 7 joint positions and 1 gripper position) and `aloha`
 (examples/aloha_real/env.py: the images by camera name at 224x224 CHW, a
-14-value state: per arm 6 joints and its gripper). The node's global view is
+14-value state: per arm 6 joints and its gripper; its `cam_low` is not sent,
+the node has no such view, and openpi's ALOHA inputs mask a missing camera
+out). The node's global view is
 the exterior/high camera and an arm's ROI its wrist camera; an arm's joints
 are its robot's revolute joints and its gripper that robot's first prismatic
 joint, in the dataset's state order.
@@ -35,7 +37,6 @@ from roi_node.policy.actions import JointMotion, action_joints
 from roi_node.policy.features import PolicyFeatures
 
 OPENPI_IMAGE_PX = 224  # the image size openpi's DROID and ALOHA examples resize to
-WRIST_FALLBACK = "cam_low"  # ALOHA's fourth camera: the node has no such view, openpi masks a missing camera out
 
 
 class ImageLayout(StrEnum):
