@@ -5,7 +5,8 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-roi-node
-EXTRAS := ros,bag,robots,export,sign,cluster,dev
+EXTRAS := ros,bag,robots,export,sign,cluster,openpi,dev
+OPENPI_CLIENT := openpi-client==0.1.2
 DEMO_OUT ?= demo_out
 
 # Everything that starts DDS keeps it on this machine, on its own domain.
@@ -22,6 +23,7 @@ $(STAMP): setup.py setup.cfg package.xml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[$(EXTRAS)]"
+	$(PY) -m pip install --quiet --no-deps "$(OPENPI_CLIENT)"  # its numpy<2 pin: setup.py's openpi extra says why
 	touch $(STAMP)
 
 test: $(STAMP)

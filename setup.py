@@ -53,6 +53,10 @@ setup(
         # `--policy grpc://`: LeRobot's async-inference PolicyServer (messages framed by hand: no protobuf, no lerobot);
         # torch reads the tensors its action chunks are pickled as
         "grpc": ["grpcio>=1.66", "torch>=2.2"],
+        # `policy run --policy ws://`: openpi's websocket policy servers through openpi-client. openpi-client 0.1.2 pins
+        # numpy<2, which the robots extra's pinocchio wheels (numpy 2.3) exclude, so the Makefile installs it with
+        # --no-deps (its code runs on numpy 2) after these, its own requirements
+        "openpi": ["msgpack>=1.0.5", "websockets>=11", "pillow>=9", "typing-extensions>=4"],
         "dev": [
             "pytest>=8,<9",  # pytest 9 renamed the node id pytest-xdist's loadgroup rewrites (its groups are ignored)
             "pytest-timeout>=2.3",

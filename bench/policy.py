@@ -1,12 +1,15 @@
-"""Policy latency at 720p30: frame stamp -> observation delivered, and frame stamp -> first action published.
+"""Policy latency at 720p30: frame stamp -> observation sent, -> chunk received, -> first action published.
 
-For each policy (the hold-pose callable, examples/hold_pose_policy.py, and a
+For each policy (the hold-pose callable, examples/hold_pose_policy.py, a
 LeRobot ACT policy with random weights built from the dataset's features, on
-the CPU), one run of real processes on one loopback DDS domain: `roi-node
+the CPU, and each remote transport: `ws`, an openpi-protocol server on
+loopback answering at once, test/policy/openpi_server.py, with the DROID
+preset's two images resized to 224x224 on the robot side), one run of real processes on one loopback DDS domain: `roi-node
 sim` (the bundled 1280x720 bimanual rig at 30 Hz, following the commands),
 `roi-node run`, and `roi-node policy run`. After --warmup-s, the bench reads
 the runner's /diagnostics status ('roi_node: policy actions') for
---seconds: its frame_to_observation_ms and frame_to_first_action_ms p50/p99
+--seconds: its frame_to_observation_ms (the observation leaving for the
+policy or server), frame_to_chunk_ms and frame_to_first_action_ms p50/p99
 (over the runner's latest 1000 values), and measures the frame period in the
 same run from the node's /roi/metadata stamps (median gap), so each latency
 is printed in ms and as a ratio to that period. The first action of a chunk
@@ -15,7 +18,9 @@ chunk were computed from an older frame by design.
 
 ACT needs lerobot and torch: run the bench with .venv-lerobot/bin/python (the
 ACT case is skipped, and says so, where lerobot is missing). Run:
-`.venv-lerobot/bin/python bench/policy.py --domain 205 [--seconds 30] [--policies callable act]`
+`.venv-lerobot/bin/python bench/policy.py --domain 205 [--seconds 30] [--policies callable act ws]`
+A transport is benched by adding its server to REMOTE_SERVERS (a context manager
+yielding the --policy URL and options).
 """
 
 from __future__ import annotations
@@ -31,6 +36,8 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -152,15 +159,34 @@ def run_case(name: str, policy: list[str], domain: int, warmup_s: float, seconds
         listener.close()
 
 
+@contextmanager
+def ws_server(dataset: Path) -> Iterator[list[str]]:
+    """openpi's protocol on loopback (openpi-client's framing), answering each observation at once."""
+    from roi_node.policy.features import PolicyFeatures
+    from test.policy.openpi_server import OpenpiTestServer, ServerSpec
+
+    server = OpenpiTestServer(ServerSpec(PolicyFeatures.load(dataset).action_names, FPS))
+    try:
+        yield ["--policy", server.url, "--features", str(dataset), "--server-map", "droid"]
+    finally:
+        server.close()
+
+
+REMOTE_SERVERS: dict[str, Callable[[Path], AbstractContextManager[list[str]]]] = {"ws": ws_server}
+
+
 def report(name: str, result: dict[str, Any]) -> None:
     period = result["frame_period_ms"]
     status = result["status"]
     print(f"{name}: frame period {period:.2f} ms (median of /roi/metadata stamp gaps in this run); "
           f"{status['chunks']} chunks, {status['actions_published']} actions, {status['late_ticks']} late ticks, "
           f"{status['held_ticks']} held")
-    for key, label in (("frame_to_observation_ms", "frame stamp -> observation delivered"),
+    for key, label in (("frame_to_observation_ms", "frame stamp -> observation sent"),
+                       ("frame_to_chunk_ms", "frame stamp -> chunk received"),
                        ("frame_to_first_action_ms", "frame stamp -> first action published")):
-        values = status[key]
+        values = status.get(key)
+        if not values:  # a runner from before the key
+            continue
         print(f"  {label}: p50 {values['p50']:.1f} ms ({values['p50'] / period:.2f} periods), "
               f"p99 {values['p99']:.1f} ms ({values['p99'] / period:.2f} periods), n {values['count']}")
 
@@ -170,7 +196,8 @@ def main() -> int:
     parser.add_argument("--domain", type=int, default=int(os.environ.get("ROS_DOMAIN_ID", "73")), help="ROS domain id of the runs")
     parser.add_argument("--seconds", type=float, default=30.0, help="measured seconds per policy (default: 30)")
     parser.add_argument("--warmup-s", type=float, default=5.0, help="after the first action, before measuring (default: 5)")
-    parser.add_argument("--policies", nargs="+", choices=["callable", "act"], default=["callable", "act"])
+    parser.add_argument("--policies", nargs="+", choices=["callable", "act", *REMOTE_SERVERS],
+                        default=["callable", "act", *REMOTE_SERVERS])
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_policy_") as folder:
         tmp = Path(folder)
@@ -188,12 +215,23 @@ def main() -> int:
                 save_random_act(dataset, tmp / "act", chunk_size=FPS)
                 cases["act"] = ["--policy", str(tmp / "act"), "--features", str(tmp / "act"), "--dataset", str(dataset)]
         for name, policy in cases.items():
-            result = run_case(name, policy, args.domain, args.warmup_s, args.seconds, tmp)
-            if result is None:
-                print((tmp / f"{name}_policy.log").read_text()[-2000:], file=sys.stderr)
+            if not bench_case(name, policy, args, tmp):
                 return 1
-            report(name, result)
+        for name in (n for n in args.policies if n in REMOTE_SERVERS):
+            sys.path.insert(0, str(REPO))
+            with REMOTE_SERVERS[name](dataset) as policy:
+                if not bench_case(name, policy, args, tmp):
+                    return 1
     return 0
+
+
+def bench_case(name: str, policy: list[str], args: argparse.Namespace, tmp: Path) -> bool:
+    result = run_case(name, policy, args.domain, args.warmup_s, args.seconds, tmp)
+    if result is None:
+        print((tmp / f"{name}_policy.log").read_text()[-2000:], file=sys.stderr)
+        return False
+    report(name, result)
+    return True
 
 
 if __name__ == "__main__":

@@ -1,7 +1,9 @@
 """ActionPublisher: clamped commands out as sensor_msgs/JointState positions, with its own /diagnostics status.
 
 The rclpy half of the action side: `publish_step` clamps one tick's step,
-publishes it stamped with the wall clock and counts what the clamp did;
+publishes it stamped with the stamp of the frame whose observation its chunk
+answered (a receiver reads the command's observation age as now - stamp), and
+counts that age and what the clamp did;
 `publish_diagnostics` sends the status once per window. A robot driver (or
 `roi-node sim` following commands) subscribes to the command topic.
 """
@@ -42,7 +44,9 @@ class ActionPublisher:
     def publish_step(self, step: ActionStep) -> np.ndarray:
         clamped = self.clamp.apply(step.positions, self.previous)
         now_ns = time.time_ns()
-        self._commands.publish(JointState(header=header(now_ns, ""), name=self.action_names, position=clamped.positions.tolist()))
+        self._commands.publish(JointState(header=header(step.source_stamp_ns, ""), name=self.action_names,
+                                          position=clamped.positions.tolist()))
+        self.stats.count_command_age(step.source_stamp_ns, now_ns)
         self.previous = clamped.positions
         self.stats.published += 1
         self.stats.count_clamps(clamped.clamped)

@@ -5,8 +5,8 @@ a mapping joint name -> position. `as_action_chunk` turns each into a
 (steps, joints) float64 array or refuses it (wrong length, other names,
 NaN/inf): a refused output is never published. `ActionChunkQueue` executes a
 chunk one step per tick and says when to ask the policy again: once fewer
-than `refill_below` steps remain, the next chunk (computed on a newer
-observation) replaces what is left. `ActionClamp` keeps each commanded
+than `refill_below` steps remain; the next chunk (computed on a newer
+observation) replaces what is left or is merged with it (`MergeMode`). `ActionClamp` keeps each commanded
 position inside its URDF limits and within a maximum step per tick of the
 previous command, so neither a policy's bad output nor a jump to a far
 target reaches the motors at once.
@@ -151,14 +151,35 @@ class ActionStep:
     first_of_chunk: bool  # the first step of its chunk: its publishing ends the frame -> action latency
 
 
-class ActionChunkQueue:
-    """The steps of the current chunk, executed one per tick; asks for a new chunk when fewer than `refill_below` remain."""
+class MergeMode(StrEnum):
+    """How a new chunk meets what is left of the current one (`--merge`)."""
 
-    def __init__(self, refill_below: int) -> None:
+    REPLACE = "replace"  # the new chunk replaces what is left, from its first step
+    AVERAGE = "average"  # LeRobot's async client: its stale steps dropped, the overlap AVERAGE_OLD_WEIGHT old + the rest new
+    RTC = "rtc"  # real-time chunking: its stale steps dropped; blended from the old plan over the delay unless the server took the prefix
+
+
+AVERAGE_OLD_WEIGHT = 0.3  # LeRobot's robot client's weighted_average: 0.3 old + 0.7 new
+
+
+class ActionChunkQueue:
+    """The steps of the current chunk, executed one per tick; asks for a new chunk when fewer than `refill_below` remain.
+
+    A chunk's step k is meant for the frame stamp + k periods: when it arrives,
+    the steps whose time has passed are stale (counted by the caller). REPLACE
+    executes it from its first step all the same (the behaviour before merge
+    modes); AVERAGE and RTC drop the stale steps (always keeping the last) and
+    merge the rest with the old plan step by step, so the executed trajectory
+    does not go back in time by the inference's delay at every chunk boundary.
+    """
+
+    def __init__(self, refill_below: int, mode: MergeMode = MergeMode.REPLACE) -> None:
         if refill_below < 1:
             raise ValueError(f"refill_below must be at least 1, got {refill_below}")
         self.refill_below = refill_below
+        self.mode = mode
         self._steps: deque[ActionStep] = deque()
+        self.last: np.ndarray | None = None  # the last step taken: the old plan once the queue ran dry
 
     def needs_policy(self) -> bool:
         return len(self._steps) < self.refill_below
@@ -166,12 +187,37 @@ class ActionChunkQueue:
     def remaining(self) -> int:
         return len(self._steps)
 
-    def load(self, chunk: np.ndarray, source_stamp_ns: int) -> None:
-        """Replace what is left with `chunk` (steps, A): it was computed on a newer observation."""
-        self._steps = deque(ActionStep(row.copy(), source_stamp_ns, i == 0) for i, row in enumerate(chunk))
+    def upcoming(self, count: int) -> np.ndarray:
+        """The next `count` planned steps (fewer when fewer are left), (n, A): the prefix real-time chunking freezes."""
+        rows = [s.positions for s in list(self._steps)[:count]]
+        return np.array(rows) if rows else np.zeros((0, 0 if self.last is None else len(self.last)))
+
+    def clear(self) -> None:
+        self._steps.clear()
+
+    def load(self, chunk: np.ndarray, source_stamp_ns: int, stale_steps: int = 0, blend_steps: int = 0) -> None:
+        """Merge `chunk` (steps, A), computed on a newer observation, into the plan; `blend_steps` (RTC): the delay
+        the old plan is blended into the new one over (0: the server was given the prefix, no blend)."""
+        fresh = chunk.copy() if self.mode is MergeMode.REPLACE else chunk[min(stale_steps, len(chunk) - 1):].copy()
+        old = [s.positions for s in self._steps]
+        if not old and self.last is not None:
+            old = [self.last]
+        if self.mode is MergeMode.AVERAGE and (overlap := min(len(old), len(fresh))):
+            fresh[:overlap] = AVERAGE_OLD_WEIGHT * np.array(old[:overlap]) + (1 - AVERAGE_OLD_WEIGHT) * fresh[:overlap]
+        elif self.mode is MergeMode.RTC and old:
+            # over the overlap with a plan still running (never past its end: a held end is no plan); from a plan
+            # that ran dry (the last step) over the whole delay
+            horizon = min(blend_steps, len(old)) if len(old) > 1 else blend_steps
+            for i in range(min(horizon, len(fresh))):
+                weight = (i + 1) / (horizon + 1)
+                fresh[i] = (1 - weight) * old[min(i, len(old) - 1)] + weight * fresh[i]
+        self._steps = deque(ActionStep(row, source_stamp_ns, i == 0) for i, row in enumerate(fresh))
 
     def next_step(self) -> ActionStep | None:
-        return self._steps.popleft() if self._steps else None
+        step = self._steps.popleft() if self._steps else None
+        if step is not None:
+            self.last = step.positions
+        return step
 
 
 @dataclass(frozen=True)

@@ -66,11 +66,18 @@ def check_command_graph(node: Node, topic: str) -> None:
     if publishers:
         raise CommandTopicError(topic, f"{', '.join(publishers)} already publish on {resolved} (measured states or "
                                        "another commander); publish commands on a topic of their own")
-    roi_nodes = _node_names(node.get_publishers_info_by_topic(node.resolve_topic_name(topics.METADATA)))
-    if taken := sorted(set(_node_names(node.get_subscriptions_info_by_topic(resolved))) & set(roi_nodes)):
+    roi_nodes = _node_names(node.get_publishers_info_by_topic(node.resolve_topic_name(topics.METADATA)), known_only=True)
+    if taken := sorted(set(_node_names(node.get_subscriptions_info_by_topic(resolved), known_only=True)) & set(roi_nodes)):
         raise CommandTopicError(topic, f"the roi_node {', '.join(taken)} subscribes to {resolved} as an input; "
                                        "publish commands on a topic of their own")
 
 
-def _node_names(endpoints: list[TopicEndpointInfo]) -> list[str]:
-    return sorted({f"{e.node_namespace.rstrip('/')}/{e.node_name}" for e in endpoints})
+UNKNOWN_NODE_NAME = "_NODE_NAME_UNKNOWN_"  # rmw's name for an endpoint whose node is not discovered yet
+
+
+def _node_names(endpoints: list[TopicEndpointInfo], *, known_only: bool = False) -> list[str]:
+    """The endpoints' nodes. `known_only`: without those not yet discovered (a loaded machine), which are no name to
+    compare: two such endpoints of different nodes once read as one roi_node that both publishes the records and
+    subscribes to the commands (the sim following them)."""
+    return sorted({f"{e.node_namespace.rstrip('/')}/{e.node_name}" for e in endpoints
+                   if not known_only or e.node_name != UNKNOWN_NODE_NAME})

@@ -1,5 +1,6 @@
 """`--policy`: a Python callable `module:function`, a LeRobot pretrained-policy folder (config.json + model.safetensors),
-or a LeRobot policy server, `grpc://HOST:PORT?...` (remote_grpc.py).
+or a policy server's address (`ws://HOST:PORT`: openpi's websocket server, remote_ws.py; `grpc://HOST:PORT?...`:
+LeRobot's async-inference PolicyServer, remote_grpc.py).
 
 Either becomes a `LoadedPolicy` whose `act(batch)` takes one observation
 batch (keys as LeRobotDataset.__getitem__ gives them) and returns what
@@ -16,9 +17,12 @@ Its saved pre/post-processors (normalization) are applied when the folder
 has them; the chunk returned is at most the config's n_action_steps, the
 horizon the policy was trained to execute.
 
-A grpc:// server's client is loaded where a callable is (`load_callable`,
-before the preflight): loading it opens no weights, since it connects and
-has the server load its checkpoint at its first act.
+A remote policy (a server) is a `LoadedPolicy` too, with `act_request`: it is
+called with the batch and a `ChunkRequest` (the frame's stamp, the steps that
+will execute while it answers, and those steps themselves), which a transport
+passes on when its server takes them (`takes_prefix`: real-time chunking). A
+grpc:// client is built before the preflight: it opens no weights, since it
+connects, and has its server load the checkpoint, at its first call.
 """
 
 from __future__ import annotations
@@ -32,6 +36,8 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from roi_node.policy.action_errors import PolicyLoadError, policy_did
 
 LEROBOT_FILES = ("config.json", "model.safetensors")
@@ -41,7 +47,23 @@ PREPROCESSOR_JSON = "policy_preprocessor.json"
 class PolicyKind(StrEnum):
     CALLABLE = "callable"
     LEROBOT = "lerobot"
-    GRPC = "grpc"
+    WEBSOCKET = "websocket"  # ws://HOST:PORT, openpi's policy server
+    GRPC = "grpc"  # grpc://HOST:PORT?..., LeRobot's async-inference PolicyServer
+
+
+REMOTE_SCHEMES = {"ws": PolicyKind.WEBSOCKET, "grpc": PolicyKind.GRPC}  # a transport adds its scheme here, its loader in runner.py
+
+
+@dataclass(frozen=True)
+class ChunkRequest:
+    """What a remote policy is told with an observation: the chunk it returns starts at the frame `stamp_ns`;
+    `inference_delay` steps (`prefix`, (d, A) in the action names' order) will execute before it can arrive. The
+    transport calls `sent(time.time_ns())` as the observation leaves (frame -> observation sent is measured there)."""
+
+    stamp_ns: int
+    inference_delay: int
+    prefix: np.ndarray
+    sent: Callable[[int], None]
 
 
 @dataclass(frozen=True)
@@ -52,19 +74,25 @@ class LoadedPolicy:
     kind: PolicyKind
     act: Callable[[Mapping[str, Any]], Any]
     reset: Callable[[], None]
+    act_request: Callable[[Mapping[str, Any], ChunkRequest], Any] | None = None  # a remote policy's call (see module doc)
+    takes_prefix: bool = False  # the server takes inference_delay and prefix (real-time chunking)
 
 
 def policy_kind(spec: str) -> PolicyKind:
-    """grpc:// is a LeRobot policy server; a folder a LeRobot policy; `module:function` a callable."""
-    if spec.startswith("grpc://"):
-        return PolicyKind.GRPC
+    """`ws://` or `grpc://` a policy server; a folder (or anything with a path separator that exists) is a LeRobot
+    policy; `module:function` a callable."""
+    scheme = spec.partition("://")[0] if "://" in spec else None
+    if scheme is not None:
+        if scheme not in REMOTE_SCHEMES:
+            raise PolicyLoadError(spec, f"no policy transport for {scheme}:// (transports: {', '.join(REMOTE_SCHEMES)})")
+        return REMOTE_SCHEMES[scheme]
     path = Path(spec)
     if path.is_dir():
         return PolicyKind.LEROBOT
     if ":" in spec and not path.exists():
         return PolicyKind.CALLABLE
     raise PolicyLoadError(spec, "expected a LeRobot pretrained-policy folder (config.json + model.safetensors) "
-                                "or a Python callable as module:function, or a LeRobot policy server as grpc://HOST:PORT?...")
+                                "or a Python callable as module:function or a server as ws://HOST:PORT or grpc://HOST:PORT?...")
 
 
 def check_lerobot_folder(spec: str) -> Path:
@@ -81,12 +109,7 @@ def check_lerobot_folder(spec: str) -> Path:
 
 
 def load_callable(spec: str) -> LoadedPolicy:
-    """`module:function` imported (the current directory on the path); any import failure is one line naming the module.
-    A grpc:// spec is its server's client (module docstring)."""
-    if policy_kind(spec) is PolicyKind.GRPC:
-        from roi_node.policy.remote_grpc import load_grpc
-
-        return load_grpc(spec)
+    """`module:function` imported (the current directory on the path); any import failure is one line naming the module."""
     module_name, _, function_name = spec.partition(":")
     if not module_name or not function_name:
         raise PolicyLoadError(spec, "expected module:function (a dotted module path, a colon, a function name)")
@@ -144,6 +167,3 @@ def load_lerobot(spec: str) -> LoadedPolicy:
 
     return LoadedPolicy(spec, PolicyKind.LEROBOT, act, policy.reset)
 
-
-def load_policy(spec: str) -> LoadedPolicy:
-    return load_lerobot(spec) if policy_kind(spec) is PolicyKind.LEROBOT else load_callable(spec)

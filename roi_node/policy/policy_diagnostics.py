@@ -1,6 +1,8 @@
 """ActionStats -> the `roi_node: policy actions` status on /diagnostics (formatted as live/diagnostics.py formats the node's).
 
-Levels: ERROR when a policy output was refused in the last window (NaN,
+Each command's observation age and each chunk's stale steps on arrival are
+given as percentiles and as their latest value (the stale steps' percentiles
+count steps, not milliseconds). Levels: ERROR when a policy output was refused in the last window (NaN,
 wrong shape: nothing of it reached the robot), WARN when the clamp changed a
 command in the last window, OK otherwise. The counts since start are in the
 values, by joint for the clamps.
@@ -51,8 +53,15 @@ def policy_diagnostics_msg(stamp_ns: int, stats: ActionStats, command_topic: str
         "clamped_by_joint": {kind.value: dict(c) for kind, c in stats.clamps.items()},
         "held_ticks": stats.held_ticks,
         "late_ticks": stats.late_ticks,
+        "ticks_without_command": stats.ticks_without_command,
         "frame_to_first_action_ms": _percentiles(latency),
         "frame_to_observation_ms": _percentiles(observation_age),
+        "frame_to_chunk_ms": _percentiles(stats.chunk_age()),
+        "command_observation_age_ms": _percentiles(stats.command_age()),
+        "last_command_observation_age_ms": stats.last_command_age_ms,
+        "stale_steps_on_arrival": _percentiles(stats.stale_steps()),
+        "last_stale_steps_on_arrival": stats.last_stale_steps,
+        "server_timeouts": stats.server_timeouts,
     }
     status = DiagnosticStatus(level=level, name=STATUS_NAME, message=message, hardware_id=HARDWARE_ID,
                               values=[_kv(k, v) for k, v in values.items()])

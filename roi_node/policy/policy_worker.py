@@ -5,15 +5,17 @@ many): asked on the control loop's thread, every tick it computed through
 would go without a command. `PolicyWorker` takes a request when the chunk
 runs low, waits for an observation newer than the last one it used, acts on
 it and hands back the validated chunk; meanwhile the loop keeps publishing
-the rest of the current chunk. A refused output (NaN/inf) is counted and the
-next request tries a newer frame; any other failure is kept and raised on
-the loop's thread by `take`.
+the rest of the current chunk. A refused output (NaN/inf) is counted (said once
+while it repeats) and the next request tries a newer frame; any other failure is kept and raised on
+the loop's thread by `take`. A remote policy (`act_request`) is also told the
+frame's stamp and the steps that will execute while it answers.
 """
 
 from __future__ import annotations
 
 import sys
 import threading
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -22,7 +24,7 @@ import numpy as np
 from roi_node.policy.action_errors import NonFiniteActionError, PolicyCallError
 from roi_node.policy.action_stats import ActionStats
 from roi_node.policy.actions import as_action_chunk
-from roi_node.policy.loaders import LoadedPolicy
+from roi_node.policy.loaders import ChunkRequest, LoadedPolicy
 from roi_node.policy.observations import PolicyObservation
 
 WAIT_SLICE_S = 0.05  # how often a waiting thread looks at the stop flag
@@ -63,7 +65,8 @@ class LatestObservation:
 @dataclass(frozen=True)
 class PolicyChunk:
     steps: np.ndarray  # (N, A), validated
-    source_stamp_ns: int
+    source_stamp_ns: int  # the frame whose observation it answered
+    received_ns: int  # wall clock when the policy returned it
 
 
 class PolicyWorker:
@@ -78,6 +81,8 @@ class PolicyWorker:
         self._result: PolicyChunk | None = None
         self._error: BaseException | None = None
         self._used: PolicyObservation | None = None
+        self._prefix = np.zeros((0, len(self.action_names)))
+        self.asked_ns = 0  # monotonic time of the open request: the server deadline counts from it
         self._thread = threading.Thread(target=self._run, name="policy", daemon=True)
         self._thread.start()
 
@@ -86,7 +91,13 @@ class PolicyWorker:
         """A request is open: the policy is waiting for a frame or computing."""
         return self._requested.is_set()
 
-    def request(self) -> None:
+    def request(self, prefix: np.ndarray | None = None) -> None:
+        """Ask for a chunk; `prefix` (d, A): the planned steps that will execute while it is computed."""
+        if prefix is not None and len(prefix):
+            self._prefix = prefix
+        else:
+            self._prefix = np.zeros((0, len(self.action_names)))
+        self.asked_ns = time.monotonic_ns()
         self._requested.set()
 
     def take(self) -> PolicyChunk | None:
@@ -126,16 +137,24 @@ class PolicyWorker:
                 self._error = exc
 
     def _act(self, observation: PolicyObservation) -> PolicyChunk | None:
-        self.stats.count_observation_age(observation.frame_age_s)
+        def sent(now_ns: int) -> None:  # the frame's age as its observation leaves for the policy
+            self.stats.count_observation_age((now_ns - observation.stamp_ns) / 1e9)
+
         try:
-            output = self.policy.act(observation.batch)
+            if self.policy.act_request is not None:
+                request = ChunkRequest(observation.stamp_ns, len(self._prefix), self._prefix, sent)
+                output = self.policy.act_request(observation.batch, request)
+            else:
+                sent(time.time_ns())
+                output = self.policy.act(observation.batch)
         except BaseException as exc:  # sys.exit, KeyboardInterrupt (no signal reaches this thread), GeneratorExit too
             raise PolicyCallError(self.policy.label, observation.stamp_ns, exc) from exc
         self.stats.count_policy_call()
         try:
             steps = as_action_chunk(output, self.action_names, f"--policy {self.policy.label}")
         except NonFiniteActionError as exc:
+            if str(exc) != self.stats.refusals().last:  # the same refusal again is counted, not said again
+                print(f"roi-node policy run: {exc}", file=sys.stderr, flush=True)
             self.stats.count_refusal(type(exc).__name__, str(exc))
-            print(f"roi-node policy run: {exc}", file=sys.stderr, flush=True)
             return None
-        return PolicyChunk(steps, observation.stamp_ns)
+        return PolicyChunk(steps, observation.stamp_ns, time.time_ns())

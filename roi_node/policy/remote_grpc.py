@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import pickle
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
@@ -162,12 +162,15 @@ class LeRobotGrpcClient:
         self._channel: Any = None
         self._timestep = 0
 
-    def act(self, batch: Mapping[str, Any]) -> np.ndarray:
+    def act(self, batch: Mapping[str, Any], sent: Callable[[int], None] | None = None) -> np.ndarray:
+        """The chunk answering `batch`; `sent(time.time_ns())` is called as the observation leaves (ChunkRequest.sent)."""
         raw, features = robot_observation(batch)
         if self._channel is None:
             self._open(features)
         timestep, self._timestep = self._timestep, self._timestep + 1
         observation = lerobot_pickle("TimedObservation", (time.time(), timestep, raw, True))
+        if sent is not None:
+            sent(time.time_ns())
         self._call("SendObservations", observation_parts(observation), stream=True)
         payload = bytes_field(self._call("GetActions", b""), 1)
         if not payload:
@@ -215,4 +218,5 @@ def load_grpc(spec: str) -> LoadedPolicy:
             raise PolicyLoadError(spec, f"a grpc:// policy needs grpcio and torch ({module} is not installed here): "
                                         "pip install 'roi_node[grpc]', or run it with .venv-lerobot's python") from exc
     client = LeRobotGrpcClient(target)
-    return LoadedPolicy(spec, PolicyKind.GRPC, client.act, lambda: None)
+    return LoadedPolicy(spec, PolicyKind.GRPC, client.act, lambda: None,
+                        act_request=lambda batch, request: client.act(batch, request.sent))

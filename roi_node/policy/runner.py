@@ -12,7 +12,17 @@ once it is ready. One step is clamped and published per tick. With no step
 left and no new chunk, the last target is published again and the tick
 counted as held: the commands keep the dataset's rate, and a target the step
 clamp cut short is still reached. A tick this thread was held up past is
-skipped, not made up in a burst.
+skipped, not made up in a burst. Until the first chunk the measured start is
+published, so no tick goes without a command.
+
+A policy server (`--policy ws://...`) is connected after the preflight, its
+metadata checked against the `--server-map`; each chunk is tied to the frame
+it answered: its stale steps on arrival (those whose time had passed) are
+counted, and `--merge` says how it meets the old plan (actions.py MergeMode;
+RTC passes the planned steps that execute while it answers as the prefix). A
+server that has not answered within `--server-timeout-s` is said once; the
+rest of the old plan is dropped and the last command held until it answers,
+which is said too.
 
 Observations are read on a thread of their own (the newest frame wins); a
 node that stops publishing ends the run with the stream's error. A NaN/inf
@@ -45,7 +55,7 @@ from roi_node.live.spin import ros_context
 from roi_node.policy.action_errors import PolicyLoadError, policy_did
 from roi_node.policy.action_publisher import ActionPublisher
 from roi_node.policy.action_stats import ActionStats
-from roi_node.policy.actions import ActionChunkQueue, ActionClamp, ActionStep, action_joints
+from roi_node.policy.actions import ActionChunkQueue, ActionClamp, ActionStep, MergeMode, action_joints
 from roi_node.policy.command_topic import POLICY_NODE_NAME, check_command_graph, check_command_topic
 from roi_node.policy.errors import StopRequestedError
 from roi_node.policy.features import PolicyFeatures
@@ -53,6 +63,8 @@ from roi_node.policy.loaders import LoadedPolicy, PolicyKind, check_lerobot_fold
 from roi_node.policy.observations import PolicyObservation, PolicyObservationStream
 from roi_node.policy.policy_worker import WAIT_SLICE_S, LatestObservation, PolicyWorker
 from roi_node.policy.preflight import require_fit
+from roi_node.policy.remote_grpc import load_grpc
+from roi_node.policy.server_mapping import ServerMapping, server_mapping
 
 DIAGNOSTICS_PERIOD_NS = NS_PER_S
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -68,8 +80,21 @@ class RunOptions:
     max_step_rad: float
     max_step_m: float
     observation_timeout_s: float
+    merge: MergeMode
+    server_map: str  # a server_mapping preset (ws:// policies)
+    server_timeout_s: float  # a server's deadline per request
     describe_frames: int  # frames the node is described from for the preflight
     ros_args: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class LoopOptions:
+    """What the control loop reads of the options."""
+
+    refill_below: int
+    close_timeout_s: float  # a local policy still computing at the end is waited for this long (a server: its deadline)
+    merge: MergeMode = MergeMode.REPLACE
+    server_timeout_s: float = 2.0
 
 
 @dataclass
@@ -115,14 +140,18 @@ def run_policy(features: PolicyFeatures, options: RunOptions) -> int:
 
 
 def _run(features: PolicyFeatures, options: RunOptions, signals: StopSignals, stats: ActionStats, started: float) -> None:
-    policy: LoadedPolicy | None = None  # a LeRobot policy's weights open after the preflight
-    if policy_kind(options.policy) is PolicyKind.LEROBOT:
+    policy: LoadedPolicy | None = None  # a LeRobot policy's weights open (a server is connected) after the preflight
+    kind = policy_kind(options.policy)
+    if kind is PolicyKind.LEROBOT:
         check_lerobot_folder(options.policy)
-    else:
+    elif kind is PolicyKind.CALLABLE:
         policy = _import_policy(options.policy, signals)
+    elif kind is PolicyKind.GRPC:  # checked before DDS; it connects at its first call
+        policy = load_grpc(options.policy)
     if not features.action_names:
         raise RoiNodeError(f"{features.source}: names no action (features.action.names): nothing to command")
     rig = load_rig_config(options.rig)
+    mapping = server_mapping(options.server_map, features, rig) if kind is PolicyKind.WEBSOCKET else None
     clamp = ActionClamp(action_joints(rig, features.action_names, max_step_rad=options.max_step_rad, max_step_m=options.max_step_m))
     check_command_topic(options.command_topic, rig)
     stop = signals.stop
@@ -137,13 +166,14 @@ def _run(features: PolicyFeatures, options: RunOptions, signals: StopSignals, st
             check_command_graph(node, options.command_topic)  # the node's endpoints are known once its frames came
             publisher = ActionPublisher(node, options.command_topic, features.action_names, clamp, stats)
             if policy is None:
-                policy = load_lerobot(options.policy)
+                policy = _load_after_preflight(kind, options.policy, features, mapping)
             print(f"roi-node policy run: {policy.label} ({policy.kind}) -> {options.command_topic} at {features.fps:g} Hz, "
                   f"{len(features.action_names)} joints", file=sys.stderr, flush=True)
             latest = LatestObservation()
             reader = threading.Thread(target=_read_observations, args=(stream, latest, stop), name="policy-observations", daemon=True)
             reader.start()
-            _loop(policy, features, publisher, latest, stop, options.refill_below, options.observation_timeout_s)
+            _loop(policy, features, publisher, latest, stop, LoopOptions(options.refill_below, options.observation_timeout_s,
+                                                                         options.merge, options.server_timeout_s))
         except StopRequestedError:
             pass
         finally:
@@ -155,6 +185,15 @@ def _run(features: PolicyFeatures, options: RunOptions, signals: StopSignals, st
                     publisher.publish_diagnostics()
                 _say_stopped(signals, started, stats)
             node.destroy_node()
+
+
+def _load_after_preflight(kind: PolicyKind, spec: str, features: PolicyFeatures, mapping: ServerMapping | None) -> LoadedPolicy:
+    """A LeRobot folder's weights, or a server connected (the seam a transport plugs its connect into)."""
+    if kind is PolicyKind.WEBSOCKET and mapping is not None:
+        from roi_node.policy.remote_ws import connect_websocket
+
+        return connect_websocket(spec, mapping, features.state_names, len(features.action_names))
+    return load_lerobot(spec)
 
 
 def _import_policy(spec: str, signals: StopSignals) -> LoadedPolicy:
@@ -197,19 +236,22 @@ def _read_observations(stream: PolicyObservationStream, latest: LatestObservatio
 
 
 def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPublisher, latest: LatestObservation,
-          stop: threading.Event, refill_below: int, close_timeout_s: float) -> None:
+          stop: threading.Event, options: LoopOptions) -> None:
     stats = publisher.stats
-    queue = ActionChunkQueue(refill_below)
+    queue = ActionChunkQueue(options.refill_below, options.merge)
     period_ns = round(NS_PER_S / features.fps)
+    remote = policy.act_request is not None
     first = None
     while first is None and not stop.is_set():
         if latest.error is not None:
             raise latest.error
         first = latest.wait_newer(None, WAIT_SLICE_S)
-    if first is not None:
-        _seed_from_state(publisher, first, features)
-    worker = PolicyWorker(policy, features.action_names, latest, stats)
     held: ActionStep | None = None
+    if first is not None and (start := _seed_from_state(publisher, first, features)) is not None:
+        held = ActionStep(start, first.stamp_ns, first_of_chunk=False)
+    worker = PolicyWorker(policy, features.action_names, latest, stats)
+    delay_steps = 0  # the last chunk's steps past due when it was merged: the delay real-time chunking plans for
+    overdue = False  # the server's deadline passed on the open request
     due_ns = time.monotonic_ns()
     next_diagnostics_ns = due_ns + DIAGNOSTICS_PERIOD_NS
     try:
@@ -217,10 +259,23 @@ def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPubli
             if latest.error is not None:
                 raise latest.error
             if (chunk := worker.take()) is not None:
-                queue.load(chunk.steps, chunk.source_stamp_ns)
+                stats.count_chunk_age(chunk.source_stamp_ns, chunk.received_ns)
+                stats.count_stale_steps(min(len(chunk.steps), -(-(chunk.received_ns - chunk.source_stamp_ns) // period_ns)))
+                delay_steps = min(len(chunk.steps), max(0, round((time.time_ns() - chunk.source_stamp_ns) / period_ns)))
+                queue.load(chunk.steps, chunk.source_stamp_ns, delay_steps, 0 if policy.takes_prefix else delay_steps)
                 stats.chunks += 1
+                if overdue:
+                    overdue = False
+                    _say(f"--policy {policy.label} answered again, {(time.monotonic_ns() - worker.asked_ns) / NS_PER_S:.2f} s "
+                         "after it was asked")
             if queue.needs_policy() and not worker.busy:
-                worker.request()
+                worker.request(queue.upcoming(delay_steps) if options.merge is MergeMode.RTC else None)
+            elif remote and worker.busy and not overdue and time.monotonic_ns() - worker.asked_ns > options.server_timeout_s * NS_PER_S:
+                overdue = True
+                stats.server_timeouts += 1
+                queue.clear()
+                _say(f"--policy {policy.label} has not answered within {options.server_timeout_s:g} s: holding the last "
+                     "command until it answers")
             step = queue.next_step()
             if step is not None:
                 held = ActionStep(step.positions, step.source_stamp_ns, first_of_chunk=False)
@@ -229,6 +284,8 @@ def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPubli
                 stats.held_ticks += 1
             if step is not None:
                 publisher.publish_step(step)
+            else:  # no chunk yet and no measured start to hold
+                stats.ticks_without_command += 1
             now_ns = time.monotonic_ns()
             if now_ns >= next_diagnostics_ns:
                 publisher.publish_diagnostics()
@@ -239,13 +296,25 @@ def _loop(policy: LoadedPolicy, features: PolicyFeatures, publisher: ActionPubli
                 stats.late_ticks += int(missed)
                 due_ns += int(missed) * period_ns
             stop.wait(max(due_ns - time.monotonic_ns(), 0) / NS_PER_S)
+    except BaseException:
+        if held is not None and publisher.previous is not None:  # the run ends on a failure: the robot told to hold
+            publisher.publish_step(ActionStep(publisher.previous, held.source_stamp_ns, first_of_chunk=False))
+        raise
     finally:
-        worker.close(close_timeout_s)
+        worker.close(options.server_timeout_s if remote else options.close_timeout_s)
 
 
-def _seed_from_state(publisher: ActionPublisher, observation: PolicyObservation, features: PolicyFeatures) -> None:
-    """The step rule's origin: the measured positions of the action joints, when the state names them all."""
+def _say(line: str) -> None:
+    print(f"roi-node policy run: {line}", file=sys.stderr, flush=True)
+
+
+def _seed_from_state(publisher: ActionPublisher, observation: PolicyObservation, features: PolicyFeatures) -> np.ndarray | None:
+    """The step rule's origin and the command before the first chunk: the measured positions of the action joints,
+    when the state names them all."""
     state = observation.batch.get(features.state_key)
     if isinstance(state, np.ndarray) and all(n in features.state_names for n in features.action_names):
         index = {n: i for i, n in enumerate(features.state_names)}
-        publisher.start_from(np.array([float(state[index[n]]) for n in features.action_names]))
+        start = np.array([float(state[index[n]]) for n in features.action_names])
+        publisher.start_from(start)
+        return start
+    return None

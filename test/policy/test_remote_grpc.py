@@ -19,8 +19,8 @@ import pytest
 from roi_node.cli import main
 from roi_node.policy.action_errors import PolicyLoadError
 from roi_node.policy.errors import RefusedPickleError
-from roi_node.policy.loaders import PolicyKind, load_callable, policy_kind
-from roi_node.policy.remote_grpc import HELPERS, bytes_field, lerobot_pickle, observation_parts, parse_grpc_spec
+from roi_node.policy.loaders import PolicyKind, policy_kind
+from roi_node.policy.remote_grpc import HELPERS, bytes_field, lerobot_pickle, load_grpc, observation_parts, parse_grpc_spec
 from roi_node.policy.safe_unpickle import TimedAction, safe_loads
 from test.policy.policy_dataset import RIG, export_dataset
 
@@ -120,7 +120,7 @@ def test_grpc_without_grpcio_is_one_line_before_dds(monkeypatch: pytest.MonkeyPa
                                                     capsys: pytest.CaptureFixture[str]) -> None:
     monkeypatch.setitem(sys.modules, "grpc", None)  # import grpc raises ImportError, installed or not
     with pytest.raises(PolicyLoadError, match="needs grpcio and torch"):
-        load_callable(SERVER)
+        load_grpc(SERVER)
     dataset = export_dataset(tmp_path, fps=30, duration_s=0.5)
     capsys.readouterr()
     assert main(["policy", "run", "--policy", SERVER, "--features", str(dataset), "--config", str(RIG)]) == 2
