@@ -7,8 +7,6 @@ the very frames the decision weighed.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -18,30 +16,16 @@ from roi_node.engine.pipeline import RoiPipeline
 from roi_node.engine.stamps import NS_PER_S
 from roi_node.sim.mesh_painter import MeshPainter
 from roi_node.sim.rig_sim import SimRig
-from test.support.rigs import base_rig, look_at_quat_xyzw, ok_sync, write_rig
+from test.support.rigs import ok_sync, two_camera_bimanual
 
 RATE_HZ = 10.0  # the simulator's frame rate for both cameras (its script spans 8 s)
 FRAMES = 80
-SIDE_EYE_M = [0.4, 1.8, 1.3]  # the second camera: left of the robots, looking down at their workspace
-WORKSPACE_M = [0.45, 0.0, 0.35]
 CLEAR_DIFFERENCE = 0.3  # frames where the cameras' true visible fractions differ by this much must pick the better
-
-
-def two_camera_rig(folder: Path) -> RigConfig:
-    """The bundled bimanual rig with a second fixed camera at the robots' left (the left arm hides the right from it)."""
-    doc = base_rig()
-    front = doc.pop("camera")
-    side = {"id": "side", "intrinsics": "front_intrinsics.yaml",
-            "extrinsics": {"parent": "world", "child": "side_optical", "translation": SIDE_EYE_M,
-                           "rotation_xyzw": look_at_quat_xyzw(SIDE_EYE_M, WORKSPACE_M)}}
-    doc["cameras"] = [front, side]
-    doc["visibility"] = {"enabled": True}
-    return load_rig_config(write_rig(folder, doc))
 
 
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory: pytest.TempPathFactory) -> RigConfig:
-    return two_camera_rig(tmp_path_factory.mktemp("rig"))
+    return load_rig_config(two_camera_bimanual(tmp_path_factory.mktemp("rig")))
 
 
 def test_the_chosen_camera_is_the_truly_better_one_where_the_two_clearly_differ(rig: RigConfig) -> None:
