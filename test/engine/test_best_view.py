@@ -4,11 +4,14 @@ by stamps, each against expectations written out by hand."""
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from roi_node.engine.best_view import FULL_DETAIL_PX, BestViewSelector, Hysteresis, ViewFrame, view_score
+from roi_node.engine.config import load_rig_config
+from roi_node.engine.errors import ConfigError
 from roi_node.engine.metadata import Lineage
 from roi_node.engine.pipeline import FrameResult
 from roi_node.engine.records import (
@@ -21,6 +24,7 @@ from roi_node.engine.records import (
     VisibilityStatus,
 )
 from roi_node.engine.stamps import NS_PER_MS
+from test.support.rigs import base_rig, write_rig
 
 MS = NS_PER_MS
 
@@ -125,3 +129,11 @@ def test_a_chosen_camera_without_a_frame_shows_the_driving_cameras_roi_and_says_
     # margin over it); the stream shows front's ROI and the record says whose
     assert (third.camera_id, third.shown_camera_id, third.frame_stamp_ns) == ("side", "front", 700 * MS)
     assert dict(third.scores) == {"front": visible, "side": None}
+
+
+def test_a_rig_of_several_cameras_cannot_name_one_best(tmp_path: Path) -> None:
+    doc = base_rig()
+    doc["cameras"] = [front := doc.pop("camera"), {**front, "id": "best"}]
+    with pytest.raises(ConfigError, match=r"cameras: camera id 'best' is reserved in a rig of several cameras"):
+        load_rig_config(write_rig(tmp_path, doc))
+    assert load_rig_config(write_rig(tmp_path, dict(base_rig(), camera={**base_rig()["camera"], "id": "best"}))).camera.id == "best"
