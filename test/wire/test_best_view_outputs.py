@@ -32,6 +32,7 @@ from roi_node.engine.config import load_rig_config
 from roi_node.engine.records import BestViewRecord
 from roi_node.engine.stream_stats import StreamStats
 from roi_node.live.node import RoiNode
+from roi_node.offline.compare import compare_live_offline
 from roi_node.offline.replay import ReplaySummary, replay_bag
 from roi_node.sim.bag_sink import write_sim_bag
 from roi_node.wire import topics
@@ -158,3 +159,10 @@ def test_the_export_writes_each_arms_best_view_beside_every_cameras_rois(replaye
             assert np.array_equal(image, per_camera[choice.shown_camera_id][choice.frame_stamp_ns])
         cameras_shown |= {c.shown_camera_id for c in shown}
     assert cameras_shown == {"front", "side"}, "the fixed keys switch between the cameras' ROIs"
+
+
+def test_compare_reads_a_bag_with_best_views_and_holds_their_decisions(replayed: Replayed) -> None:
+    """`roi/best/views` is not a frame record: compare keeps it apart and checks it at the frames both bags hold."""
+    bag = replayed.summary.output_path
+    result = compare_live_offline(bag, bag)
+    assert result.equal and result.frames == 2 * replayed.frames, result.differences
