@@ -15,12 +15,14 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
+from types import SimpleNamespace
 
 import av
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 from rosbags.highlevel import AnyReader
@@ -123,6 +125,12 @@ def test_live_and_replay_publish_the_same_best_views(node: RoiNode, rig_path: Pa
         assert wait_until(partial(_processed, node, stream.engine.stats, fed[topic]), WAIT_S), f"{topic}: frame {fed[topic]} not processed"
     node.close()  # the decisions still waiting, as replay makes them at the end of its bag
     live = _best_only(sent)
+    diagnostics: list[DiagnosticArray] = []
+    node._diagnostics_pub = SimpleNamespace(publish=diagnostics.append)  # type: ignore[assignment]
+    node._publish_diagnostics()
+    status = next(s for s in diagnostics[0].status if s.name == "roi_node: best view")
+    values = {kv.key: json.loads(kv.value) for kv in status.values}
+    assert values == {"decisions": replayed.frames, "switches": summary.best_view_switches}
 
     assert [t for t, _ in live] == [t for t, _ in offline]
     assert live == offline, "the same best-view messages, byte for byte"
