@@ -161,12 +161,15 @@ class BestViewSelector:
 
     def _prune(self) -> None:
         """Keep per other camera the frames a pending or later decision may still take: the newest at or before the
-        oldest pending driving stamp (or the newest driving stamp: later ones come after it), every later one, and
-        none older than HOLD_NS + STALE_NS before that camera's newest (a driving camera that went silent)."""
-        driver_ns = self._pending[0].result.stamp_ns if self._pending else self._newest_ns.get(self.driver)
+        oldest pending driving stamp, and every later one. With none pending, the newest at or before the newest
+        driving stamp (later driving frames come after it), and none older than HOLD_NS + STALE_NS before that
+        camera's newest frame (so a driving camera that went silent does not keep the others' frames)."""
         for camera, frames in self._frames.items():
-            bound = self._newest_ns.get(camera, 0) - self.hold_ns - self.stale_ns
-            bound = bound if driver_ns is None else max(bound, min(driver_ns, self._newest_ns.get(camera, 0)))
+            if self._pending:
+                bound = self._pending[0].result.stamp_ns
+            else:
+                silent = self._newest_ns.get(camera, 0) - self.hold_ns - self.stale_ns
+                bound = max(self._newest_ns.get(self.driver, silent), silent)
             while len(frames) >= 2 and frames[1].result.stamp_ns <= bound:
                 frames.popleft()
 

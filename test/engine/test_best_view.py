@@ -137,3 +137,12 @@ def test_a_rig_of_several_cameras_cannot_name_one_best(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"cameras: camera id 'best' is reserved in a rig of several cameras"):
         load_rig_config(write_rig(tmp_path, doc))
     assert load_rig_config(write_rig(tmp_path, dict(base_rig(), camera={**base_rig()["camera"], "id": "best"}))).camera.id == "best"
+
+
+def test_a_camera_far_ahead_keeps_the_frame_a_pending_decision_weighs() -> None:
+    """Three cameras: while b has not passed a's frame at 100 ms, c runs 700 ms ahead; c's frame at 90 ms still counts."""
+    selector = BestViewSelector(("a", "b", "c"), ("left",))
+    for frame in (_frame("a", 100, 0, 0.5), _frame("c", 90, 0, 0.8), _frame("c", 150, 1, 0.1), _frame("c", 800, 2, 0.1)):
+        assert selector.add(frame) == []
+    (decision,) = selector.add(_frame("b", 150, 0, 0.2))
+    assert dict(decision.record.arms[0].scores) == {"a": 0.5, "b": None, "c": 0.8}
