@@ -6,7 +6,7 @@ so the live node and offline replay publish the same bytes for the same
 inputs. `FrameRecord.from_json` / `from_dict` are the way back: values keep
 the JSON types they were read with (an int stays an int), so a record roi_node
 wrote reads back to the same bytes, and readers use attributes, not keys.
-Field meanings and units are in config/metadata.schema.json, which the tests
+Field meanings and units are in config/metadata.schema.json (a best-view record: its `$defs/best_view`), which the tests
 validate every record against.
 """
 

@@ -23,6 +23,7 @@ import pyarrow.parquet as pq
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from jsonschema import Draft202012Validator
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 from rosbags.highlevel import AnyReader
@@ -39,6 +40,7 @@ from roi_node.offline.replay import ReplaySummary, replay_bag
 from roi_node.sim.bag_sink import write_sim_bag
 from roi_node.wire import topics
 from roi_node.wire.compressed_outputs import OutputTransport
+from test.conftest import CONFIG
 from test.dds.harness import next_domain, wait_until
 from test.support.exportbags import images_by_stamp
 from test.support.rigs import scaled_rig, two_camera_bimanual
@@ -137,6 +139,9 @@ def test_live_and_replay_publish_the_same_best_views(node: RoiNode, rig_path: Pa
     store = typestore()
     records = [json.loads(store.deserialize_cdr(d, "std_msgs/msg/String").data) for t, d in offline
                if t == topics.absolute(topics.BEST_VIEWS)]
+    schema = Draft202012Validator(json.loads((CONFIG / "metadata.schema.json").read_text())["$defs"]["best_view"])
+    for record in records:
+        schema.validate(record)
     assert len(records) == replayed.frames and {r["driving_camera_id"] for r in records} == {"front"}
     assert {a["camera_id"] for r in records for a in r["arms"]} == {"front", "side"}, "both cameras chosen at some point"
     assert [r["arms"][0]["switches"] for r in records][-1] == summary.best_view_switches["left"]
