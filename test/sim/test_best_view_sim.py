@@ -67,7 +67,7 @@ def test_the_chosen_camera_is_the_truly_better_one_where_the_two_clearly_differ(
                 right += arm.camera_id == (a if fa > fb else b)
     duration_s = (decisions[-1].record.stamp_ns - decisions[0].record.stamp_ns) / NS_PER_S
     switches = sum(selector.switches.values())
-    print(f"best view: {right}/{clear} clear arm-frames chose the truly better camera; {switches} switches in "
+    print(f"best view: {right}/{clear} clear arm-frames chose the truly better camera; {switches} switches {selector.switches} in "
           f"{duration_s:.1f} s over {len(rig.arms)} arms")
     assert clear >= 20, "the script must hold frames where one camera clearly sees a gripper better"
     assert right / clear >= 0.9
