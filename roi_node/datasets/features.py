@@ -58,7 +58,8 @@ def roi_key(arm_id: str, field: RoiField) -> str:
 
 
 def roi_image_key(arm_id: str, camera: str | None = None) -> str:
-    """`observation.images.roi_<arm>`; in a rig of several cameras `observation.images.<camera>_roi_<arm>`."""
+    """`observation.images.roi_<arm>`; in a rig of several cameras `observation.images.<camera>_roi_<arm>`, and with
+    visibility on there `observation.images.roi_<arm>` is the arm's best view (engine/best_view.py)."""
     return f"{IMAGES_PREFIX}{'' if camera is None else camera + '_'}roi_{arm_id}"
 
 
@@ -85,6 +86,7 @@ class EpisodeSpec:
     roi_sizes: tuple[ImageSize, ...]  # per arm, in `arms` order
     global_size: ImageSize | None
     cameras: tuple[str, ...] = ()  # a rig of several cameras: their ids (each has every video); () for a rig of one
+    best_view: bool = False  # several cameras with visibility: `roi_<arm>` is each arm's best view (roi/best/<arm>)
 
     def video_sizes(self) -> dict[str, ImageSize]:
         """Video feature key -> frame size, in dataset order (per camera, its global view first)."""
@@ -93,12 +95,15 @@ class EpisodeSpec:
             if self.global_size is not None:
                 out[global_key(camera)] = self.global_size
             out.update({roi_image_key(arm, camera): size for arm, size in zip(self.arms, self.roi_sizes, strict=True)})
+        if self.best_view:
+            out.update({roi_image_key(arm): size for arm, size in zip(self.arms, self.roi_sizes, strict=True)})
         return out
 
     def fits(self, other: EpisodeSpec) -> bool:
         """Same cameras, arms and image sizes, and the same joint names (the dataset's order is kept)."""
         return (
             self.cameras == other.cameras
+            and self.best_view == other.best_view
             and self.arms == other.arms
             and self.roi_sizes == other.roi_sizes
             and self.global_size == other.global_size
@@ -108,7 +113,7 @@ class EpisodeSpec:
     def describe(self) -> str:
         rois = ", ".join(f"{arm} {size.text()}" for arm, size in zip(self.arms, self.roi_sizes, strict=True))
         view = self.global_size.text() if self.global_size is not None else "none"
-        cameras = f"cameras {', '.join(self.cameras)}, " if self.cameras else ""
+        cameras = f"cameras {', '.join(self.cameras)}{' (best view per arm)' if self.best_view else ''}, " if self.cameras else ""
         return f"{cameras}arms {', '.join(self.arms)} (ROI {rois}), global view {view}, {len(self.joint_names)} joints"
 
     def numeric_features(self) -> dict[str, dict[str, Any]]:
@@ -150,7 +155,7 @@ class EpisodeSpec:
             view = _size(features[global_key(first)]["shape"]) if global_key(first) in features else None
         except (KeyError, TypeError, ValueError) as exc:
             raise DatasetError(f"{where}: info.json features are not those of a roi_node export ({exc!r} missing or malformed)") from exc
-        return cls(arms, joints, rois, view, cameras)
+        return cls(arms, joints, rois, view, cameras, bool(cameras) and roi_image_key(arms[0]) in features)
 
 
 def _size(shape: Sequence[int]) -> ImageSize:

@@ -98,11 +98,13 @@ def read_source(path: Path, params: GateParams) -> RoiSource:
             columns.add(record, f"{path}: {METADATA_TOPIC} message {message.position} (frame_index {record.frame_index})")
         assert columns is not None  # RoiBag refuses a bag without records
         per_camera = [_video_topics(bag, columns.arms, camera) for camera in cameras or (None,)]
-        video_topics = {key: topic for keys in per_camera for key, topic in keys.items()}
+        best = _best_view_topics(bag, columns.arms) if cameras else {}
+        video_topics = {key: topic for keys in (*per_camera, best) for key, topic in keys.items()}
         sizes, stamps = _image_stamps(bag, video_topics)
         scan = BagScan.of(path, bag, stats, [])
     first = cameras[0] if cameras else None
-    image_stamps = {key: _nearest(columns.stamps_ns, have, exact=key in per_camera[0]) for key, have in stamps.items()}
+    # the best views are stamped with the driving camera's frames: the first camera's, whose records these are
+    image_stamps = {key: _nearest(columns.stamps_ns, have, exact=key in per_camera[0] or key in best) for key, have in stamps.items()}
     usable = _usable(columns, image_stamps)
     if not usable:
         raise BagError(f"{path}: no frame has an image on every one of {', '.join(video_topics.values())}")
@@ -112,6 +114,7 @@ def read_source(path: Path, params: GateParams) -> RoiSource:
         roi_sizes=tuple(sizes[roi_image_key(arm, first)] for arm in columns.arms),
         global_size=sizes.get(global_key(first)),
         cameras=cameras,
+        best_view=bool(best),
     )
     for camera in cameras[1:]:  # every camera's images have the first one's sizes (one output block per rig)
         for key in (global_key(camera), *(roi_image_key(arm, camera) for arm in columns.arms)):
@@ -154,6 +157,12 @@ def _video_topics(bag: RoiBag, arms: tuple[str, ...], camera: str | None) -> dic
             raise BagError(f"{bag.path}: no images on {expected} for arm {arm}: the bag has the metadata but not the ROI crops")
         wanted[roi_image_key(arm, camera)] = topic
     return wanted
+
+
+def _best_view_topics(bag: RoiBag, arms: tuple[str, ...]) -> dict[str, str]:
+    """`observation.images.roi_<arm>` -> the topic of the arm's best view, when the bag has one for every arm."""
+    found = {roi_image_key(arm): image_topic_in(bag.topics, topics.absolute(topics.best_image(arm))) for arm in arms}
+    return {key: topic for key, topic in found.items() if topic is not None} if all(found.values()) else {}
 
 
 def _image_stamps(bag: RoiBag, video_topics: dict[str, str]) -> tuple[dict[str, ImageSize], dict[str, set[int]]]:

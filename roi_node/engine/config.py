@@ -63,6 +63,7 @@ MAX_TIME_MS = 10_000.0  # sync limits and camera delay: beyond 10 s nothing is s
 MAX_DISTANCE_M = 1000.0
 IMAGE_TOPIC = "image_raw"  # a camera's default input topics (under `<camera id>/` in a rig of several cameras)
 CAMERA_INFO_TOPIC = "camera_info"
+BEST_VIEW = "best"  # roi/best/...: each arm's best view (engine/best_view.py), so no camera of several takes this id
 
 
 @dataclass(frozen=True)
@@ -219,6 +220,11 @@ class RigConfig:
         """Whether output topics, dataset keys and observations carry the camera id (a rig of one camera keeps the
         names it always had)."""
         return self.camera_count > 1
+
+    @property
+    def best_view(self) -> bool:
+        """Whether the drivers choose each arm's best view among the cameras (engine/best_view.py)."""
+        return self.several_cameras and self.visibility
 
     def for_camera(self, camera_id: str) -> RigConfig:
         """This rig narrowed to one camera: what one camera's stream engine and pipeline work with."""
@@ -445,6 +451,9 @@ def _load_cameras(root: _Node, base_dir: Path, robot_ids: set[str]) -> tuple[Cam
     cameras = tuple(_load_camera(node, base_dir, robot_ids, several=len(nodes) > 1) for node in nodes)
     key = "camera" if root.has("camera") else "cameras"
     _unique([c.id for c in cameras], root, key, "id")
+    if len(cameras) > 1 and BEST_VIEW in (c.id for c in cameras):
+        raise root.fail(key, f"camera id {BEST_VIEW!r} is reserved in a rig of several cameras (topics roi/{BEST_VIEW}/ carry "
+                        "each arm's best view); choose another")
     _unique([t for c in cameras for t in (c.image_topic, c.camera_info_topic)], root, key, "input topic")
     return cameras
 

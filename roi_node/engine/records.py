@@ -6,7 +6,7 @@ so the live node and offline replay publish the same bytes for the same
 inputs. `FrameRecord.from_json` / `from_dict` are the way back: values keep
 the JSON types they were read with (an int stays an int), so a record roi_node
 wrote reads back to the same bytes, and readers use attributes, not keys.
-Field meanings and units are in config/metadata.schema.json, which the tests
+Field meanings and units are in config/metadata.schema.json (a best-view record: its `$defs/best_view`), which the tests
 validate every record against.
 """
 
@@ -325,6 +325,64 @@ class FrameRecord:
             raise RecordFormatError("(a nested field)", f"of the wrong shape ({exc})") from exc
 
     def arm(self, arm_id: str) -> ArmRecord:
+        return next(a for a in self.arms if a.arm_id == arm_id)
+
+
+BEST_VIEW_SCHEMA = "roi_node/best_view/v1"
+
+
+@dataclass(frozen=True)
+class BestArmRecord:
+    """One arm's best view at a decision (engine/best_view.py): the camera chosen, the frame shown, every score."""
+
+    arm_id: str
+    camera_id: str  # the camera chosen
+    shown_camera_id: str  # the camera whose ROI is shown: the chosen one, or the driving one when the chosen has no frame
+    frame_stamp_ns: int  # the shown frame's stamp (the message carries the decision's)
+    frame_index: int  # ... and its frame_index on its camera's metadata topic
+    scores: tuple[tuple[str, float | None], ...]  # (camera id, score) for every camera of the rig; None: not measured
+    switched: bool  # the choice moved to this camera at this decision
+    switches: int  # the switches of this arm since the start
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"arm_id": self.arm_id, "camera_id": self.camera_id, "shown_camera_id": self.shown_camera_id,
+                "frame_stamp_ns": self.frame_stamp_ns, "frame_index": self.frame_index, "scores": dict(self.scores),
+                "switched": self.switched, "switches": self.switches}
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> BestArmRecord:
+        return cls(doc["arm_id"], doc["camera_id"], doc["shown_camera_id"], doc["frame_stamp_ns"], doc["frame_index"],
+                   tuple(doc["scores"].items()), doc["switched"], doc["switches"])
+
+
+@dataclass(frozen=True)
+class BestViewRecord:
+    """Each arm's best view at one frame of the driving camera (topic roi/best/views)."""
+
+    stamp_ns: int  # the driving frame's stamp: the decision's, and every roi/best message's header stamp
+    frame_index: int  # the driving frame's frame_index
+    driving_camera_id: str
+    arms: tuple[BestArmRecord, ...]
+
+    def to_json(self) -> str:
+        sec, nanosec = ns_to_stamp(self.stamp_ns)
+        doc = {"schema": BEST_VIEW_SCHEMA, "stamp_ns": self.stamp_ns, "stamp": {"sec": sec, "nanosec": nanosec},
+               "frame_index": self.frame_index, "driving_camera_id": self.driving_camera_id,
+               "arms": [arm.as_dict() for arm in self.arms]}
+        return json.dumps(doc, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+
+    @classmethod
+    def from_json(cls, text: str | bytes) -> BestViewRecord:
+        doc = json.loads(text, parse_constant=_no_constant)
+        if doc.get("schema") != BEST_VIEW_SCHEMA:
+            raise RecordFormatError("schema", f"expected {BEST_VIEW_SCHEMA!r}, got {doc.get('schema')!r}")
+        try:
+            arms = tuple(BestArmRecord.from_dict(arm) for arm in doc["arms"])
+            return cls(doc["stamp_ns"], doc["frame_index"], doc["driving_camera_id"], arms)
+        except KeyError as exc:
+            raise RecordFormatError(str(exc.args[0]), "missing") from exc
+
+    def arm(self, arm_id: str) -> BestArmRecord:
         return next(a for a in self.arms if a.arm_id == arm_id)
 
 

@@ -17,6 +17,7 @@ against the installed example-robot-data, the way rig files name its URDFs.
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -116,7 +117,12 @@ def _link_geometry(link: str, elements: list[ET.Element], kind: str, urdf_path: 
 def _shape_triangles(shape: ET.Element, urdf_path: Path, grid_cells: int) -> tuple[Float64Array, np.ndarray]:
     if shape.tag == "mesh":
         scale = _floats(shape.get("scale", "1 1 1"), 3, "mesh scale")
-        return _thin(*_load_mesh(resolve_mesh_path(shape.get("filename", ""), urdf_path)), scale, grid_cells)
+        path = resolve_mesh_path(shape.get("filename", ""), urdf_path)
+        try:
+            stat = path.stat()
+        except OSError as exc:
+            raise _GeometryError(f"{path.name}: {type(exc).__name__}: {exc}") from exc
+        return _thinned_mesh(path, stat.st_mtime_ns, stat.st_size, tuple(scale.tolist()), grid_cells)
     if shape.tag == "box":
         return _box(_floats(shape.get("size", ""), 3, "box size"))
     if shape.tag == "cylinder":
@@ -142,6 +148,14 @@ def resolve_mesh_path(filename: str, urdf_path: Path) -> Path:
                 return candidate
     raise _GeometryError(f"{filename}: no such file in a folder named {package!r} above the URDF, in one beside those, "
                          "or in example-robot-data")
+
+
+@functools.lru_cache(maxsize=256)
+def _thinned_mesh(path: Path, mtime_ns: int, size: int, scale: tuple[float, ...], grid_cells: int) -> tuple[Float64Array, np.ndarray]:
+    """A mesh file loaded and thinned once per process (keyed by its stat too, so a file rewritten is read again): each
+    camera's pipeline and every robot loaded from one URDF share it. Callers never write to the arrays."""
+    del mtime_ns, size  # only part of the key
+    return _thin(*_load_mesh(path), np.asarray(scale), grid_cells)
 
 
 def _load_mesh(path: Path) -> tuple[Float64Array, np.ndarray]:

@@ -47,6 +47,12 @@ def _status(name: str, level: bytes, message: str, values: dict[str, object]) ->
     )
 
 
+def best_view_status(decisions: int, switches: dict[str, int]) -> DiagnosticStatus:
+    """Each arm's best view (several cameras, visibility on): decisions made and the switches per arm since start."""
+    message = f"{decisions} decisions; switches " + ", ".join(f"arm {a} {n}" for a, n in switches.items())
+    return _status("best view", DiagnosticStatus.OK, message, {"decisions": decisions, "switches": switches})
+
+
 class StreamHealth:
     """When a camera, the joint streams and each base pose stream were last heard from (monotonic ns), for the
     silence check."""

@@ -48,6 +48,7 @@ from std_msgs.msg import String
 
 from roi_node import __version__
 from roi_node.engine.area_resample import start_warm_up
+from roi_node.engine.best_view import BestView, BestViewSelector, ViewFrame
 from roi_node.engine.config import BasePoseTopic, CameraConfig, RigConfig, load_rig_config
 from roi_node.engine.drop_kinds import DropKind
 from roi_node.engine.engine import (
@@ -70,7 +71,7 @@ from roi_node.engine.stream_snapshot import SyncCounters
 from roi_node.engine.stream_stats import StreamStats
 from roi_node.live.camera_stream import CameraStream
 from roi_node.live.conversions import stamp_ns
-from roi_node.live.diagnostics import StreamHealth, diagnostic_statuses, diagnostics_msg
+from roi_node.live.diagnostics import StreamHealth, best_view_status, diagnostic_statuses, diagnostics_msg
 from roi_node.live.drain import draining_subscription
 from roi_node.live.frame_decoder import CodecLines, EncodedFrame, FrameDecoder
 from roi_node.live.msg_types import base_pose_class, message_class
@@ -83,7 +84,7 @@ from roi_node.wire import topics
 from roi_node.wire.base_pose import base_poses
 from roi_node.wire.camera_info import camera_from_msg
 from roi_node.wire.compressed_header import DeclaredSizeError
-from roi_node.wire.frame_outputs import OutputOptions, frame_outputs
+from roi_node.wire.frame_outputs import OutputOptions, best_view_outputs, frame_outputs
 from roi_node.wire.image_codec import image_from_compressed, image_from_msg
 
 NODE_NAME = "roi_node"
@@ -131,6 +132,10 @@ class StreamNode(Node):
             urdf_texts = {robot.id: self.params.robot_description for robot in self.rig.robots}
         # a bad URDF or calibration in the rig config fails here, at start
         self.streams = tuple(self._camera_stream(camera, urdf_texts) for camera in self.rig.cameras)
+        arm_ids = [a.id for a in self.rig.arms]
+        # each arm's best view: fed by every worker, decided on stamps only; its lock keeps the decisions' order
+        self._best = BestViewSelector(self.rig.camera_ids, arm_ids) if self.rig.best_view else None
+        self._best_lock = threading.Lock()
         self._create_endpoints()
         if self.params.status_period_s > 0:
             self.create_timer(self.params.status_period_s, self._log_status)
@@ -226,6 +231,8 @@ class StreamNode(Node):
         if p.robot_description_source == "topic":
             latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
             self.create_subscription(String, topics.ROBOT_DESCRIPTION, self._on_robot_description, latched)
+        best = topics.best_view_topics([a.id for a in self.rig.arms], p.output_transport) if self._best is not None else {}
+        self._best_pubs = {name: self.create_publisher(message_class(msgtype), name, pub_qos) for name, msgtype in best.items()}
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
 
@@ -486,6 +493,17 @@ class StreamNode(Node):
         options = OutputOptions(p.output_transport, p.output_encoding, p.jpeg_quality, p.overlay)
         for message in frame_outputs(result, frame_id, self.rig.output.size_px, options, stream.out_camera):
             stream.output_pubs[message.topic].publish(live_message(message))
+        if self._best is not None:
+            with self._best_lock:
+                self._publish_best(self._best.add(ViewFrame(stream.id, result, frame_id)))
+
+    def _publish_best(self, views: list[BestView]) -> None:
+        """Best-view decisions (caller holds `_best_lock`, so they go out in the driving camera's order)."""
+        p = self.params
+        options = OutputOptions(p.output_transport, p.output_encoding, p.jpeg_quality)
+        for view in views:
+            for message in best_view_outputs(view, self.rig.output.size_px, options):
+                self._best_pubs[message.topic].publish(live_message(message))
 
     def _publish_diagnostics(self) -> None:
         now_ns = time.monotonic_ns()
@@ -505,6 +523,9 @@ class StreamNode(Node):
             joints_silence = self._joints_health.silence(now_ns, None, joint_topics, self._base_topics())
             silent = "; ".join(s for s in (silence, joints_silence) if s) or None
             statuses += diagnostic_statuses(snap, lineage, waiting, silent, prefix=stream.label)
+        if self._best is not None:
+            with self._best_lock:
+                statuses.append(best_view_status(self._best.decisions, self._best.switches))
         self._diagnostics_pub.publish(diagnostics_msg(self.get_clock().now().nanoseconds, statuses))
 
     def _base_topics(self) -> dict[str, str]:
@@ -580,6 +601,11 @@ class StreamNode(Node):
                 engine.drop_frames(DropKind.SHUTDOWN, undecoded[stream.id], fed=False)
                 summary = engine.stats.summary_line()
             self.get_logger().info(f"stopped: {stream.label}{summary}")
+        if self._best is not None:  # the decisions still waiting for a camera, as replay decides them at the bag's end
+            with self._best_lock:
+                self._publish_best(self._best.finish())
+                switches = ", ".join(f"arm {a} {n}" for a, n in self._best.switches.items())
+            self.get_logger().info(f"stopped: best view: {self._best.decisions} decisions, switches {switches}")
 
     def _stop_stream(self) -> None:
         """`close`, then release the engines and everything `_start_stream` created (a lifecycle cleanup)."""

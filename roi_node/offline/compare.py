@@ -14,7 +14,7 @@ sample (it came later than `max_wait_ms`, so live says `stale`,
 `extrapolated` or `missing` where the full bag says `ok`) and frames synced
 with the `latest` policy are counted as exempt, not compared: live had less
 information, by design. ROI images must be equal
-byte for byte.
+byte for byte, and so must the best-view decisions (several cameras with visibility) at the frames both hold.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from roi_node.bagio.reader import open_bag
-from roi_node.engine.records import FrameRecord
+from roi_node.engine.records import BestViewRecord, FrameRecord
 from roi_node.engine.sync import SyncPolicy, SyncStatus
 from roi_node.wire import topics
 
@@ -44,27 +44,31 @@ class Comparison:
         return self.frames > 0 and not self.differences
 
 
-def _outputs(bag: Path) -> tuple[dict[int, FrameRecord], dict[str, dict[int, bytes]]]:
+def _outputs(bag: Path) -> tuple[dict[int, FrameRecord], dict[str, dict[int, bytes]], dict[int, str]]:
+    """The frame records, the images per topic by stamp, and the best-view decisions (several cameras) by stamp."""
     records: dict[int, FrameRecord] = {}
     images: dict[str, dict[int, bytes]] = {}
+    best: dict[int, str] = {}
     with open_bag(bag) as reader:
         outputs = (topics.STRING_TYPE, topics.IMAGE_TYPE)
         wanted = [c for c in reader.connections if c.topic.startswith(topics.BAG_OUTPUT_PREFIX) and c.msgtype in outputs]
         for connection, _, raw in reader.messages(connections=wanted):
             msg: Any = reader.deserialize(raw, connection.msgtype)
-            if connection.msgtype == topics.STRING_TYPE:
+            if connection.topic == topics.absolute(topics.BEST_VIEWS):
+                best[BestViewRecord.from_json(msg.data).stamp_ns] = msg.data
+            elif connection.msgtype == topics.STRING_TYPE:
                 record = FrameRecord.from_json(msg.data)
                 records[int(record.stamp_ns)] = record
             else:
                 stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
                 images.setdefault(connection.topic, {})[stamp] = bytes(msg.data)
-    return records, images
+    return records, images, best
 
 
 def compare_live_offline(live_bag: Path, offline_bag: Path) -> Comparison:
     """Every frame of the live bag against the offline one."""
-    live_records, live_images = _outputs(live_bag)
-    offline_records, offline_images = _outputs(offline_bag)
+    live_records, live_images, live_best = _outputs(live_bag)
+    offline_records, offline_images, offline_best = _outputs(offline_bag)
     result = Comparison()
     result.offline_only = len(offline_records.keys() - live_records.keys())
     if only_live := sorted(live_records.keys() - offline_records.keys()):
@@ -86,6 +90,8 @@ def compare_live_offline(live_bag: Path, offline_bag: Path) -> Comparison:
                 result.live_images_missing += 1
             elif frames[stamp] != offline_images.get(topic, {}).get(stamp):
                 result.differences.append(f"frame {stamp}: {topic} pixels differ")
+        if stamp in live_best and live_best[stamp] != offline_best.get(stamp):
+            result.differences.append(f"frame {stamp}: the best-view decision differs")
     return result
 
 

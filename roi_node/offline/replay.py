@@ -50,6 +50,7 @@ from roi_node.bagio.reader import (
 )
 from roi_node.bagio.rig_attachments import RIG_ATTACHMENT, RigInputs, rig_inputs
 from roi_node.bagio.writer import BagWriter, qos_profile
+from roi_node.engine.best_view import BestView, BestViewSelector, ViewFrame
 from roi_node.engine.config import RigConfig, load_rig_config
 from roi_node.engine.drop_kinds import DropKind
 from roi_node.engine.engine import (
@@ -72,7 +73,7 @@ from roi_node.offline.summary import ReplaySummary, combined_summary, summary_fr
 from roi_node.util.progress import Progress
 from roi_node.wire import topics
 from roi_node.wire.compressed_outputs import DEFAULT_JPEG_QUALITY, JPEG_QUALITY_RANGE, OutputTransport
-from roi_node.wire.frame_outputs import OutputOptions, frame_outputs
+from roi_node.wire.frame_outputs import Outgoing, OutputOptions, best_view_outputs, frame_outputs
 from roi_node.wire.messages import MessageFactory
 
 __all__ = ["PartialOutputDiscardedError", "ReplayInterrupted", "ReplaySummary", "check_output_path", "replay_bag"]
@@ -234,6 +235,8 @@ class _CameraReplay:
         # offline every joint sample is loaded: release at once; each written frame is counted by the engine
         for result in self.engine.release_all(time.perf_counter):
             outputs.write(result, msg.header.frame_id, self.out_camera)
+            if self.replay.best is not None:  # as live: each camera's frames offered in its own order
+                outputs.write_best(self.replay.best.add(ViewFrame(self.camera_id, result, msg.header.frame_id)))
         self.replay.progress.update(self.replay.frames_in())
 
     def _check_size(self, width: int, height: int) -> None:
@@ -292,6 +295,8 @@ class _Replay:
         self.stamp_audit = StampAudit()  # what the engine refuses as implausible without returning it
         self.progress = Progress(f"replay {source.name}", sum(c.frame_count for c in selection.cameras), progress)
         self.cameras = {c.image_topic: _CameraReplay(self, c, streams) for c in selection.cameras}
+        arm_ids = [a.id for a in rig.arms]
+        self.best = BestViewSelector([c.camera_id for c in self.cameras.values()], arm_ids) if rig.best_view else None
         self._check_joint_names(streams)
         events: list[Event] = [JointStateEvent(j.stamp_ns, j.names, j.positions, j.where) for j in streams.joints]
         events += [CommandEvent(c.stamp_ns, c.names, c.positions, c.where) for c in streams.commands]
@@ -343,7 +348,8 @@ class _Replay:
                 writer = BagWriter(target, overwrite=overwrite, compression=compression, rig=carried,
                                    sharing_policy=sharing_policy_bytes(self.source))
                 with writer:
-                    out = _OutputTopics(writer, self.rig, arm_ids, outputs, [c.out_camera for c in self.cameras.values()])
+                    out = _OutputTopics(writer, self.rig, arm_ids, outputs, [c.out_camera for c in self.cameras.values()],
+                                        best=self.best is not None)
                     if include_inputs:
                         _add_input_topics(writer, connections, out.names, self.source)
                     try:
@@ -359,6 +365,8 @@ class _Replay:
                         raise
                     for camera in self.cameras.values():
                         camera.engine.finish()  # frames still held behind an unconfirmed stamp jump are refused
+                    if self.best is not None:
+                        out.write_best(self.best.finish())
                     for refused in self.stamp_audit.finish():
                         self.bad.add(refused.line())
                     writer.custom_data[IMPLAUSIBLE_STAMPS_KEY] = str(len(self.stamp_audit.refused))
@@ -395,7 +403,10 @@ class _Replay:
 
     def _summary(self, target: Path, status: BagStatus, started: float) -> ReplaySummary:
         summaries = {c.camera_id: c.summary(target, status, started) for c in self.cameras.values()}
-        return combined_summary(summaries) if self.rig.several_cameras else next(iter(summaries.values()))
+        if not self.rig.several_cameras:
+            return next(iter(summaries.values()))
+        switches = None if self.best is None else self.best.switches
+        return dataclasses.replace(combined_summary(summaries), best_view_switches=switches)
 
 
 def _output_options(transport: OutputTransport | str, jpeg_quality: int, overlay: bool) -> OutputOptions:
@@ -411,8 +422,8 @@ class _OutputTopics:
     """The live node's output topics in one bag; every message logged at the source frame's stamp."""
 
     def __init__(self, writer: BagWriter, rig: RigConfig, arm_ids: Sequence[str], options: OutputOptions,
-                 cameras: Sequence[str | None]) -> None:
-        """`cameras`: each camera's part of the output names (topics.output_camera)."""
+                 cameras: Sequence[str | None], *, best: bool) -> None:
+        """`cameras`: each camera's part of the output names (topics.output_camera); `best`: the best-view topics too."""
         self.writer = writer
         self.factory = MessageFactory(writer.typestore)
         self.size = rig.output.size_px
@@ -424,12 +435,23 @@ class _OutputTopics:
             for name, msgtype in outputs.items():
                 writer.add_topic(topics.absolute(name), msgtype)
                 self.names.add(topics.absolute(name))
+        for name, msgtype in (topics.best_view_topics(list(arm_ids), options.transport) if best else {}).items():
+            writer.add_topic(topics.absolute(name), msgtype)
+            self.names.add(topics.absolute(name))
 
     def write(self, result: FrameResult, frame_id: str, camera: str | None) -> None:
         """The frame's messages in the one order both drivers send them (wire/frame_outputs.py)."""
-        for message in frame_outputs(result, frame_id, self.size, self.options, camera):
+        self._write(frame_outputs(result, frame_id, self.size, self.options, camera), result.stamp_ns)
+
+    def write_best(self, views: Sequence[BestView]) -> None:
+        """Best-view decisions, each logged at its driving frame's stamp."""
+        for view in views:
+            self._write(best_view_outputs(view, self.size, self.options), view.record.stamp_ns)
+
+    def _write(self, messages: Sequence[Outgoing], log_ns: int) -> None:
+        for message in messages:
             data = outgoing_cdr(self.factory, self.writer.typestore, message)
-            self.writer.write_cdr(topics.absolute(message.topic), result.stamp_ns, data)
+            self.writer.write_cdr(topics.absolute(message.topic), log_ns, data)
 
 
 def _add_input_topics(writer: BagWriter, connections: list[Connection], output_names: set[str], source: Path) -> None:

@@ -43,6 +43,7 @@ class ReplaySummary:
     residual_ms: dict[str, float] | None  # p50, p95, max
     sync_status: dict[str, int]
     elapsed_s: float
+    best_view_switches: dict[str, int] | None = None  # per arm, with several cameras and visibility (engine/best_view.py)
 
     @property
     def frames_per_s(self) -> float:
@@ -65,6 +66,8 @@ class ReplaySummary:
             r = self.residual_ms
             out.append(f"sync residual ms: p50 {r['p50']:.3f}, p95 {r['p95']:.3f}, max {r['max']:.3f}")
         out.append("sync status: " + ", ".join(f"{s} {n}" for s, n in self.sync_status.items()))
+        if self.best_view_switches is not None:
+            out.append("best view switches: " + ", ".join(f"arm {a} {n}" for a, n in self.best_view_switches.items()))
         out.append(f"throughput: {self.frames_per_s:.1f} frames/s ({self.elapsed_s:.2f} s)")
         out.extend(f"skipped: {line}" for line in self.problems)
         return out

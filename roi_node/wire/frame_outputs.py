@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from roi_node.engine.best_view import BestView
 from roi_node.engine.camera import CameraModel
 from roi_node.engine.pipeline import FrameResult
 from roi_node.engine.records import FrameRecord
@@ -99,20 +100,33 @@ def frame_outputs(
     stamp = result.stamp_ns
     out_w, out_h = size_px
     out: list[Outgoing] = []
-
-    def image(topic: str, pixels: np.ndarray) -> None:
-        if options.transport.raw:
-            out.append(OutgoingImage(topic, stamp, frame_id, pixels, options.encoding))
-        if options.transport.compressed:
-            fmt = compressed_format(pixels, options.encoding)
-            out.append(OutgoingCompressed(compressed_topic(topic), stamp, frame_id, fmt, encode_jpeg(pixels, options.jpeg_quality)))
-
     for roi in result.rois:
-        image(topics.roi_image(roi.arm_id, camera), roi.image)
+        _image(out, topics.roi_image(roi.arm_id, camera), stamp, frame_id, roi.image, options)
         out.append(OutgoingCameraInfo(topics.roi_camera_info(roi.arm_id, camera), stamp, frame_id, roi.camera, out_w, out_h))
     if result.global_view is not None:
-        image(topics.global_image_topic(camera), result.global_view)
+        _image(out, topics.global_image_topic(camera), stamp, frame_id, result.global_view, options)
     out.append(OutgoingText(topics.metadata_topic(camera), result.record_json))
     if options.overlay:
         out.append(OutgoingOverlay(topics.overlay_topic(camera), frame_id, result.record))
     return out
+
+
+def best_view_outputs(view: BestView, size_px: tuple[int, int], options: OutputOptions) -> list[Outgoing]:
+    """The messages of one best-view decision: per arm the shown frame's ROI image and camera_info (frame_id that
+    frame's, stamp the decision's), then the decision's record on roi/best/views."""
+    stamp = view.record.stamp_ns
+    out: list[Outgoing] = []
+    for arm, (frame, roi) in zip(view.record.arms, view.chosen, strict=True):
+        if roi is not None:
+            _image(out, topics.best_image(arm.arm_id), stamp, frame.frame_id, roi.image, options)
+            out.append(OutgoingCameraInfo(topics.best_camera_info(arm.arm_id), stamp, frame.frame_id, roi.camera, *size_px))
+    out.append(OutgoingText(topics.BEST_VIEWS, view.record.to_json()))
+    return out
+
+
+def _image(out: list[Outgoing], topic: str, stamp: int, frame_id: str, pixels: np.ndarray, options: OutputOptions) -> None:
+    if options.transport.raw:
+        out.append(OutgoingImage(topic, stamp, frame_id, pixels, options.encoding))
+    if options.transport.compressed:
+        fmt = compressed_format(pixels, options.encoding)
+        out.append(OutgoingCompressed(compressed_topic(topic), stamp, frame_id, fmt, encode_jpeg(pixels, options.jpeg_quality)))

@@ -6,7 +6,7 @@ namespaces work); bags store them fully qualified in the root namespace.
 
 from __future__ import annotations
 
-from roi_node.engine.config import CAMERA_INFO_TOPIC, IMAGE_TOPIC, RigConfig
+from roi_node.engine.config import BEST_VIEW, CAMERA_INFO_TOPIC, IMAGE_TOPIC, RigConfig
 from roi_node.wire.compressed_outputs import OutputTransport, compressed_topic
 
 IMAGE = IMAGE_TOPIC
@@ -20,6 +20,7 @@ METADATA = OUTPUT_NAMESPACE + "metadata"
 GLOBAL_IMAGE = OUTPUT_NAMESPACE + "global/image_raw"
 OVERLAY = OUTPUT_NAMESPACE + "overlay"  # the crop boxes and centres to draw on image_raw
 DIAGNOSTICS = "/diagnostics"
+BEST_VIEWS = f"{OUTPUT_NAMESPACE}{BEST_VIEW}/views"  # each arm's best view: the decisions (records.BestViewRecord)
 
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE_TYPE = "sensor_msgs/msg/CompressedImage"
@@ -58,6 +59,28 @@ def metadata_topic(camera: str | None = None) -> str:
 
 def overlay_topic(camera: str | None = None) -> str:
     return f"{outputs_of(camera)}overlay"
+
+
+def best_image(arm_id: str) -> str:
+    """The arm's ROI image from the camera chosen at each frame of the driving camera (engine/best_view.py)."""
+    return f"{OUTPUT_NAMESPACE}{BEST_VIEW}/{arm_id}/image_raw"
+
+
+def best_camera_info(arm_id: str) -> str:
+    return f"{OUTPUT_NAMESPACE}{BEST_VIEW}/{arm_id}/camera_info"
+
+
+def best_view_topics(arm_ids: tuple[str, ...] | list[str], transport: OutputTransport = OutputTransport.RAW) -> dict[str, str]:
+    """The best-view topics of a rig of several cameras with visibility (relative name -> message type)."""
+    topics: dict[str, str] = {}
+    for arm in arm_ids:
+        if transport.raw:
+            topics[best_image(arm)] = IMAGE_TYPE
+        if transport.compressed:
+            topics[compressed_topic(best_image(arm))] = COMPRESSED_IMAGE_TYPE
+        topics[best_camera_info(arm)] = CAMERA_INFO_TYPE
+    topics[BEST_VIEWS] = STRING_TYPE
+    return topics
 
 
 def absolute(name: str) -> str:

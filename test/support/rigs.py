@@ -136,3 +136,19 @@ def scaled_rig(bundled: Path, folder: Path, scale: float) -> Path:
     path = folder / bundled.name
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path
+
+
+SIDE_EYE_M = [0.4, 1.8, 1.3]  # a second camera left of the bimanual rig's robots, looking down at their workspace
+WORKSPACE_M = [0.45, 0.0, 0.35]
+
+
+def two_camera_bimanual(folder: Path) -> Path:
+    """The bundled bimanual rig with visibility on and a second fixed camera `side` at the robots' left (from where
+    the left arm often hides the right gripper that the front camera sees), both with the bundled calibration."""
+    doc = base_rig()
+    side = {"id": "side", "intrinsics": "front_intrinsics.yaml",
+            "extrinsics": {"parent": "world", "child": "side_optical", "translation": SIDE_EYE_M,
+                           "rotation_xyzw": look_at_quat_xyzw(SIDE_EYE_M, WORKSPACE_M)}}
+    doc["cameras"] = [doc.pop("camera"), side]
+    doc["visibility"] = {"enabled": True}
+    return write_rig(folder, doc)
