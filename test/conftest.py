@@ -9,12 +9,11 @@ from pathlib import Path
 import pytest
 
 from roi_node.util.blas_threads import use_one_blas_thread
+from test.support.paths import CONFIG
 from test.support.scratch import module_scratch_goes_with_the_module  # noqa: F401 (an autouse fixture, for every module)
 
 use_one_blas_thread()  # the tests that simulate or replay in the worker itself run as a roi-node process does
 
-REPO = Path(__file__).resolve().parents[1]
-CONFIG = REPO / "config"
 
 
 @pytest.fixture(scope="session")

@@ -33,7 +33,7 @@ from roi_node.cli import main
 from roi_node.engine.config import load_rig_config
 from roi_node.sim.rig_sim import SimRig
 from roi_node.wire import topics
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 from test.support.rigs import scaled_rig
 from test.support.roibags import read_records
 

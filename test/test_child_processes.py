@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from roi_node.tools import demo
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 
 
 @pytest.fixture

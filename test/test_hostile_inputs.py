@@ -29,8 +29,8 @@ from roi_node.bagio.writer import BagWriter
 from roi_node.engine.config import load_rig_config
 from roi_node.engine.pipeline import RoiPipeline
 from roi_node.engine.robot_models import resolve_robot_reference
-from test.conftest import REPO
 from test.support.bagtools import INFO_TOPIC, JOINT_TOPIC, START_NS, small_rig, write_bag
+from test.support.paths import REPO
 from test.support.roibags import read_records
 
 FAR_FUTURE_NS = (2**31 - 1) * 10**9  # the latest stamp there is: builtin_interfaces/Time seconds are int32

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from test.conftest import REPO
+from test.support.paths import REPO
 
 PACKAGE = REPO / "roi_node"
 

@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 import yaml
 
-from test.conftest import CONFIG, REPO
+from test.support.paths import CONFIG, REPO
 
 LAUNCH_FILE = REPO / "launch" / "roi_node.launch.py"
 

@@ -20,7 +20,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 
 PROGRESS = re.compile(r"^(?P<label>\S+ \S+): (?P<done>\d+)/(?P<total>\d+) (?P<unit>[A-Za-z ]+), [\d.]+ (?P=unit)/s, "
                       r"(?:ETA (?P<eta>\d+:\d\d)|done in \d+:\d\d)$")

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from test.conftest import REPO
 from test.dds.harness import next_domain, ros_env
+from test.support.paths import REPO
 
 pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 

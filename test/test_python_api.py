@@ -26,7 +26,7 @@ import roi_node
 from roi_node.engine.records import FrameRecord
 from roi_node.sim.bag_sink import write_sim_bag
 from roi_node.wire.image_codec import image_from_msg
-from test.conftest import CONFIG, REPO
+from test.support.paths import CONFIG, REPO
 
 EXAMPLE = REPO / "examples" / "python_api.py"
 

@@ -15,7 +15,7 @@ from rosbags.highlevel import AnyReader
 
 from roi_node.cli import main
 from roi_node.sim.bag_sink import write_sim_bag
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 
 RIG = CONFIG / "rig_demo_bimanual.yaml"
 NOT_YAML = "rosbag2_bagfile_information:\n  version: [9\n"  # a flow sequence never closed

@@ -24,9 +24,9 @@ from rosbags.highlevel import AnyReader
 from roi_node.bagio.writer import typestore
 from roi_node.offline.replay import replay_bag
 from roi_node.sim.bag_sink import write_sim_bag
-from test.conftest import REPO
 from test.support.bagtools import small_rig
 from test.support.cli_run import run_cli
+from test.support.paths import REPO
 from test.support.roibags import read_records
 from test.support.storage_faults import DiskFillsAfter
 

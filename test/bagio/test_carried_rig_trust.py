@@ -28,7 +28,7 @@ from roi_node.bagio.writer import BagWriter
 from roi_node.cli import main
 from roi_node.engine.config import load_rig_config
 from roi_node.sim.bag_sink import write_sim_bag
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 from test.support.roibags import small_rig
 
 Attachment = tuple[str, str, bytes]  # name, media type, bytes

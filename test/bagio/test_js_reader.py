@@ -23,7 +23,7 @@ from rosbags.highlevel import AnyReader
 
 from roi_node.bagio.writer import typestore
 from roi_node.offline.replay import replay_bag
-from test.conftest import REPO
+from test.support.paths import REPO
 from test.support.roibags import small_rig, sway, write_input_bag
 
 JS = REPO / "test" / "js"

@@ -27,7 +27,7 @@ from roi_node.cli import main
 from roi_node.engine.config import load_rig_config
 from roi_node.engine.robot_models import resolve_robot_reference
 from roi_node.sim.bag_sink import write_sim_bag
-from test.conftest import CONFIG, REPO
+from test.support.paths import CONFIG, REPO
 from test.support.roibags import small_rig, sway, write_input_bag
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"

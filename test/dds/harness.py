@@ -32,7 +32,7 @@ from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import String
 
 from roi_node.rostools.consumer import ObservationClient
-from test.conftest import CONFIG, REPO
+from test.support.paths import CONFIG, REPO
 
 _domains = itertools.count(1)
 

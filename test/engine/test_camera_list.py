@@ -15,7 +15,7 @@ from roi_node.engine.config import load_rig_config
 from roi_node.engine.errors import ConfigError
 from roi_node.engine.pipeline import RoiPipeline
 from roi_node.engine.records import ArmFlag
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 from test.support.rigs import ok_sync
 
 HEAD_RIG = CONFIG / "rig_tiago_head.yaml"

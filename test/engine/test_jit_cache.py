@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from test.conftest import REPO
+from test.support.paths import REPO
 
 PROBE = "import roi_node.engine.area_resample as a, sys; assert a.__file__.startswith(sys.argv[1]), a.__file__; a.warm_up()"
 

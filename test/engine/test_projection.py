@@ -8,7 +8,7 @@ import pytest
 
 from roi_node.engine.camera import CameraModel, camera_from_info, load_calibration_yaml
 from roi_node.engine.errors import CalibrationError
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 
 
 def _points_in_front(rng: np.random.Generator, n: int) -> np.ndarray:

@@ -27,7 +27,7 @@ from roi_node.offline.replay import replay_bag
 from roi_node.sim.bag_sink import write_sim_bag
 from roi_node.wire import topics
 from roi_node.wire.messages import MessageFactory
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 from test.support.rigs import draw_markers
 from test.support.roibags import (
     FRAME_ID,

@@ -18,7 +18,7 @@ import pytest
 from roi_node.engine.area_resample import resample_window
 from roi_node.engine.resample import crop_resize, output_layout, place_in_output
 from roi_node.engine.roi_policy import Window, window_around
-from test.conftest import REPO
+from test.support.paths import REPO
 
 W, H = 640, 480
 

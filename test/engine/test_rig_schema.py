@@ -31,7 +31,7 @@ from jsonschema import Draft202012Validator
 from roi_node.engine.config import load_rig_config
 from roi_node.engine.errors import ConfigError
 from roi_node.rig.rig_view import resolved_rig
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 from test.support.rigs import write_rig
 
 SCHEMA: dict[str, Any] = json.loads((CONFIG / "rig.schema.json").read_text())

@@ -7,7 +7,7 @@ import numpy as np
 from roi_node.engine.config import load_rig_config
 from roi_node.engine.engine import CameraInfoEvent, FrameEvent, JointStateEvent, StreamEngine
 from roi_node.engine.stamps import CONFIRMING_STAMPS, NS_PER_S, StampVerdict, StreamClock, ns_to_stamp, stamp_to_ns
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 
 T0 = 1_700_000_000 * NS_PER_S
 PERIOD = NS_PER_S // 30

@@ -23,8 +23,8 @@ from roi_node.engine.stamps import NS_PER_S
 from roi_node.offline.replay import replay_bag
 from roi_node.sim.bag_sink import write_sim_bag
 from roi_node.sim.rig_sim import SimRig
-from test.conftest import CONFIG, REPO
 from test.dds.harness import LOSSLESS_TRANSPORT, PATIENT_SYNC, Collector, next_domain, node_args, process, ros_env
+from test.support.paths import CONFIG, REPO
 from test.support.rigs import base_rig, look_at_quat_xyzw, write_rig
 from test.support.roibags import read_records
 

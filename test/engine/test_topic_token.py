@@ -22,9 +22,9 @@ from roi_node.engine.errors import ConfigError
 from roi_node.engine.topic_token import TOPIC_TOKEN_MAX_CHARS
 from roi_node.wire.compressed_outputs import OutputTransport
 from roi_node.wire.topics import output_topics
-from test.conftest import CONFIG, REPO
 from test.dds.harness import next_domain, ros_env
 from test.support.cli_run import run_cli
+from test.support.paths import CONFIG, REPO
 from test.support.rigs import write_rig
 
 NAMESPACE = "/lab_7/cell_b"  # a node run under a namespace: its topics are longer

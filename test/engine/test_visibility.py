@@ -13,7 +13,7 @@ from jsonschema import Draft202012Validator
 from roi_node.engine.config import load_rig_config
 from roi_node.engine.pipeline import RoiPipeline
 from roi_node.engine.records import FrameRecord, VisibilityStatus
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 from test.support.ray_visibility import posed_triangles, ray_fraction
 from test.support.rigs import PANDA_HOME, bimanual_positions, look_at_quat_xyzw, ok_sync, write_rig
 

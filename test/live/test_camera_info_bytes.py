@@ -27,8 +27,8 @@ from roi_node.engine.camera import CameraModel, load_calibration_yaml
 from roi_node.live.conversions import camera_info_cdr, camera_info_msg
 from roi_node.wire.messages import MessageFactory
 from roi_node.wire.topics import CAMERA_INFO_TYPE
-from test.conftest import CONFIG, REPO
 from test.dds.harness import next_domain, process, ros_env
+from test.support.paths import CONFIG, REPO
 
 CALIBRATION = CONFIG / "front_intrinsics.yaml"
 TOPIC = "/roi/left/camera_info"

@@ -25,8 +25,8 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
-from test.conftest import CONFIG, REPO
 from test.dds.harness import PORT_BASE, PORTS_PER_DOMAIN, next_domain, purge_domain_ports, ros_env, tool_lines, wait_until
+from test.support.paths import CONFIG, REPO
 
 PARTICIPANT = "import rclpy; rclpy.init(); node = rclpy.create_node('profile_probe'); print('started'); node.destroy_node()"
 FILTERED_OUT = "All whitelist interfaces were filtered out"

@@ -19,9 +19,9 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from std_msgs.msg import String
 
 from roi_node.sim.bag_sink import write_sim_bag
-from test.conftest import CONFIG, REPO
 from test.dds.harness import LOSSLESS_TRANSPORT, PATIENT_SYNC, next_domain, node_args, process, ros_env, wait_until
 from test.support.listener import TopicListener
+from test.support.paths import CONFIG, REPO
 from test.support.rigs import scaled_rig
 
 pytestmark = pytest.mark.dds

@@ -23,7 +23,6 @@ import yaml
 from diagnostic_msgs.msg import DiagnosticStatus
 
 from roi_node.engine.robot_models import resolve_robot_reference
-from test.conftest import CONFIG, REPO
 from test.dds.harness import (
     LOSSLESS_TRANSPORT,
     PATIENT_SYNC,
@@ -37,6 +36,7 @@ from test.dds.harness import (
     start_publisher,
     tool_lines,
 )
+from test.support.paths import CONFIG, REPO
 
 pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 

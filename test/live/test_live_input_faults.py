@@ -18,7 +18,6 @@ from pathlib import Path
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
 
-from test.conftest import CONFIG
 from test.dds.harness import (
     LOSSLESS_TRANSPORT,
     PATIENT_SYNC,
@@ -32,6 +31,7 @@ from test.dds.harness import (
     ros_env,
 )
 from test.dds.png_bomb import png_bomb
+from test.support.paths import CONFIG
 
 pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 

@@ -12,7 +12,6 @@ from pathlib import Path
 
 import pytest
 
-from test.conftest import CONFIG, REPO
 from test.dds.harness import (
     LOSSLESS_TRANSPORT,
     Collector,
@@ -25,6 +24,7 @@ from test.dds.harness import (
     tool_lines,
     wait_until,
 )
+from test.support.paths import CONFIG, REPO
 
 pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 

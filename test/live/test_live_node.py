@@ -15,7 +15,6 @@ from roi_node.engine.config import load_rig_config
 from roi_node.engine.metadata import metadata_schema
 from roi_node.engine.pipeline import RoiPipeline
 from roi_node.engine.robot_models import resolve_robot_reference
-from test.conftest import CONFIG
 from test.dds.harness import (
     LOSSLESS_TRANSPORT,
     PATIENT_SYNC,
@@ -28,6 +27,7 @@ from test.dds.harness import (
     publish,
     ros_env,
 )
+from test.support.paths import CONFIG
 from test.support.rigs import base_rig, look_at_quat_xyzw, marker_centroid, write_rig
 
 pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)

@@ -14,9 +14,9 @@ from sensor_msgs.msg import Image, JointState
 from visualization_msgs.msg import ImageMarker
 
 from roi_node.rostools.consumer import Observation, ObservationClient
-from test.conftest import CONFIG, REPO
 from test.dds.harness import LOSSLESS_TRANSPORT, Collector, every_frame_accounted, next_domain, node_args, process, ros_env
 from test.live.test_live_node import observations
+from test.support.paths import CONFIG, REPO
 from test.wire.test_overlay import box_edges, segments_by_colour
 
 pytestmark = pytest.mark.dds  # a DDS participant, on a domain of its own (live/harness.py next_domain)

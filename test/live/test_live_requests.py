@@ -23,9 +23,9 @@ from lifecycle_msgs.srv import ChangeState
 
 from roi_node.engine.config import load_rig_config
 from roi_node.live.runtime_params import SYNC_LIMITS, arm_parameters
-from test.conftest import CONFIG
 from test.dds.harness import Collector, next_domain, process, ros_env, start_publisher
 from test.live.test_live_runtime import SERVICE_TIMEOUT_S, call, set_parameter, state
+from test.support.paths import CONFIG
 from test.support.runtime_oracle import EDGE_VALUES, NON_FINITE, as_parameter_value, rig_file_verdict
 
 pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)

@@ -21,8 +21,8 @@ from sensor_msgs.msg import Image
 
 from roi_node.engine.config import load_rig_config
 from roi_node.engine.pipeline import RoiPipeline
-from test.conftest import CONFIG
 from test.dds.harness import Collector, diagnostics_values, next_domain, process, ros_env, start_publisher
+from test.support.paths import CONFIG
 from test.support.rigs import base_rig, write_rig
 
 pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)

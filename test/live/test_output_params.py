@@ -13,8 +13,8 @@ from rclpy.parameter import Parameter
 from roi_node.engine.errors import ParameterError
 from roi_node.live.params import NodeParams, declare_and_read
 from roi_node.wire.compressed_outputs import OutputTransport
-from test.conftest import CONFIG
 from test.dds.harness import next_domain
+from test.support.paths import CONFIG
 
 pytestmark = pytest.mark.dds  # a DDS participant, on a domain of its own (live/harness.py next_domain)
 

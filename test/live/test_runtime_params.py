@@ -16,7 +16,7 @@ from roi_node.engine.pipeline import RoiPipeline
 from roi_node.engine.sync import FrameSynchronizer, SyncLimitsError
 from roi_node.live.params import DEFAULTS, _validate
 from roi_node.live.runtime_params import SYNC_LIMITS, RuntimePolicy, arm_parameters
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 from test.support.rigs import base_rig, bimanual_positions, ok_sync, write_rig
 from test.support.runtime_oracle import EDGE_VALUES, NON_FINITE, as_parameter_value, rig_file_verdict
 

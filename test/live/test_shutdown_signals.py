@@ -16,8 +16,8 @@ import textwrap
 
 import pytest
 
-from test.conftest import REPO
 from test.dds.harness import next_domain, ros_env
+from test.support.paths import REPO
 
 TIMEOUT_S = 120.0
 CHILD = textwrap.dedent(

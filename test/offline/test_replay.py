@@ -35,7 +35,6 @@ from roi_node.offline.replay import replay_bag
 from roi_node.offline.summary import ReplaySummary
 from roi_node.util.progress import INTERVAL_ENV, Progress
 from roi_node.wire.messages import MessageFactory
-from test.conftest import REPO
 from test.support.bagtools import (
     FRAME_ID,
     INFO_TOPIC,
@@ -51,6 +50,7 @@ from test.support.bagtools import (
     small_rig,
     write_bag,
 )
+from test.support.paths import REPO
 from test.support.rigs import base_rig, marker_centroid, write_rig
 from test.support.stampbags import with_one_joint_state_moved
 

@@ -11,7 +11,7 @@ import os
 import subprocess
 import sys
 
-from test.conftest import REPO
+from test.support.paths import REPO
 
 CHECK = """
 import json, os, threading

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from roi_node.cli import main
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 
 RIG = CONFIG / "rig_demo_bimanual.yaml"
 

@@ -30,9 +30,9 @@ from sensor_msgs.msg import JointState
 
 from examples.hold_pose_policy import HOLD_POSE
 from roi_node.policy.policy_diagnostics import STATUS_NAME
-from test.conftest import CONFIG, REPO
 from test.dds.harness import diagnostics_values, next_domain, node_args, process, ros_env, tool_lines, wait_until
 from test.policy.policy_dataset import RIG, export_dataset
+from test.support.paths import CONFIG, REPO
 
 COMMAND_TOPIC = "joint_commands"
 TOLERANCE_RAD = 0.01

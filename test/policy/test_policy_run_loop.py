@@ -22,9 +22,9 @@ import pytest
 
 from roi_node.engine.stamps import MAX_BACKWARD_NS, NS_PER_S
 from roi_node.sim.bag_sink import write_sim_bag
-from test.conftest import REPO
 from test.dds.harness import graph_probe, next_domain, node_args, process, ros_env, tool_lines, wait_until
 from test.policy.policyrig import RATE_HZ, SEED, Session, export_dataset, record_session
+from test.support.paths import REPO
 
 pytestmark = pytest.mark.dds
 

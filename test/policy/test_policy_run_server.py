@@ -32,11 +32,11 @@ from std_msgs.msg import String
 from roi_node.policy.features import PolicyFeatures
 from roi_node.policy.policy_diagnostics import STATUS_NAME
 from roi_node.wire import topics
-from test.conftest import REPO
 from test.dds.harness import diagnostics_values, next_domain, node_args, ros_env, tool_lines, wait_until
 from test.policy.openpi_server import AMPLITUDE_RAD, Answer, OpenpiTestServer, ServerSpec
 from test.policy.policy_dataset import RIG, export_dataset
 from test.support.listener import TopicListener
+from test.support.paths import REPO
 
 pytestmark = pytest.mark.dds
 

@@ -24,9 +24,9 @@ from typing import Any
 import pytest
 
 from roi_node.policy.observations import LIVE_ABSENT_KEYS, TASK_KEY
-from test.conftest import REPO
 from test.dds.harness import next_domain, node_args, process, ros_env, tool_lines
 from test.policy.policyrig import RATE_HZ, TASK, export_dataset, read_info, record_session, write_checkpoint
+from test.support.paths import REPO
 
 pytestmark = pytest.mark.dds
 WEIGHTS = "model.safetensors"

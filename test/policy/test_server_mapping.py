@@ -17,8 +17,8 @@ from roi_node.policy.features import FeatureSource, ImageFeature, PolicyFeatures
 from roi_node.policy.loaders import ChunkRequest
 from roi_node.policy.remote_ws import connect_websocket
 from roi_node.policy.server_mapping import ServerMappingError, check_metadata, server_mapping
-from test.conftest import CONFIG
 from test.policy.openpi_server import OpenpiTestServer, ServerSpec
+from test.support.paths import CONFIG
 
 ARM = [f"panda_joint{i}" for i in range(1, 8)] + ["panda_finger_joint1", "panda_finger_joint2"]
 STATE = tuple(f"{side}_{j}" for side in ("left", "right") for j in ARM)

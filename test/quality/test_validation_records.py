@@ -24,8 +24,8 @@ from roi_node.quality.results import BagValidation
 from roi_node.quality.validate import validate_bags
 from roi_node.quality.validation_records import BagResult
 from roi_node.sim.bag_sink import write_sim_bag
-from test.conftest import CONFIG
 from test.quality.test_rollout_validate import COMMANDS, rollout  # noqa: F401 (the rollout bag fixture)
+from test.support.paths import CONFIG
 
 GATES = CONFIG / "gates.yaml"
 

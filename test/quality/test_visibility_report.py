@@ -13,8 +13,8 @@ from roi_node.cli import main
 from roi_node.engine.config import load_rig_config
 from roi_node.engine.pipeline import RoiPipeline
 from roi_node.offline.replay import replay_bag
-from test.conftest import CONFIG
 from test.support.bagtools import write_bag
+from test.support.paths import CONFIG
 from test.support.rigs import write_rig
 
 FRAMES = 8

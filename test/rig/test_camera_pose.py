@@ -25,7 +25,7 @@ import yaml
 from roi_node.cli import main
 from roi_node.engine.config import load_rig_config
 from roi_node.rig import camera_pose_verb
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 
 BUNDLED_RIGS = sorted(CONFIG.glob("rig_*.yaml"))
 DEMO_RIG = CONFIG / "rig_demo_bimanual.yaml"

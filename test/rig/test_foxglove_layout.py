@@ -17,7 +17,7 @@ import yaml
 
 from roi_node.cli import main
 from roi_node.wire import topics
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 from test.support.rigs import write_rig
 
 BUNDLED_LAYOUT = CONFIG / "foxglove_layout.json"

@@ -17,7 +17,7 @@ from roi_node.rig.rig_doc import (
     main,
     page_with_table,
 )
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 PAGE = DOCS / "rig-config.md"

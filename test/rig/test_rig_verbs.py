@@ -24,8 +24,8 @@ from roi_node.engine.robot_models import (
     example_robot_data_root,
     resolve_robot_reference,
 )
-from test.conftest import CONFIG
 from test.support.cli_run import run_cli
+from test.support.paths import CONFIG
 from test.support.rigs import write_rig
 
 BUNDLED_RIGS = sorted(CONFIG.glob("rig_*.yaml"))

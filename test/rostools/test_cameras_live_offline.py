@@ -29,10 +29,10 @@ from roi_node.offline.replay import replay_bag
 from roi_node.sim.bag_sink import write_sim_bag
 from roi_node.sim.sim_cameras import BASE_TRAVEL_M
 from roi_node.wire import topics
-from test.conftest import CONFIG, REPO
 from test.dds.harness import LOSSLESS_TRANSPORT, PATIENT_SYNC, next_domain, node_args, process, ros_env, wait_until
 from test.rostools.test_record_play import comparable, read_rosbags
 from test.support.listener import TopicListener
+from test.support.paths import CONFIG, REPO
 from test.support.rigs import scaled_rig
 
 pytestmark = pytest.mark.dds

@@ -16,9 +16,9 @@ import pytest
 from roi_node.engine.config import load_rig_config
 from roi_node.engine.pipeline import RoiPipeline
 from roi_node.rostools.writer_history import ACKED_WAIT_S, HISTORY_BUDGET_BYTES, HISTORY_S, MIN_HISTORY_DEPTH, history_depth
-from test.conftest import REPO
 from test.dds.harness import next_domain, process, ros_env, wait_until
 from test.support.bagtools import JOINT_PERIOD_NS, read_raw, small_rig, write_bag
+from test.support.paths import REPO
 
 STALL_S = 1.5  # the fault injected: the reader's process is stopped this long while the player publishes
 

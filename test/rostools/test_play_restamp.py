@@ -24,8 +24,8 @@ from roi_node.engine.stamps import NS_PER_S
 from roi_node.offline.replay import replay_bag
 from roi_node.rostools.restamp import restamped
 from roi_node.sim.bag_sink import write_sim_bag
-from test.conftest import REPO
 from test.dds.harness import LOSSLESS_TRANSPORT, PATIENT_SYNC, Collector, next_domain, node_args, process, ros_env
+from test.support.paths import REPO
 from test.support.simrig import DEFAULT_RIG, scaled_camera_rig
 
 SANE_LATENCY_MS = 60_000.0  # a minute: far above any machine's processing, far below a wrong epoch's years or days

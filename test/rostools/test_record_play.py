@@ -22,7 +22,6 @@ from roi_node import __version__
 from roi_node.bagio.writer import typestore
 from roi_node.offline.compare import compare_live_offline
 from roi_node.offline.replay import replay_bag
-from test.conftest import CONFIG, REPO
 from test.dds.harness import (
     LOSSLESS_TRANSPORT,
     PATIENT_SYNC,
@@ -36,6 +35,7 @@ from test.dds.harness import (
     start_publisher,
     wait_until,
 )
+from test.support.paths import CONFIG, REPO
 
 pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 

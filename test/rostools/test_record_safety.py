@@ -22,9 +22,9 @@ from mcap_ros2.reader import read_ros2_messages
 from rosbags.highlevel import AnyReader
 
 from roi_node.bagio.writer import RESERVE_NAME, typestore
-from test.conftest import CONFIG, REPO
 from test.dds.harness import next_domain, process, ros_env
 from test.rostools.test_record_play import wait_for_log
+from test.support.paths import CONFIG, REPO
 from test.support.roibags import read_records
 
 pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)

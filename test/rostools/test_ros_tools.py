@@ -40,8 +40,8 @@ from roi_node.live.diagnostics import diagnostic_statuses, diagnostics_msg
 from roi_node.rostools.diagnostics_table import DiagnosticsBoard, render
 from roi_node.rostools.diagnostics_view import CLEAR_SCREEN
 from roi_node.rostools.param_client import ParameterEntry, dump_document, parse_value
-from test.conftest import CONFIG, REPO
 from test.dds.harness import next_domain, node_args, process, ros_env, tool_lines
+from test.support.paths import CONFIG, REPO
 
 BIMANUAL = CONFIG / "rig_demo_bimanual.yaml"
 FIRST_CONTACT_S = 30.0  # the first verb against a starting node waits while it loads its rig and joins the graph

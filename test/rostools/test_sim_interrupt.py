@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 
 from roi_node.sim.rig_sim import SimRig
-from test.conftest import REPO
 from test.dds.harness import next_domain, ros_env, wait_until
 from test.sim.test_sim_follow import COMMAND_TOPIC, SEED, Commander, _target
+from test.support.paths import REPO
 from test.support.simrig import DEFAULT_RIG, scaled_camera_rig
 
 pytestmark = pytest.mark.dds

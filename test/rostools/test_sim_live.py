@@ -41,8 +41,8 @@ from roi_node.sim.render_budget import RenderMode, plan_render
 from roi_node.sim.rig_sim import ImageEvent, JointStateEvent, SimRig
 from roi_node.util.progress import Progress
 from roi_node.wire.image_codec import image_from_msg
-from test.conftest import CONFIG, REPO
 from test.dds.harness import next_domain, process, ros_env
+from test.support.paths import CONFIG, REPO
 from test.support.simrig import DEFAULT_RIG, scaled_camera_rig
 
 RATE_HZ = 10.0

@@ -28,7 +28,7 @@ from roi_node.sim.scene import Sprite, StaticScene
 from roi_node.sim.surfaces import pixel_rays
 from roi_node.sim.truth import Visibility
 from roi_node.wire.image_codec import image_from_compressed, image_from_msg
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 from test.support.rigs import scaled_rig
 from test.support.simrig import (
     DEFAULT_RIG,

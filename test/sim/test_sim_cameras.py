@@ -20,8 +20,8 @@ from roi_node.engine.sync import NS_PER_S
 from roi_node.sim.rig_sim import BasePoseEvent, ImageEvent, SimRig
 from roi_node.sim.sim_cameras import BASE_PERIOD_S, BASE_RATE_HZ, BASE_TRAVEL_M
 from roi_node.wire.base_pose import base_pose_message, base_poses
-from test.conftest import CONFIG
 from test.support.exportbags import images_by_stamp
+from test.support.paths import CONFIG
 from test.support.rigs import scaled_rig
 
 RATE_HZ = 30.0

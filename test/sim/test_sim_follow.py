@@ -35,8 +35,8 @@ from roi_node.engine.sync import NS_PER_S
 from roi_node.sim.command_follow import CommandFollower, CommandIssue
 from roi_node.sim.rig_sim import SimRig
 from roi_node.wire.image_codec import image_from_msg
-from test.conftest import REPO
 from test.dds.harness import next_domain, ros_env
+from test.support.paths import REPO
 from test.support.simrig import DEFAULT_RIG, scaled_camera_rig
 
 SEED = 3

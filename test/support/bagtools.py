@@ -28,7 +28,7 @@ from roi_node.engine.pipeline import RoiPipeline
 from roi_node.engine.sync import NS_PER_S
 from roi_node.wire.image_codec import encode_compressed
 from roi_node.wire.messages import MessageFactory
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 from test.support.rigs import PANDA_HOME, draw_markers
 
 FRAME_PERIOD_NS = NS_PER_S // 30

@@ -15,7 +15,7 @@ from roi_node.engine.config import load_rig_config
 from roi_node.engine.pipeline import RoiPipeline
 from roi_node.engine.sync import SyncResult
 from roi_node.engine.transforms import matrix_to_quat_xyzw
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 
 PANDA_HOME = {
     "panda_joint1": 0.0,

@@ -30,7 +30,7 @@ from roi_node.engine.sync import NS_PER_S
 from roi_node.offline.replay import replay_bag
 from roi_node.wire import topics
 from roi_node.wire.messages import MessageFactory
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 from test.support.rigs import PANDA_HOME, draw_markers
 
 WIDTH, HEIGHT = 640, 480

@@ -23,7 +23,7 @@ from roi_node.engine.pipeline import FrameResult
 from roi_node.engine.transforms import matrix_to_quat_xyzw
 from roi_node.sim.rig_sim import CameraInfoEvent, ImageEvent, JointStateEvent, SimEvent
 from roi_node.sim.truth import GripperTruth
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 from test.support.rigs import base_rig, look_at_quat_xyzw, write_rig
 
 DEFAULT_RIG = CONFIG / "rig_demo_bimanual.yaml"

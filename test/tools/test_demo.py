@@ -12,8 +12,8 @@ import cv2
 import pytest
 import yaml
 
-from test.conftest import REPO
 from test.dds.harness import next_domain, ros_env, wait_until
+from test.support.paths import REPO
 
 pytestmark = pytest.mark.dds  # real DDS processes, on domains of their own (live/harness.py next_domain)
 

@@ -9,8 +9,8 @@ import pytest
 import yaml
 from rosbags.highlevel import AnyReader
 
-from test.conftest import CONFIG
 from test.support.cli_run import run_cli
+from test.support.paths import CONFIG
 from test.support.rigs import look_at_quat_xyzw, write_rig
 
 

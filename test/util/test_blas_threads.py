@@ -13,7 +13,7 @@ import sys
 
 import pytest
 
-from test.conftest import CONFIG, REPO
+from test.support.paths import CONFIG, REPO
 
 PROBE = """
 import ctypes, glob, os, sys

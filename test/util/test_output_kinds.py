@@ -19,7 +19,7 @@ from roi_node.cli import main
 from roi_node.engine.config import load_rig_config
 from roi_node.sim.bag_sink import write_sim_bag
 from roi_node.util.atomic_output import OutputKindError, atomic_output, replace_file
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 from test.support.roibags import small_rig
 
 DEMO_RIG = CONFIG / "rig_demo_bimanual.yaml"

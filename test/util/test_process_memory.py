@@ -14,7 +14,7 @@ import sys
 
 import pytest
 
-from test.conftest import REPO
+from test.support.paths import REPO
 
 FRAME_BYTES = 1920 * 1080 * 3
 FRAMES = 6

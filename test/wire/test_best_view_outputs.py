@@ -40,9 +40,9 @@ from roi_node.offline.replay import ReplaySummary, replay_bag
 from roi_node.sim.bag_sink import write_sim_bag
 from roi_node.wire import topics
 from roi_node.wire.compressed_outputs import OutputTransport
-from test.conftest import CONFIG
 from test.dds.harness import next_domain, wait_until
 from test.support.exportbags import images_by_stamp
+from test.support.paths import CONFIG
 from test.support.rigs import scaled_rig, two_camera_bimanual
 from test.wire.test_frame_way_out import _NotingPublisher, _recorded, _written
 

@@ -18,7 +18,7 @@ from roi_node.engine.sync import SyncResult
 from roi_node.wire import topics
 from roi_node.wire.overlay import STATUS_RGBA, OverlayStatus
 from roi_node.wire.overlay_cdr import overlay_cdr
-from test.conftest import CONFIG
+from test.support.paths import CONFIG
 from test.support.roibags import Q1_IN, Q1_OUT, pose, small_rig
 
 STAMP_NS = 1_700_000_123_456_789_012  # past 2^53: must survive as sec + nanosec

@@ -20,9 +20,9 @@ from roi_node.engine.pipeline import RoiPipeline
 from roi_node.live.node import RoiNode
 from roi_node.offline.replay import replay_bag
 from roi_node.wire import topics
-from test.conftest import CONFIG
 from test.dds.harness import next_domain, wait_until
 from test.support.bagtools import IMAGE_TOPIC, JOINT_TOPIC, BagSpec, write_bag
+from test.support.paths import CONFIG
 from test.support.rigs import write_rig
 from test.wire.test_frame_way_out import _content, _NotingPublisher, _recorded, _written
 

@@ -163,7 +163,7 @@ def test_episode_statistics_agree_with_lerobots_compute_episode_stats(bags: Expo
 def test_a_two_camera_session_loads_with_a_video_key_per_camera_and_arm(tmp_path: Path) -> None:
     """The bundled two-camera rig (a fixed camera and a head camera), at an eighth of its resolution: LeRobot's reader
     finds each camera's global view and ROIs under its own name, and the first camera's frames decode as in the bag."""
-    from test.conftest import CONFIG
+    from test.support.paths import CONFIG
     from test.support.rigs import scaled_rig
 
     rig = scaled_rig(CONFIG / "rig_tiago_head.yaml", tmp_path, 0.125)

@@ -32,10 +32,10 @@ import pytest
 from roi_node.policy.errors import NodeNotObservedError
 from roi_node.policy.features import PolicyFeatures
 from roi_node.policy.observations import LIVE_ABSENT_KEYS, TASK_KEY, PolicyObservation, PolicyObservationStream
-from test.conftest import REPO
 from test.dds.harness import LOSSLESS_TRANSPORT, PATIENT_SYNC, next_domain, node_args, process, ros_env, wait_until
 from test.policy.policyrig import TASK, Session, export_dataset, record_session
 from test.support.exportbags import psnr_db
+from test.support.paths import REPO
 
 lerobot_dataset = pytest.importorskip("lerobot.datasets.lerobot_dataset")
 LeRobotDataset = lerobot_dataset.LeRobotDataset

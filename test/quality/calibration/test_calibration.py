@@ -37,8 +37,8 @@ from roi_node.quality.calibration.verdict import CalibrationCheck, CannotTell, T
 from roi_node.sim.bag_sink import write_events
 from roi_node.sim.look import Look
 from roi_node.sim.rig_sim import ImageEvent, JointStateEvent, SimRig
-from test.conftest import CONFIG
 from test.support.bagtools import write_bag
+from test.support.paths import CONFIG
 from test.support.rigs import ok_sync
 from test.support.simrig import scaled_camera_rig
 
