@@ -90,7 +90,9 @@ def test_lerobots_policy_server_drives_the_sim_through_grpc(tmp_path: Path) -> N
                     process(sim, env, tmp_path / "sim.log") as simulator, process(policy, env, tmp_path / "policy.log") as runner:
                 published = lambda: int(listener.policy_status().get("actions_published", 0) or 0)  # noqa: E731
                 ended = lambda: runner.poll() is not None or simulator.poll() is not None  # noqa: E731
-                assert wait_until(lambda: published() >= ROLLOUT_COMMANDS or ended(), 600.0), (tmp_path / "policy.log").read_text()
+                # the policy publishes from its start (the measured start until the first chunk), the recorder's reader
+                # matches its writer a moment later: a second of commands more than the recorder is asked to hold
+                assert wait_until(lambda: published() >= ROLLOUT_COMMANDS + FPS or ended(), 600.0), (tmp_path / "policy.log").read_text()
                 assert not ended(), (tmp_path / "policy.log").read_text() + (tmp_path / "sim.log").read_text()
                 runner.send_signal(signal.SIGINT)
                 assert runner.wait(timeout=60) == 0, (tmp_path / "policy.log").read_text()
