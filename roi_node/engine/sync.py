@@ -2,7 +2,7 @@
 
 Decisions depend only on stamps, never on arrival order: samples are kept per
 joint, sorted by stamp; duplicate stamps with conflicting values resolve to the
-smaller value (order-independent) and are counted. Several JointState streams
+smaller value (order-independent). Several JointState streams
 merge by joint name. The stream engine (engine/engine.py) drives
 `FrameSynchronizer` for both drivers: offline replay loads all joint states
 before it releases frames, the live node releases a frame once its bracketing
@@ -88,19 +88,16 @@ def _worse(a: SyncStatus, b: SyncStatus) -> SyncStatus:
 class _Series:
     """One joint's samples, sorted by stamp."""
 
-    __slots__ = ("conflicted", "stamps", "values")
+    __slots__ = ("stamps", "values")
 
     def __init__(self) -> None:
         self.stamps: list[int] = []
         self.values: list[float] = []
-        self.conflicted: set[int] = set()  # stamps that received different values
 
     def insert(self, stamp_ns: int, value: float) -> None:
-        """Insert; a repeated stamp keeps the smaller value and is remembered if values differed."""
+        """Insert; a repeated stamp keeps the smaller value, whatever the arrival order."""
         i = bisect.bisect_left(self.stamps, stamp_ns)
         if i < len(self.stamps) and self.stamps[i] == stamp_ns:
-            if self.values[i] != value:
-                self.conflicted.add(stamp_ns)
             self.values[i] = min(self.values[i], value)
             return
         self.stamps.insert(i, stamp_ns)
@@ -120,11 +117,6 @@ class JointStateBuffer:
     def __init__(self, continuous_joints: Iterable[str] = ()) -> None:
         self._series: dict[str, _Series] = {}
         self._continuous = frozenset(continuous_joints)
-
-    @property
-    def conflicting_duplicates(self) -> int:
-        """(joint, stamp) pairs that arrived with different values: independent of arrival order."""
-        return sum(len(series.conflicted) for series in self._series.values())
 
     def add(self, stamp_ns: int, names: Sequence[str], positions: Sequence[float], *, where: str = "joint_states") -> list[str]:
         """Insert one JointState; returns names skipped for non-finite positions.
@@ -154,17 +146,11 @@ class JointStateBuffer:
 
     def has_bracket(self, t_ns: int, joints: Iterable[str]) -> bool:
         """Every joint has a sample at or after t (so interpolation cannot improve later)."""
-        for name in joints:
-            series = self._series.get(name)
-            if series is None or not series.stamps or series.stamps[-1] < t_ns:
-                return False
-        return True
+        return all((s := self._series.get(name)) is not None and s.stamps and s.stamps[-1] >= t_ns for name in joints)
 
     def rate_hz(self, t_ns: int, joint: str) -> float | None:
         """Measured sample rate of `joint` over the second before t (f_t)."""
-        series = self._series.get(joint)
-        if series is None:
-            return None
+        series = self._series.get(joint, _Series())
         lo = bisect.bisect_right(series.stamps, t_ns - RATE_WINDOW_NS)
         hi = bisect.bisect_right(series.stamps, t_ns)
         if hi - lo < 2:
@@ -225,9 +211,7 @@ class JointStateBuffer:
         stamps, values = series.stamps, series.values
         if policy == SyncPolicy.LATEST:
             limit = latest_limit_ns if latest_limit_ns is not None else stamps[-1]
-            i = bisect.bisect_right(stamps, limit) - 1
-            if i < 0:
-                i = 0
+            i = max(bisect.bisect_right(stamps, limit) - 1, 0)
             residual = abs(t_ns - stamps[i])
             return values[i], stamps[i], residual, SyncStatus.OK if residual <= max_skew_ns else SyncStatus.STALE
         hi = bisect.bisect_left(stamps, t_ns)
@@ -244,14 +228,9 @@ class JointStateBuffer:
             status = SyncStatus.OK if residual <= max_skew_ns else SyncStatus.STALE
             return v0 + frac * delta, nearer, residual, status
         # nearest sample: the policy itself, or the fallback
-        if lo < 0:
-            j = hi
-        elif hi >= len(stamps):
-            j = lo
-        else:
-            j = lo if t_ns - stamps[lo] <= stamps[hi] - t_ns else hi
-        residual = abs(t_ns - stamps[j])
         outside = lo < 0 or hi >= len(stamps)
+        j = (hi if lo < 0 else lo) if outside else (lo if t_ns - stamps[lo] <= stamps[hi] - t_ns else hi)
+        residual = abs(t_ns - stamps[j])
         if residual > max_skew_ns or policy == SyncPolicy.EXACT:
             status = SyncStatus.STALE
         elif policy == SyncPolicy.INTERPOLATE and outside:
@@ -302,15 +281,6 @@ class SampleGroup:
     max_skew_ms: float
 
 
-@dataclass
-class SyncCounters:
-    released: int = 0
-    dropped_overflow: int = 0
-    dropped_out_of_order: int = 0
-    epochs: int = 1  # 1 + the confirmed jumps back in time (loops) seen so far
-    status_counts: dict[str, int] = field(default_factory=lambda: {s.value: 0 for s in SyncStatus})
-
-
 class FrameSynchronizer(Generic[P]):
     """Pending frames in (epoch, stamp) order, released when their joint state is known.
 
@@ -346,7 +316,7 @@ class FrameSynchronizer(Generic[P]):
         self.max_pending = max_pending
         self._continuous = tuple(continuous_joints)
         self.buffers: dict[int, JointStateBuffer] = {}
-        self.counters = SyncCounters()
+        self.epochs = 1  # 1 + the confirmed jumps back in time (loops) seen so far
         self._pending: list[PendingFrame[P]] = []
         self._last_released: tuple[int, int] | None = None
         self._on_drop = on_drop
@@ -373,7 +343,7 @@ class FrameSynchronizer(Generic[P]):
         buf = self.buffers.get(epoch)
         if buf is None:
             buf = self.buffers[epoch] = JointStateBuffer(self._continuous)
-            self.counters.epochs = max(self.counters.epochs, epoch + 1)
+            self.epochs = max(self.epochs, epoch + 1)
         return buf
 
     def add_joint_state(
@@ -388,16 +358,12 @@ class FrameSynchronizer(Generic[P]):
         if self._last_released is not None and frame.order <= self._last_released:
             self._drop(frame, DropKind.OUT_OF_ORDER)
             return
-        self.counters.epochs = max(self.counters.epochs, epoch + 1)
+        self.epochs = max(self.epochs, epoch + 1)
         bisect.insort(self._pending, frame, key=lambda f: f.order)
         while len(self._pending) > self.max_pending:
             self._drop(self._pending.pop(0), DropKind.OVERFLOW)
 
     def _drop(self, frame: PendingFrame[P], reason: DropKind) -> None:
-        if reason == DropKind.OVERFLOW:
-            self.counters.dropped_overflow += 1
-        else:
-            self.counters.dropped_out_of_order += 1
         if self._on_drop is not None:
             self._on_drop(frame, reason)
 
@@ -430,8 +396,6 @@ class FrameSynchronizer(Generic[P]):
                                   latest_limit_ns=latest_limit)
                 for name, group in self.groups.items()
             }
-            self.counters.released += 1
-            self.counters.status_counts[result.status] += 1
             self._last_released = frame.order
             for old in [e for e in self.buffers if e < frame.epoch]:
                 del self.buffers[old]
