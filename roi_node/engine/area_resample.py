@@ -41,11 +41,7 @@ def axis_taps(src_px: int, dst_px: int) -> AxisTaps:
 
 
 def resample_window(
-    image: np.ndarray,
-    origin_px: tuple[int, int],
-    window_px: tuple[int, int],
-    out: np.ndarray,
-    content_offset_px: tuple[int, int],
+    image: np.ndarray, origin_px: tuple[int, int], window_px: tuple[int, int], out: np.ndarray, content_offset_px: tuple[int, int],
     content_px: tuple[int, int],
 ) -> None:
     """Area-resample the window (origin, width x height; may leave the image) into out's content region.

@@ -173,15 +173,8 @@ class StreamEngine:
     """One rig's event streams in, FrameResults out, in stamp order (see the module docstring)."""
 
     def __init__(
-        self,
-        rig: RigConfig,
-        *,
-        intrinsics_from_stream: bool = False,
-        urdf_texts: Mapping[str, str] | None = None,
-        urdf_from_stream: bool = False,
-        max_pending: int = 8,
-        stats: StreamStats | None = None,
-        overlap_global_view: bool = False,
+        self, rig: RigConfig, *, intrinsics_from_stream: bool = False, urdf_texts: Mapping[str, str] | None = None,
+        urdf_from_stream: bool = False, max_pending: int = 8, stats: StreamStats | None = None, overlap_global_view: bool = False,
     ) -> None:
         """`rig`: a rig of one camera, or narrowed to one (`RigConfig.for_camera`): an engine is one camera's stream.
         `overlap_global_view`: the pipelines resample the global view on a thread of their own beside the
@@ -284,9 +277,7 @@ class StreamEngine:
         check = self._clocks.setdefault(stream, StreamClock()).check(event.stamp_ns)
         held = self._held.setdefault(stream, [])
         if check.drop_held:
-            for stray in held:
-                self._refuse(stray, self._stray(stray))
-            held.clear()
+            self._refuse_held(held)
         if check.verdict is StampVerdict.HELD:
             held.append(event)
             return None
@@ -303,19 +294,16 @@ class StreamEngine:
             held.clear()
         return self._use(event, check.epoch)
 
-    @staticmethod
-    def _stray(event: Event) -> Refusal:
-        return Refusal(
-            DropKind.IMPLAUSIBLE_STAMP,
-            f"{event.where}: stamp {event.stamp_ns} refused: far from the stream's own time, and the stream did not follow it",
-        )
+    def _refuse_held(self, held: list[StampedEvent]) -> None:
+        for stray in held:
+            why = "far from the stream's own time, and the stream did not follow it"
+            self._refuse(stray, Refusal(DropKind.IMPLAUSIBLE_STAMP, f"{stray.where}: stamp {stray.stamp_ns} refused: {why}"))
+        held.clear()
 
     def finish(self) -> None:
         """End of input: messages still held for an unconfirmed stamp jump are refused (counted)."""
         for held in self._held.values():
-            for stray in held:
-                self._refuse(stray, self._stray(stray))
-            held.clear()
+            self._refuse_held(held)
 
     def _use(self, event: StampedEvent, epoch: int) -> Refusal | None:
         if isinstance(event, FrameEvent):
@@ -343,9 +331,8 @@ class StreamEngine:
         if self.synchronizer is None:
             self.stats.drop(DropKind.WAITING_FOR_URDF)
             return None
-        index = self.frames_offered
+        payload = FramePayload(int(event.stamp_ns), self.frames_offered, event.image, event.where)
         self.frames_offered += 1
-        payload = FramePayload(int(event.stamp_ns), index, event.image, event.where)
         self.synchronizer.add_frame(int(event.stamp_ns) - self.delay_ns, payload, event.arrival_ns, epoch)
         return None
 
@@ -356,9 +343,8 @@ class StreamEngine:
             return None
         if not positions:
             return Refusal(DropKind.JOINT_STATE, f"{where}: {len(names)} names but no positions (effort/velocity only?)")
-        assert self.synchronizer is not None
-        pipeline = self._pipelines.values[-1]
-        assert isinstance(pipeline, RoiPipeline)
+        pipeline = self.pipeline
+        assert self.synchronizer is not None and pipeline is not None
         if len(names) != len(positions):
             return Refusal(DropKind.JOINT_STATE, f"{where}: {len(names)} names but {len(positions)} positions")
         out_of_limits = beyond_limits(pipeline.joint_limits, names, positions)
@@ -369,8 +355,7 @@ class StreamEngine:
                 if len(stamps) > REFUSED_STAMPS_KEPT:
                     del stamps[0]
             bad = {name for name, _, _ in out_of_limits}
-            kept = [(n, p) for n, p in zip(names, positions, strict=True) if n not in bad]
-            names, positions = [n for n, _ in kept], [p for _, p in kept]
+            names, positions = [n for n in names if n not in bad], [p for n, p in zip(names, positions, strict=True) if n not in bad]
         try:
             skipped = self.synchronizer.add_joint_state(event.stamp_ns, names, positions, where=where, epoch=epoch)
         except JointStateError as exc:
@@ -454,27 +439,21 @@ class StreamEngine:
 
         A failure is counted as a processing error and returned as its one line: the real frames will show
         whether processing works."""
+        pipeline, camera, out = self.pipeline, self.first_camera(), self.rig.output
+        if pipeline is None or camera is None:
+            return None
         try:
-            self._warm_up()
+            pipeline.set_intrinsics(camera)
+            blank = np.zeros((camera.height_px, camera.width_px, 3), np.uint8)
+            pipeline.process(blank, 0, 0, SyncResult(self.rig.sync.policy, "ok", dict.fromkeys(pipeline.required_joints, 0.0), 0.0, 0))
+            # the blank pose may put no arm in view: crop windows inside, across and larger than the image too
+            centre = (camera.width_px / 2, camera.height_px / 2)
+            for side in (out.size_px[0] * 1.7, out.size_px[0] / 1.6, float(camera.height_px)):
+                for middle in (centre, (0.0, 0.0)):
+                    crop_resize(blank, window_around(middle, (side, side)), out.size_px, out.resize_policy, out.interpolation)
         except Exception as exc:
             return self.stats.processing_error(exc)
         return None
-
-    def _warm_up(self) -> None:
-        pipeline, camera = self.pipeline, self.first_camera()
-        if pipeline is None or camera is None:
-            return
-        pipeline.set_intrinsics(camera)
-        blank = np.zeros((camera.height_px, camera.width_px, 3), np.uint8)
-        positions = dict.fromkeys(pipeline.required_joints, 0.0)
-        sync = SyncResult(self.rig.sync.policy, "ok", positions, 0.0, 0)
-        pipeline.process(blank, 0, 0, sync)
-        # the blank pose may put no arm in view: crop windows inside, across and larger than the image too
-        out = self.rig.output
-        centre = (camera.width_px / 2, camera.height_px / 2)
-        for side in (out.size_px[0] * 1.7, out.size_px[0] / 1.6, float(camera.height_px)):
-            for middle in (centre, (0.0, 0.0)):
-                crop_resize(blank, window_around(middle, (side, side)), out.size_px, out.resize_policy, out.interpolation)
 
     def camera_at(self, stamp_ns: int, epoch: int = 0) -> CameraModel | None:
         """The intrinsics in effect at a frame stamp of an epoch (None before its first camera info)."""

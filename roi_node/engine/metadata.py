@@ -7,6 +7,7 @@ value goes through. The JSON Schema ships as config/metadata.schema.json.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 from dataclasses import dataclass
@@ -34,15 +35,7 @@ class Lineage:
     padding_mode: str
 
     def as_dict(self) -> dict[str, str]:
-        return {
-            "intrinsics_ver": self.intrinsics_ver,
-            "extrinsics_ver": self.extrinsics_ver,
-            "fk_ver": self.fk_ver,
-            "roi_generator_ver": self.roi_generator_ver,
-            "crop_offset_ver": self.crop_offset_ver,
-            "resize_policy": self.resize_policy,
-            "padding_mode": self.padding_mode,
-        }
+        return dataclasses.asdict(self)
 
 
 HASH_PREFIX = "sha256:"

@@ -75,11 +75,6 @@ class SyncResult:
     missing: tuple[str, ...] = ()
     joint_rate_hz: float | None = None
 
-    @property
-    def usable(self) -> bool:
-        """Every required joint has a value (the ROIs can be computed, however stale)."""
-        return self.status != SyncStatus.MISSING
-
 
 def _worse(a: SyncStatus, b: SyncStatus) -> SyncStatus:
     return a if STATUS_ORDER.index(a) >= STATUS_ORDER.index(b) else b
@@ -158,15 +153,7 @@ class JointStateBuffer:
         span = series.stamps[hi - 1] - series.stamps[lo]
         return (hi - lo - 1) * NS_PER_S / span if span > 0 else None
 
-    def resolve(
-        self,
-        t_ns: int,
-        joints: Sequence[str],
-        policy: str,
-        max_skew_ns: int,
-        *,
-        latest_limit_ns: int | None = None,
-    ) -> SyncResult:
+    def resolve(self, t_ns: int, joints: Sequence[str], policy: str, max_skew_ns: int, *, latest_limit_ns: int | None = None) -> SyncResult:
         """Joint positions at capture time t under `policy`.
 
         interpolate: linear between the bracketing samples (continuous joints the
@@ -291,18 +278,9 @@ class FrameSynchronizer(Generic[P]):
     """
 
     def __init__(
-        self,
-        joints: Sequence[str],
-        policy: str,
-        max_skew_ms: float,
-        max_wait_ms: float,
-        *,
-        continuous_joints: Iterable[str] = (),
-        extra_joints: Sequence[str] = (),
-        max_pending: int = 8,
-        on_drop: Callable[[PendingFrame[P], DropKind], None] | None = None,
-        extra_ready: Callable[[PendingFrame[P]], bool] | None = None,
-        groups: Mapping[str, SampleGroup] | None = None,
+        self, joints: Sequence[str], policy: str, max_skew_ms: float, max_wait_ms: float, *, continuous_joints: Iterable[str] = (),
+        extra_joints: Sequence[str] = (), max_pending: int = 8, on_drop: Callable[[PendingFrame[P], DropKind], None] | None = None,
+        extra_ready: Callable[[PendingFrame[P]], bool] | None = None, groups: Mapping[str, SampleGroup] | None = None,
     ) -> None:
         """`extra_joints` are resolved too (for the record) but never held back for; `extra_ready` is a
         further condition a frame waits for (up to `max_wait_ms`), e.g. its camera info; `groups` are waited for
