@@ -554,11 +554,8 @@ class StreamEngine:
         """
         ready = prepared.ready
         payload, sync = ready.payload, ready.sync
-        teleop = TeleopRecord(
-            latency_ms=rnd(latency_ms, MS_DECIMALS),
-            control_hz=rnd(sync.joint_rate_hz, MS_DECIMALS),
-            command_residual=rnd(ready.command_residual, M_DECIMALS),
-        )
+        teleop = TeleopRecord(latency_ms=rnd(latency_ms, MS_DECIMALS), control_hz=rnd(sync.joint_rate_hz, MS_DECIMALS),
+                              command_residual=rnd(ready.command_residual, M_DECIMALS))
         return prepared.pipeline.process(
             payload.image, payload.stamp_ns, payload.frame_index, sync, teleop, flagged_joints=prepared.flagged_joints,
             bases=ready.bases,

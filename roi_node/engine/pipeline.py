@@ -336,14 +336,10 @@ class RoiPipeline:
         windows = {roi.arm_id: roi.record.crop_box if roi.record.projection_valid else None for roi in rois}
         seen = model.measure(camera, self.rig.camera.z_min_m, cam_T_bases, sync.positions, windows)
         return tuple(
-            dataclasses.replace(
-                roi,
-                record=dataclasses.replace(
-                    roi.record,
-                    visibility=seen[roi.arm_id],
-                    confidence=rnd(seen_confidence(roi.record.confidence, seen[roi.arm_id].visible_fraction), RATIO_DECIMALS) or 0.0,
-                ),
-            )
+            dataclasses.replace(roi, record=dataclasses.replace(
+                roi.record, visibility=seen[roi.arm_id],
+                confidence=rnd(seen_confidence(roi.record.confidence, seen[roi.arm_id].visible_fraction), RATIO_DECIMALS) or 0.0,
+            ))
             for roi in rois
         )
 

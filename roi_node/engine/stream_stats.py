@@ -64,8 +64,7 @@ class StreamStats:
 
     @property
     def frames_in(self) -> int:
-        """Every image message the driver received (live: taken from DDS; offline: read from the bag), decodable
-        or not, used or not: one definition for both drivers, so the live and offline counts of a stream agree."""
+        """Every image message the driver received, used or not (engine/engine.py defines it for both drivers)."""
         return self.totals["frames_in"]
 
     @property

@@ -181,16 +181,9 @@ class JointStateBuffer:
                 worst_residual, worst_stamp = residual, used_stamp
         if missing:
             status = SyncStatus.MISSING
+        residual_ms = None if worst_residual is None else worst_residual / NS_PER_MS
         rate = self.rate_hz(t_ns, joints[0]) if joints else None
-        return SyncResult(
-            policy=policy,
-            status=status,
-            positions=positions,
-            residual_ms=None if worst_residual is None else worst_residual / NS_PER_MS,
-            joint_stamp_ns=worst_stamp,
-            missing=tuple(missing),
-            joint_rate_hz=rate,
-        )
+        return SyncResult(policy, status, positions, residual_ms, worst_stamp, tuple(missing), rate)
 
     def _resolve_one(
         self, series: _Series, name: str, t_ns: int, policy: str, max_skew_ns: int, latest_limit_ns: int | None
