@@ -43,6 +43,7 @@ import math
 from collections import deque
 from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Generic, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -63,6 +64,7 @@ from roi_node.engine.stream_stats import StreamStats
 from roi_node.engine.sync import FrameSynchronizer, JointStateBuffer, PendingFrame, SampleGroup, SyncResult, command_residual
 from roi_node.engine.transforms import Transform
 
+V = TypeVar("V")
 EARLY_JOINT_STATES = 2000  # joint states kept while waiting for a URDF (2 s at 1 kHz)
 REFUSED_STAMPS_KEPT = 2000  # per joint: stamps of out-of-limit samples, for flagging the frames near them
 
@@ -153,18 +155,18 @@ class PreparedFrame:
 
 
 @dataclass
-class _Stamped:
+class _Stamped(Generic[V]):
     """Values that take effect by stamp: the newest at or before a frame's stamp applies to it."""
 
     stamps: list[int] = field(default_factory=list)
-    values: list[object] = field(default_factory=list)
+    values: list[V] = field(default_factory=list)
 
-    def add(self, stamp_ns: int, value: object) -> None:
+    def add(self, stamp_ns: int, value: V) -> None:
         i = bisect.bisect_right(self.stamps, stamp_ns)
         self.stamps.insert(i, stamp_ns)
         self.values.insert(i, value)
 
-    def at(self, stamp_ns: int) -> object | None:
+    def at(self, stamp_ns: int) -> V | None:
         i = bisect.bisect_right(self.stamps, stamp_ns) - 1
         return self.values[i] if i >= 0 else None
 
@@ -187,11 +189,11 @@ class StreamEngine:
         self.max_pending = max_pending
         self.intrinsics_from_stream = intrinsics_from_stream or rig.camera.intrinsics is None
         # intrinsics by stamp, per epoch (a looped bag repeats its calibration changes); the rig's own when not streamed
-        self._cameras: dict[int, _Stamped] = {}
+        self._cameras: dict[int, _Stamped[CameraModel]] = {}
         self._newest_info_ns: dict[int, int] = {}  # per epoch, of any camera info, changed or not: what a waiting frame needs
         self._rig_camera = None if self.intrinsics_from_stream else rig.camera.intrinsics
         self._urdf_from_stream = urdf_from_stream
-        self._pipelines = _Stamped()
+        self._pipelines: _Stamped[RoiPipeline] = _Stamped()
         self._urdf_texts: set[str] = set()
         self.synchronizer: FrameSynchronizer[FramePayload] | None = None
         self.commands: JointStateBuffer | None = None
@@ -208,7 +210,7 @@ class StreamEngine:
     @property
     def pipeline(self) -> RoiPipeline | None:
         """The newest pipeline (the URDF most recently in effect)."""
-        return self._pipelines.values[-1] if self._pipelines.values else None  # type: ignore[return-value]
+        return self._pipelines.values[-1] if self._pipelines.values else None
 
     def _start(self, pipeline: RoiPipeline, stamp_ns: int) -> None:
         self._pipelines.add(stamp_ns, pipeline)
@@ -236,7 +238,7 @@ class StreamEngine:
         """`rig`'s arm policies and sync limits (same camera, robots and arms) for every frame prepared from now on;
         frames already prepared keep the policy they were prepared with."""
         self.rig = rig
-        self._pipelines.values = [p.with_policy(rig) for p in self._pipelines.values if isinstance(p, RoiPipeline)]
+        self._pipelines.values = [p.with_policy(rig) for p in self._pipelines.values]
         if self.synchronizer is not None:
             self.synchronizer.set_limits(rig.sync.max_skew_ms, rig.sync.max_wait_ms)
 
@@ -397,7 +399,7 @@ class StreamEngine:
         self._newest_info_ns[epoch] = max(event.stamp_ns, self._newest_info_ns.get(epoch, event.stamp_ns))
         schedule = self._cameras.setdefault(epoch, _Stamped())
         current = schedule.at(event.stamp_ns)
-        if isinstance(current, CameraModel) and (current is camera or current.content_version() == camera.content_version()):
+        if current is not None and (current is camera or current.content_version() == camera.content_version()):
             return None  # a steady camera_info stream is one entry
         schedule.add(event.stamp_ns, camera)
         return None
@@ -460,8 +462,7 @@ class StreamEngine:
         if self._rig_camera is not None:
             return self._rig_camera
         schedule = self._cameras.get(epoch)
-        camera = schedule.at(stamp_ns) if schedule is not None else None
-        return camera if isinstance(camera, CameraModel) else None
+        return schedule.at(stamp_ns) if schedule is not None else None
 
     def missing_joints(self, available: Collection[str]) -> tuple[str, ...]:
         """The joints the rig's arms need that joint states naming only `available` lack: no frame of such a
@@ -479,10 +480,7 @@ class StreamEngine:
         """The rig's intrinsics, or the first streamed ones: what a stream's image size is checked against."""
         if self._rig_camera is not None:
             return self._rig_camera
-        for schedule in self._cameras.values():
-            if schedule.values and isinstance(schedule.values[0], CameraModel):
-                return schedule.values[0]
-        return None
+        return next((schedule.values[0] for schedule in self._cameras.values() if schedule.values), None)
 
     @property
     def pending(self) -> int:
@@ -515,7 +513,6 @@ class StreamEngine:
         payload = ready.payload
         stamp = payload.stamp_ns
         pipeline = self._pipelines.at(stamp) or self._pipelines.values[0]
-        assert isinstance(pipeline, RoiPipeline)
         camera = self.camera_at(stamp, ready.epoch)
         if camera is None:
             no_camera = f"{payload.where}: frame stamp {stamp}: no CameraInfo stamped at or before it"
