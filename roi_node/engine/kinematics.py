@@ -2,7 +2,7 @@
 
 FK needs no meshes, but placo's constructor resolves every mesh even with
 `Flags.ignore_collisions` (a `package://` URI it cannot resolve is fatal, and
-resolving costs ~1 s). So the URDF text is loaded with `<visual>` and
+resolving is slow). So the URDF text is loaded with `<visual>` and
 `<collision>` elements removed. placo prepends a 7-value floating base to
 `state.q`, so joints are always set by name, never by index.
 

@@ -52,15 +52,11 @@ def content_hash(content: object) -> str:
     return bytes_version(json.dumps(content, sort_keys=True, separators=(",", ":"), default=str).encode())
 
 
-def text_hash(text: str) -> str:
-    return bytes_version(text.encode())
-
-
 def fk_version(urdf_sha256_by_robot: dict[str, str]) -> str:
     """A lineage's fk_ver: one robot's URDF version, or for several a hash of each robot's URDF SHA-256 by id."""
     if len(urdf_sha256_by_robot) == 1:
         return HASH_PREFIX + next(iter(urdf_sha256_by_robot.values()))[:VERSION_HEX_DIGITS]
-    return text_hash(",".join(f"{k}={v}" for k, v in sorted(urdf_sha256_by_robot.items())))
+    return bytes_version(",".join(f"{k}={v}" for k, v in sorted(urdf_sha256_by_robot.items())).encode())
 
 
 def generator_version() -> str:

@@ -4,12 +4,9 @@ Area resampling (cv2.INTER_AREA's box filter) when shrinking, as the method
 prescribes; it degenerates to nearest-neighbour when enlarging, so windows
 smaller than the output are enlarged with INTER_LINEAR and the metadata says
 so. Shrinking by a non-halving factor runs the exact area kernel
-(area_resample), which reads the window straight from the frame and writes the
-output's content region, so the zero-padded crop is never materialised; an
-exact halving on both axes stays with OpenCV's own fast path. Every function
-returns the affine `roi_to_image` that maps an output pixel centre to the
-original-image pixel centre it was sampled around (pixel (0,0) = centre of the
-top-left pixel, cv2.resize's convention).
+(area_resample); an exact halving on both axes stays with OpenCV's own fast
+path. `roi_to_image` maps an output pixel centre to the original-image pixel
+centre it was sampled around (pixel (0,0) = centre of the top-left pixel).
 """
 
 from __future__ import annotations
@@ -36,10 +33,7 @@ class Resampled:
 
 
 def crop_padded(image: np.ndarray, window: Window) -> tuple[np.ndarray, int]:
-    """The window's pixels, zero outside the image; and how many lie inside it.
-
-    Returns a view (no copy) when the window lies fully inside the image.
-    """
+    """The window's pixels, zero outside the image (a view when it lies inside); and how many lie inside it."""
     h, w = image.shape[:2]
     ix0, iy0 = max(window.x0, 0), max(window.y0, 0)
     ix1, iy1 = min(window.x1, w), min(window.y1, h)
@@ -57,9 +51,8 @@ def resize_to(src: np.ndarray, size_px: tuple[int, int], method: str = "area") -
 
     method "area" is exact cv2.INTER_AREA. "area_pyramid" first halves each
     axis whose factor is >= 2 with INTER_AREA at an exact factor of 2 (OpenCV's
-    fast path, ~20x cheaper), then finishes with exact INTER_AREA: the same
-    box filter up to the phase of the halving grid (bench/core.py measures its
-    PSNR against exact INTER_AREA).
+    fast path), then finishes with exact INTER_AREA: the same box filter up to
+    the phase of the halving grid (bench/core.py measures both).
     """
     h, w = src.shape[:2]
     if (w, h) == size_px:
