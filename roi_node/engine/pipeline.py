@@ -82,7 +82,6 @@ class FrameResult:
 class _ArmModel:
     config: ArmConfig
     kinematics: RobotKinematics
-    cam_T_base: Transform | None  # None: the camera or this arm's base moves, so it is found per frame
     prefix: str
     chain: tuple[str, ...]  # URDF joint names that move the ee/tip frames
     gripper: tuple[str, ...]  # JointState names of the joints below the wrist (hand, fingers)
@@ -152,6 +151,9 @@ class RoiPipeline:
         self._moving_bases = frozenset(r.id for r in rig.robots if r.base_topic is not None)
         # a fixed camera and fixed bases: the camera's view of every base is one transform, found once
         self.cam_T_world = None if self._mount is not None else rig.camera.world_T_cam.inverse()
+        self._fixed_cam_T_bases: dict[str, Transform | None] = (
+            {} if self.cam_T_world is None or self._moving_bases else {r.id: self.cam_T_world @ r.world_T_base for r in rig.robots}
+        )
         self._arms = tuple(self._arm_model(arm, kinematics[arm.robot]) for arm in rig.arms)
         self.visibility = VisibilityModel(rig, kinematics) if rig.visibility else None
         mount_joints = () if self._mount is None else tuple(self._mount.prefix + j for j in self._mount.chain)
@@ -185,9 +187,8 @@ class RoiPipeline:
             assert arm.tip.position_m is not None
             ee_T_tip = Transform(np.eye(3), np.asarray(arm.tip.position_m, dtype=np.float64))
         robot = self.rig.robot(arm.robot)
-        cam_T_base = None if self.cam_T_world is None or robot.id in self._moving_bases else self.cam_T_world @ robot.world_T_base
         gripper = tuple(robot.joint_prefix + j for j in joints.gripper)
-        return _ArmModel(arm, kin, cam_T_base, robot.joint_prefix, joints.chain, gripper, arm.tip.frame, ee_T_tip)
+        return _ArmModel(arm, kin, robot.joint_prefix, joints.chain, gripper, arm.tip.frame, ee_T_tip)
 
     def _mount_model(self, kinematics: Mapping[str, RobotKinematics]) -> _Mount | None:
         camera = self.rig.camera
@@ -300,9 +301,12 @@ class RoiPipeline:
         place_global = (place_in_output, image, (0, 0), output.global_size_px, output.resize_policy, output.interpolation)
         thread = self._global_view_thread if output.global_enabled else None
         pending_global = thread.submit(*place_global) if thread is not None else None
-        rois = tuple(self._process_arm(arm, camera, image, sync, flagged_joints, poses) for arm in self._arms)
+        cam_T_bases = self._cam_T_bases(poses)
+        rois = tuple(
+            self._process_arm(arm, camera, image, sync, flagged_joints, poses, cam_T_bases[arm.config.robot]) for arm in self._arms
+        )
         if self.visibility is not None:
-            rois = self._with_visibility(self.visibility, rois, camera, sync, poses)
+            rois = self._with_visibility(self.visibility, rois, camera, sync, cam_T_bases)
         global_view = None
         if output.global_enabled:
             global_view = (pending_global.result() if pending_global is not None else place_in_output(*place_global[1:])).image
@@ -320,19 +324,21 @@ class RoiPipeline:
         )
         return FrameResult(int(stamp_ns), int(frame_index), rois, global_view, record, record.to_json())
 
+    def _cam_T_bases(self, poses: _FramePoses | None) -> dict[str, Transform | None]:
+        """Each robot's base in the camera frame; None where the camera's or the base's pose is unknown for this frame."""
+        if poses is None:
+            return self._fixed_cam_T_bases
+        cam_T_world = poses.cam_T_world
+        return {
+            r.id: None if cam_T_world is None or r.id not in poses.world_T_base else cam_T_world @ poses.world_T_base[r.id]
+            for r in self.rig.robots
+        }
+
     def _with_visibility(
-        self, model: VisibilityModel, rois: tuple[ArmRoi, ...], camera: CameraModel, sync: SyncResult, poses: _FramePoses | None
+        self, model: VisibilityModel, rois: tuple[ArmRoi, ...], camera: CameraModel, sync: SyncResult,
+        cam_T_bases: dict[str, Transform | None],
     ) -> tuple[ArmRoi, ...]:
         """The ROIs with each gripper's visibility in their records, and their confidence lowered by a hidden gripper."""
-        if poses is None:
-            assert self.cam_T_world is not None
-            cam_T_bases: dict[str, Transform | None] = {r.id: self.cam_T_world @ r.world_T_base for r in self.rig.robots}
-        else:
-            cam_T_world = poses.cam_T_world
-            cam_T_bases = {
-                r.id: None if cam_T_world is None or r.id not in poses.world_T_base else cam_T_world @ poses.world_T_base[r.id]
-                for r in self.rig.robots
-            }
         windows = {roi.arm_id: roi.record.crop_box if roi.record.projection_valid else None for roi in rois}
         seen = model.measure(camera, self.rig.camera.z_min_m, cam_T_bases, sync.positions, windows)
         return tuple(
@@ -360,7 +366,7 @@ class RoiPipeline:
 
     def _process_arm(
         self, arm: _ArmModel, camera: CameraModel, image: np.ndarray, sync: SyncResult, flagged_joints: frozenset[str],
-        poses: _FramePoses | None,
+        poses: _FramePoses | None, cam_T_base: Transform | None,
     ) -> ArmRoi:
         cfg, output = arm.config, self.rig.output
         out_w, out_h = output.size_px
@@ -370,14 +376,10 @@ class RoiPipeline:
             *([ArmFlag.SYNC_LATEST] if sync.policy == SyncPolicy.LATEST else []),
             *([ArmFlag.JOINT_OUT_OF_LIMITS] if any(n in flagged_joints for n in names) else []),
         ]
-        cam_T_base = arm.cam_T_base
         if poses is not None:
             flags.extend(poses.flags[cfg.robot])
-            world_T_base = poses.world_T_base.get(cfg.robot)
-            if poses.cam_T_world is None or world_T_base is None:
-                return self._invalid(arm, image, flags, None, None)
-            cam_T_base = poses.cam_T_world @ world_T_base
-        assert cam_T_base is not None
+        if cam_T_base is None:
+            return self._invalid(arm, image, flags, None, None)
         if any(n not in sync.positions for n in names):
             flags.append(ArmFlag.NO_JOINT_STATE)
             return self._invalid(arm, image, flags, None, None)
