@@ -1,12 +1,10 @@
 """Pairing camera frames with joint states: one implementation for live and offline.
 
 Decisions depend only on stamps, never on arrival order: samples are kept per
-joint, sorted by stamp; duplicate stamps with conflicting values resolve to the
-smaller value (order-independent). Several JointState streams
-merge by joint name. The stream engine (engine/engine.py) drives
-`FrameSynchronizer` for both drivers: offline replay loads all joint states
-before it releases frames, the live node releases a frame once its bracketing
-sample arrived or `max_wait_ms` passed (docs/design.md "Sync").
+joint, sorted by stamp; a stamp repeated with another value keeps the smaller.
+Several JointState streams merge by joint name. Offline replay loads all joint
+states before it releases frames; the live node releases a frame once its
+bracketing sample arrived or `max_wait_ms` passed (docs/design.md "Sync").
 
 Samples and frames carry the epoch their stream's `StreamClock` gave them
 (engine/stamps.py): a frame pairs only with joint samples of its own epoch, so a
@@ -264,10 +262,9 @@ class SampleGroup:
 class FrameSynchronizer(Generic[P]):
     """Pending frames in (epoch, stamp) order, released when their joint state is known.
 
-    Bounded: beyond `max_pending` frames the oldest are dropped and counted. A
-    frame older than the last released one of its epoch is dropped (out of
-    order). Joint samples are kept per epoch; an epoch's samples are dropped
-    once a frame of a later epoch is released.
+    Bounded: beyond `max_pending` frames the oldest are dropped (`on_drop`), as
+    is a frame older than the last released one of its epoch. An epoch's joint
+    samples are dropped once a frame of a later epoch is released.
     """
 
     def __init__(
