@@ -79,16 +79,8 @@ def axis_taps(src_px: int, dst_px: int) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 @_jit
 def _vertical_block(
-    src: np.ndarray,
-    y_start: np.ndarray,
-    y_offset: np.ndarray,
-    y_weight: np.ndarray,
-    window_y0: int,
-    dy0: int,
-    rows: int,
-    elem0: int,
-    n_elem: int,
-    block: np.ndarray,
+    src: np.ndarray, y_start: np.ndarray, y_offset: np.ndarray, y_weight: np.ndarray, window_y0: int, dy0: int, rows: int, elem0: int,
+    n_elem: int, block: np.ndarray,
 ) -> None:
     """block[r, :n_elem] = sum over the in-image source rows of output row dy0 + r (two source rows per pass)."""
     height = src.shape[0]
@@ -135,14 +127,7 @@ def _to_u8(v: np.float32) -> np.uint8:
 
 @_jit
 def _clip_taps(
-    x_start: np.ndarray,
-    x_offset: np.ndarray,
-    window_x0: int,
-    col0: int,
-    col1: int,
-    cn: int,
-    lo: np.ndarray,
-    hi: np.ndarray,
+    x_start: np.ndarray, x_offset: np.ndarray, window_x0: int, col0: int, col1: int, cn: int, lo: np.ndarray, hi: np.ndarray,
     elem: np.ndarray,
 ) -> None:
     """Per output column: weight index range of its in-image taps and the block element of the first one."""
@@ -200,17 +185,8 @@ def _horizontal_block_c3(
 
 @_jit
 def _horizontal_block(
-    block: np.ndarray,
-    r0: int,
-    rows: int,
-    cn: int,
-    lo: np.ndarray,
-    hi: np.ndarray,
-    elem: np.ndarray,
-    x_weight: np.ndarray,
-    out: np.ndarray,
-    oy: int,
-    ox: int,
+    block: np.ndarray, r0: int, rows: int, cn: int, lo: np.ndarray, hi: np.ndarray, elem: np.ndarray, x_weight: np.ndarray, out: np.ndarray,
+    oy: int, ox: int,
 ) -> None:
     """Any channel count, one sum at a time (rows r0..rows-1 of the block)."""
     dw = lo.shape[0]
@@ -229,20 +205,8 @@ def _horizontal_block(
 
 @_jit
 def area_resample(
-    src: np.ndarray,
-    cn: int,
-    window_x0: int,
-    window_y0: int,
-    x_start: np.ndarray,
-    x_offset: np.ndarray,
-    x_weight: np.ndarray,
-    y_start: np.ndarray,
-    y_offset: np.ndarray,
-    y_weight: np.ndarray,
-    out: np.ndarray,
-    ox: int,
-    oy: int,
-    block: np.ndarray,
+    src: np.ndarray, cn: int, window_x0: int, window_y0: int, x_start: np.ndarray, x_offset: np.ndarray, x_weight: np.ndarray,
+    y_start: np.ndarray, y_offset: np.ndarray, y_weight: np.ndarray, out: np.ndarray, ox: int, oy: int, block: np.ndarray,
 ) -> None:
     """Resample the window at (window_x0, window_y0) of `src` (H x W*cn, uint8) into `out` at (ox, oy).
 

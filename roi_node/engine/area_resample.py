@@ -7,11 +7,9 @@ the image edge), overlaps of at most 1e-3 px are dropped, weights are
 float32, sums are float32 and the result rounds half to even. `axis_taps`
 builds those weights by that rule, once per (source size, output size);
 `resample_window` applies them with the compiled kernel in area_kernels,
-reading the window straight from the frame (rows and columns outside the
-image contribute zero, as the zero padding would) and writing into a region
-of the output (the letterbox content), so neither a padded crop nor a
-resized intermediate is ever built. The result stays within one level of
-cv2.INTER_AREA on the zero-padded crop (test/engine/test_resample.py).
+reading the window straight from the frame and writing the output's content
+region, so neither a padded crop nor a resized intermediate is ever built.
+The result stays within one level of cv2.INTER_AREA on the zero-padded crop.
 """
 
 from __future__ import annotations
@@ -41,17 +39,12 @@ def axis_taps(src_px: int, dst_px: int) -> AxisTaps:
 
 
 def resample_window(
-    image: np.ndarray,
-    origin_px: tuple[int, int],
-    window_px: tuple[int, int],
-    out: np.ndarray,
-    content_offset_px: tuple[int, int],
+    image: np.ndarray, origin_px: tuple[int, int], window_px: tuple[int, int], out: np.ndarray, content_offset_px: tuple[int, int],
     content_px: tuple[int, int],
 ) -> None:
-    """Area-resample the window (origin, width x height; may leave the image) into out's content region.
+    """Area-resample the window (origin, width x height; may leave the image) into out's content region only.
 
-    `image` is HxW or HxWxC uint8, `out` is C-contiguous with the same channel
-    count; only the content region of `out` is written.
+    `image` is HxW or HxWxC uint8, `out` is C-contiguous with the same channel count.
     """
     cn = 1 if image.ndim == 2 else image.shape[2]
     src = np.ascontiguousarray(image).reshape(image.shape[0], -1)

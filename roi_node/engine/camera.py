@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -94,16 +94,8 @@ class CameraModel:
         coordinates before K, so only K and P change; D and R carry over.
         """
         new_from_image = _inverse_affine(np.asarray(image_from_new, dtype=np.float64).reshape(2, 3))
-        return CameraModel(
-            width_px=width_px,
-            height_px=height_px,
-            k=new_from_image @ self.k,
-            d=self.d.copy(),
-            distortion_model=self.distortion_model,
-            r=self.r.copy(),
-            p=new_from_image @ self.p,
-            rectified=self.rectified,
-        )
+        k, p = new_from_image @ self.k, new_from_image @ self.p
+        return replace(self, width_px=width_px, height_px=height_px, k=k, d=self.d.copy(), r=self.r.copy(), p=p)
 
     def check_image_size(self, width_px: int, height_px: int, where: str) -> None:
         """A calibration for another resolution is an error, never a silent rescale."""
@@ -119,10 +111,7 @@ class CameraModel:
             "width": self.width_px,
             "height": self.height_px,
             "distortion_model": self.distortion_model,
-            "k": [float(v) for v in self.k.reshape(-1)],
-            "d": [float(v) for v in self.d.reshape(-1)],
-            "r": [float(v) for v in self.r.reshape(-1)],
-            "p": [float(v) for v in self.p.reshape(-1)],
+            **{name: [float(v) for v in getattr(self, name).reshape(-1)] for name in ("k", "d", "r", "p")},
             "rectified": self.rectified,
         }
 
@@ -180,16 +169,8 @@ def _distort_equidistant(x: Float64Array, y: Float64Array, d: Float64Array) -> t
 
 
 def camera_from_info(
-    *,
-    width_px: int,
-    height_px: int,
-    distortion_model: str,
-    d: object,
-    k: object,
-    r: object | None = None,
-    p: object | None = None,
-    rectified: bool = False,
-    where: str = "camera_info",
+    *, width_px: int, height_px: int, distortion_model: str, d: object, k: object, r: object | None = None, p: object | None = None,
+    rectified: bool = False, where: str = "camera_info",
 ) -> CameraModel:
     """Build a camera from CameraInfo-shaped fields (as in sensor_msgs/CameraInfo)."""
     if not (0 < int(width_px) <= MAX_IMAGE_SIDE_PX and 0 < int(height_px) <= MAX_IMAGE_SIDE_PX):
@@ -315,10 +296,5 @@ def camera_info_fields(camera: CameraModel | None) -> CameraInfoFields:
     """What a CameraInfo carries for `camera`; all zeros (K = 0 means uncalibrated) for None."""
     if camera is None:
         return CameraInfoFields("plumb_bob", np.zeros(0), np.zeros(9), np.zeros(9), np.zeros(12))
-    return CameraInfoFields(
-        camera.distortion_model,
-        np.ascontiguousarray(camera.d, dtype=np.float64).reshape(-1),
-        np.ascontiguousarray(camera.k, dtype=np.float64).reshape(-1),
-        np.ascontiguousarray(camera.r, dtype=np.float64).reshape(-1),
-        np.ascontiguousarray(camera.p, dtype=np.float64).reshape(-1),
-    )
+    d, k, r, p = (np.ascontiguousarray(m, dtype=np.float64).reshape(-1) for m in (camera.d, camera.k, camera.r, camera.p))
+    return CameraInfoFields(camera.distortion_model, d, k, r, p)

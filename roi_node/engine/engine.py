@@ -43,6 +43,7 @@ import math
 from collections import deque
 from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Generic, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -63,6 +64,7 @@ from roi_node.engine.stream_stats import StreamStats
 from roi_node.engine.sync import FrameSynchronizer, JointStateBuffer, PendingFrame, SampleGroup, SyncResult, command_residual
 from roi_node.engine.transforms import Transform
 
+V = TypeVar("V")
 EARLY_JOINT_STATES = 2000  # joint states kept while waiting for a URDF (2 s at 1 kHz)
 REFUSED_STAMPS_KEPT = 2000  # per joint: stamps of out-of-limit samples, for flagging the frames near them
 
@@ -153,18 +155,18 @@ class PreparedFrame:
 
 
 @dataclass
-class _Stamped:
+class _Stamped(Generic[V]):
     """Values that take effect by stamp: the newest at or before a frame's stamp applies to it."""
 
     stamps: list[int] = field(default_factory=list)
-    values: list[object] = field(default_factory=list)
+    values: list[V] = field(default_factory=list)
 
-    def add(self, stamp_ns: int, value: object) -> None:
+    def add(self, stamp_ns: int, value: V) -> None:
         i = bisect.bisect_right(self.stamps, stamp_ns)
         self.stamps.insert(i, stamp_ns)
         self.values.insert(i, value)
 
-    def at(self, stamp_ns: int) -> object | None:
+    def at(self, stamp_ns: int) -> V | None:
         i = bisect.bisect_right(self.stamps, stamp_ns) - 1
         return self.values[i] if i >= 0 else None
 
@@ -173,15 +175,8 @@ class StreamEngine:
     """One rig's event streams in, FrameResults out, in stamp order (see the module docstring)."""
 
     def __init__(
-        self,
-        rig: RigConfig,
-        *,
-        intrinsics_from_stream: bool = False,
-        urdf_texts: Mapping[str, str] | None = None,
-        urdf_from_stream: bool = False,
-        max_pending: int = 8,
-        stats: StreamStats | None = None,
-        overlap_global_view: bool = False,
+        self, rig: RigConfig, *, intrinsics_from_stream: bool = False, urdf_texts: Mapping[str, str] | None = None,
+        urdf_from_stream: bool = False, max_pending: int = 8, stats: StreamStats | None = None, overlap_global_view: bool = False,
     ) -> None:
         """`rig`: a rig of one camera, or narrowed to one (`RigConfig.for_camera`): an engine is one camera's stream.
         `overlap_global_view`: the pipelines resample the global view on a thread of their own beside the
@@ -194,11 +189,11 @@ class StreamEngine:
         self.max_pending = max_pending
         self.intrinsics_from_stream = intrinsics_from_stream or rig.camera.intrinsics is None
         # intrinsics by stamp, per epoch (a looped bag repeats its calibration changes); the rig's own when not streamed
-        self._cameras: dict[int, _Stamped] = {}
+        self._cameras: dict[int, _Stamped[CameraModel]] = {}
         self._newest_info_ns: dict[int, int] = {}  # per epoch, of any camera info, changed or not: what a waiting frame needs
         self._rig_camera = None if self.intrinsics_from_stream else rig.camera.intrinsics
         self._urdf_from_stream = urdf_from_stream
-        self._pipelines = _Stamped()
+        self._pipelines: _Stamped[RoiPipeline] = _Stamped()
         self._urdf_texts: set[str] = set()
         self.synchronizer: FrameSynchronizer[FramePayload] | None = None
         self.commands: JointStateBuffer | None = None
@@ -215,7 +210,7 @@ class StreamEngine:
     @property
     def pipeline(self) -> RoiPipeline | None:
         """The newest pipeline (the URDF most recently in effect)."""
-        return self._pipelines.values[-1] if self._pipelines.values else None  # type: ignore[return-value]
+        return self._pipelines.values[-1] if self._pipelines.values else None
 
     def _start(self, pipeline: RoiPipeline, stamp_ns: int) -> None:
         self._pipelines.add(stamp_ns, pipeline)
@@ -243,7 +238,7 @@ class StreamEngine:
         """`rig`'s arm policies and sync limits (same camera, robots and arms) for every frame prepared from now on;
         frames already prepared keep the policy they were prepared with."""
         self.rig = rig
-        self._pipelines.values = [p.with_policy(rig) for p in self._pipelines.values if isinstance(p, RoiPipeline)]
+        self._pipelines.values = [p.with_policy(rig) for p in self._pipelines.values]
         if self.synchronizer is not None:
             self.synchronizer.set_limits(rig.sync.max_skew_ms, rig.sync.max_wait_ms)
 
@@ -284,9 +279,7 @@ class StreamEngine:
         check = self._clocks.setdefault(stream, StreamClock()).check(event.stamp_ns)
         held = self._held.setdefault(stream, [])
         if check.drop_held:
-            for stray in held:
-                self._refuse(stray, self._stray(stray))
-            held.clear()
+            self._refuse_held(held)
         if check.verdict is StampVerdict.HELD:
             held.append(event)
             return None
@@ -303,19 +296,16 @@ class StreamEngine:
             held.clear()
         return self._use(event, check.epoch)
 
-    @staticmethod
-    def _stray(event: Event) -> Refusal:
-        return Refusal(
-            DropKind.IMPLAUSIBLE_STAMP,
-            f"{event.where}: stamp {event.stamp_ns} refused: far from the stream's own time, and the stream did not follow it",
-        )
+    def _refuse_held(self, held: list[StampedEvent]) -> None:
+        for stray in held:
+            why = "far from the stream's own time, and the stream did not follow it"
+            self._refuse(stray, Refusal(DropKind.IMPLAUSIBLE_STAMP, f"{stray.where}: stamp {stray.stamp_ns} refused: {why}"))
+        held.clear()
 
     def finish(self) -> None:
         """End of input: messages still held for an unconfirmed stamp jump are refused (counted)."""
         for held in self._held.values():
-            for stray in held:
-                self._refuse(stray, self._stray(stray))
-            held.clear()
+            self._refuse_held(held)
 
     def _use(self, event: StampedEvent, epoch: int) -> Refusal | None:
         if isinstance(event, FrameEvent):
@@ -343,9 +333,8 @@ class StreamEngine:
         if self.synchronizer is None:
             self.stats.drop(DropKind.WAITING_FOR_URDF)
             return None
-        index = self.frames_offered
+        payload = FramePayload(int(event.stamp_ns), self.frames_offered, event.image, event.where)
         self.frames_offered += 1
-        payload = FramePayload(int(event.stamp_ns), index, event.image, event.where)
         self.synchronizer.add_frame(int(event.stamp_ns) - self.delay_ns, payload, event.arrival_ns, epoch)
         return None
 
@@ -356,9 +345,8 @@ class StreamEngine:
             return None
         if not positions:
             return Refusal(DropKind.JOINT_STATE, f"{where}: {len(names)} names but no positions (effort/velocity only?)")
-        assert self.synchronizer is not None
-        pipeline = self._pipelines.values[-1]
-        assert isinstance(pipeline, RoiPipeline)
+        pipeline = self.pipeline
+        assert self.synchronizer is not None and pipeline is not None
         if len(names) != len(positions):
             return Refusal(DropKind.JOINT_STATE, f"{where}: {len(names)} names but {len(positions)} positions")
         out_of_limits = beyond_limits(pipeline.joint_limits, names, positions)
@@ -369,8 +357,7 @@ class StreamEngine:
                 if len(stamps) > REFUSED_STAMPS_KEPT:
                     del stamps[0]
             bad = {name for name, _, _ in out_of_limits}
-            kept = [(n, p) for n, p in zip(names, positions, strict=True) if n not in bad]
-            names, positions = [n for n, _ in kept], [p for _, p in kept]
+            names, positions = [n for n in names if n not in bad], [p for n, p in zip(names, positions, strict=True) if n not in bad]
         try:
             skipped = self.synchronizer.add_joint_state(event.stamp_ns, names, positions, where=where, epoch=epoch)
         except JointStateError as exc:
@@ -412,7 +399,7 @@ class StreamEngine:
         self._newest_info_ns[epoch] = max(event.stamp_ns, self._newest_info_ns.get(epoch, event.stamp_ns))
         schedule = self._cameras.setdefault(epoch, _Stamped())
         current = schedule.at(event.stamp_ns)
-        if isinstance(current, CameraModel) and (current is camera or current.content_version() == camera.content_version()):
+        if current is not None and (current is camera or current.content_version() == camera.content_version()):
             return None  # a steady camera_info stream is one entry
         schedule.add(event.stamp_ns, camera)
         return None
@@ -454,35 +441,28 @@ class StreamEngine:
 
         A failure is counted as a processing error and returned as its one line: the real frames will show
         whether processing works."""
+        pipeline, camera, out = self.pipeline, self.first_camera(), self.rig.output
+        if pipeline is None or camera is None:
+            return None
         try:
-            self._warm_up()
+            pipeline.set_intrinsics(camera)
+            blank = np.zeros((camera.height_px, camera.width_px, 3), np.uint8)
+            pipeline.process(blank, 0, 0, SyncResult(self.rig.sync.policy, "ok", dict.fromkeys(pipeline.required_joints, 0.0), 0.0, 0))
+            # the blank pose may put no arm in view: crop windows inside, across and larger than the image too
+            centre = (camera.width_px / 2, camera.height_px / 2)
+            for side in (out.size_px[0] * 1.7, out.size_px[0] / 1.6, float(camera.height_px)):
+                for middle in (centre, (0.0, 0.0)):
+                    crop_resize(blank, window_around(middle, (side, side)), out.size_px, out.resize_policy, out.interpolation)
         except Exception as exc:
             return self.stats.processing_error(exc)
         return None
-
-    def _warm_up(self) -> None:
-        pipeline, camera = self.pipeline, self.first_camera()
-        if pipeline is None or camera is None:
-            return
-        pipeline.set_intrinsics(camera)
-        blank = np.zeros((camera.height_px, camera.width_px, 3), np.uint8)
-        positions = dict.fromkeys(pipeline.required_joints, 0.0)
-        sync = SyncResult(self.rig.sync.policy, "ok", positions, 0.0, 0)
-        pipeline.process(blank, 0, 0, sync)
-        # the blank pose may put no arm in view: crop windows inside, across and larger than the image too
-        out = self.rig.output
-        centre = (camera.width_px / 2, camera.height_px / 2)
-        for side in (out.size_px[0] * 1.7, out.size_px[0] / 1.6, float(camera.height_px)):
-            for middle in (centre, (0.0, 0.0)):
-                crop_resize(blank, window_around(middle, (side, side)), out.size_px, out.resize_policy, out.interpolation)
 
     def camera_at(self, stamp_ns: int, epoch: int = 0) -> CameraModel | None:
         """The intrinsics in effect at a frame stamp of an epoch (None before its first camera info)."""
         if self._rig_camera is not None:
             return self._rig_camera
         schedule = self._cameras.get(epoch)
-        camera = schedule.at(stamp_ns) if schedule is not None else None
-        return camera if isinstance(camera, CameraModel) else None
+        return schedule.at(stamp_ns) if schedule is not None else None
 
     def missing_joints(self, available: Collection[str]) -> tuple[str, ...]:
         """The joints the rig's arms need that joint states naming only `available` lack: no frame of such a
@@ -500,10 +480,7 @@ class StreamEngine:
         """The rig's intrinsics, or the first streamed ones: what a stream's image size is checked against."""
         if self._rig_camera is not None:
             return self._rig_camera
-        for schedule in self._cameras.values():
-            if schedule.values and isinstance(schedule.values[0], CameraModel):
-                return schedule.values[0]
-        return None
+        return next((schedule.values[0] for schedule in self._cameras.values() if schedule.values), None)
 
     @property
     def pending(self) -> int:
@@ -536,7 +513,6 @@ class StreamEngine:
         payload = ready.payload
         stamp = payload.stamp_ns
         pipeline = self._pipelines.at(stamp) or self._pipelines.values[0]
-        assert isinstance(pipeline, RoiPipeline)
         camera = self.camera_at(stamp, ready.epoch)
         if camera is None:
             no_camera = f"{payload.where}: frame stamp {stamp}: no CameraInfo stamped at or before it"
@@ -575,11 +551,8 @@ class StreamEngine:
         """
         ready = prepared.ready
         payload, sync = ready.payload, ready.sync
-        teleop = TeleopRecord(
-            latency_ms=rnd(latency_ms, MS_DECIMALS),
-            control_hz=rnd(sync.joint_rate_hz, MS_DECIMALS),
-            command_residual=rnd(ready.command_residual, M_DECIMALS),
-        )
+        teleop = TeleopRecord(latency_ms=rnd(latency_ms, MS_DECIMALS), control_hz=rnd(sync.joint_rate_hz, MS_DECIMALS),
+                              command_residual=rnd(ready.command_residual, M_DECIMALS))
         return prepared.pipeline.process(
             payload.image, payload.stamp_ns, payload.frame_index, sync, teleop, flagged_joints=prepared.flagged_joints,
             bases=ready.bases,

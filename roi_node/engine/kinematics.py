@@ -2,7 +2,7 @@
 
 FK needs no meshes, but placo's constructor resolves every mesh even with
 `Flags.ignore_collisions` (a `package://` URI it cannot resolve is fatal, and
-resolving costs ~1 s). So the URDF text is loaded with `<visual>` and
+resolving is slow). So the URDF text is loaded with `<visual>` and
 `<collision>` elements removed. placo prepends a 7-value floating base to
 `state.q`, so joints are always set by name, never by index.
 
@@ -70,10 +70,7 @@ def parse_joints(urdf_text: str, where: str) -> dict[str, UrdfJoint]:
         if parent is None or child is None:
             raise KinematicsError(f"{where}: joint {el.get('name')!r} lacks <parent> or <child>")
         joints[el.get("name", "")] = UrdfJoint(
-            name=el.get("name", ""),
-            type=joint_type,
-            parent=parent.get("link", ""),
-            child=child.get("link", ""),
+            el.get("name", ""), joint_type, parent.get("link", ""), child.get("link", ""),
             mimic_of=mimic.get("joint") if mimic is not None else None,
             mimic_multiplier=_attribute_number(mimic, "multiplier", 1.0, where),
             mimic_offset=_attribute_number(mimic, "offset", 0.0, where),
@@ -84,10 +81,7 @@ def parse_joints(urdf_text: str, where: str) -> dict[str, UrdfJoint]:
 
 
 def _attribute_number(el: ET.Element | None, key: str, default: float, where: str) -> float:
-    if el is None:
-        return default
-    text = el.get(key)
-    if text is None:
+    if el is None or (text := el.get(key)) is None:
         return default
     try:
         value = float(text)
@@ -179,9 +173,7 @@ class RobotKinematics:
     def limits(self, joint: str) -> tuple[float, float] | None:
         """(lower, upper) of a limited joint, in radians or metres."""
         j = self._joints.get(joint)
-        if j is None or j.lower is None or j.upper is None:
-            return None
-        return j.lower, j.upper
+        return None if j is None or j.lower is None or j.upper is None else (j.lower, j.upper)
 
     def joint_child_frame(self, joint: str) -> str:
         """The link a joint moves (its origin is the joint's origin)."""

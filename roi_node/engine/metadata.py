@@ -7,6 +7,7 @@ value goes through. The JSON Schema ships as config/metadata.schema.json.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 from dataclasses import dataclass
@@ -34,15 +35,7 @@ class Lineage:
     padding_mode: str
 
     def as_dict(self) -> dict[str, str]:
-        return {
-            "intrinsics_ver": self.intrinsics_ver,
-            "extrinsics_ver": self.extrinsics_ver,
-            "fk_ver": self.fk_ver,
-            "roi_generator_ver": self.roi_generator_ver,
-            "crop_offset_ver": self.crop_offset_ver,
-            "resize_policy": self.resize_policy,
-            "padding_mode": self.padding_mode,
-        }
+        return dataclasses.asdict(self)
 
 
 HASH_PREFIX = "sha256:"
@@ -59,15 +52,11 @@ def content_hash(content: object) -> str:
     return bytes_version(json.dumps(content, sort_keys=True, separators=(",", ":"), default=str).encode())
 
 
-def text_hash(text: str) -> str:
-    return bytes_version(text.encode())
-
-
 def fk_version(urdf_sha256_by_robot: dict[str, str]) -> str:
     """A lineage's fk_ver: one robot's URDF version, or for several a hash of each robot's URDF SHA-256 by id."""
     if len(urdf_sha256_by_robot) == 1:
         return HASH_PREFIX + next(iter(urdf_sha256_by_robot.values()))[:VERSION_HEX_DIGITS]
-    return text_hash(",".join(f"{k}={v}" for k, v in sorted(urdf_sha256_by_robot.items())))
+    return bytes_version(",".join(f"{k}={v}" for k, v in sorted(urdf_sha256_by_robot.items())).encode())
 
 
 def generator_version() -> str:

@@ -82,7 +82,6 @@ class FrameResult:
 class _ArmModel:
     config: ArmConfig
     kinematics: RobotKinematics
-    cam_T_base: Transform | None  # None: the camera or this arm's base moves, so it is found per frame
     prefix: str
     chain: tuple[str, ...]  # URDF joint names that move the ee/tip frames
     gripper: tuple[str, ...]  # JointState names of the joints below the wrist (hand, fingers)
@@ -133,11 +132,7 @@ class RoiPipeline:
     """
 
     def __init__(
-        self,
-        rig: RigConfig,
-        *,
-        intrinsics: CameraModel | None = None,
-        urdf_texts: Mapping[str, str] | None = None,
+        self, rig: RigConfig, *, intrinsics: CameraModel | None = None, urdf_texts: Mapping[str, str] | None = None,
         global_view_thread: GlobalViewThread | None = None,
     ) -> None:
         """`urdf_texts` (robot id -> URDF XML) replaces the rig's URDF files, e.g. from `robot_description`.
@@ -150,14 +145,15 @@ class RoiPipeline:
         self.rig = rig
         self._global_view_thread = global_view_thread
         texts = urdf_texts or {}
-        camera_config = rig.camera
         kinematics = {r.id: RobotKinematics(r.id, r.urdf_path, texts.get(r.id)) for r in rig.robots}
-        self._kinematics = kinematics
         check_joint_names_distinct(rig, kinematics)
         self._mount = self._mount_model(kinematics)
         self._moving_bases = frozenset(r.id for r in rig.robots if r.base_topic is not None)
         # a fixed camera and fixed bases: the camera's view of every base is one transform, found once
-        self.cam_T_world = None if self._mount is not None else camera_config.world_T_cam.inverse()
+        self.cam_T_world = None if self._mount is not None else rig.camera.world_T_cam.inverse()
+        self._fixed_cam_T_bases: dict[str, Transform | None] = (
+            {} if self.cam_T_world is None or self._moving_bases else {r.id: self.cam_T_world @ r.world_T_base for r in rig.robots}
+        )
         self._arms = tuple(self._arm_model(arm, kinematics[arm.robot]) for arm in rig.arms)
         self.visibility = VisibilityModel(rig, kinematics) if rig.visibility else None
         mount_joints = () if self._mount is None else tuple(self._mount.prefix + j for j in self._mount.chain)
@@ -172,19 +168,15 @@ class RoiPipeline:
         self.state_joints: tuple[str, ...] = unique_in_order(
             [*self.required_joints, *(g for arm in self._arms for g in arm.gripper), *every_joint]
         )
-        self.joint_limits: dict[str, tuple[float, float]] = {}
-        for robot in rig.robots:
-            kin = kinematics[robot.id]
-            for j in kin.joint_names():
-                limits = kin.limits(j)
-                if limits is not None:
-                    self.joint_limits[robot.joint_prefix + j] = limits
-        self._fk_ver = self._fk_version()
+        self.joint_limits: dict[str, tuple[float, float]] = {
+            robot.joint_prefix + j: limits
+            for robot in rig.robots for j in kinematics[robot.id].joint_names() if (limits := kinematics[robot.id].limits(j)) is not None
+        }
+        self._fk_ver = fk_version({r.id: kinematics[r.id].urdf_sha256 for r in rig.robots})
         self._crop_offset_ver = _crop_offset_version(rig)
         self.camera: CameraModel | None = None
         self.lineage: Lineage | None = None
-        camera = intrinsics or rig.camera.intrinsics
-        if camera is not None:
+        if (camera := intrinsics or rig.camera.intrinsics) is not None:
             self.set_intrinsics(camera)
         warm_up_resampling()  # compiled (or loaded from the disk cache) now, not on the first frame
 
@@ -195,9 +187,8 @@ class RoiPipeline:
             assert arm.tip.position_m is not None
             ee_T_tip = Transform(np.eye(3), np.asarray(arm.tip.position_m, dtype=np.float64))
         robot = self.rig.robot(arm.robot)
-        cam_T_base = None if self.cam_T_world is None or robot.id in self._moving_bases else self.cam_T_world @ robot.world_T_base
         gripper = tuple(robot.joint_prefix + j for j in joints.gripper)
-        return _ArmModel(arm, kin, cam_T_base, robot.joint_prefix, joints.chain, gripper, arm.tip.frame, ee_T_tip)
+        return _ArmModel(arm, kin, robot.joint_prefix, joints.chain, gripper, arm.tip.frame, ee_T_tip)
 
     def _mount_model(self, kinematics: Mapping[str, RobotKinematics]) -> _Mount | None:
         camera = self.rig.camera
@@ -230,9 +221,6 @@ class RoiPipeline:
             world_T_cam = world_T_base[mount.robot_id] @ base_T_link @ mount.link_T_cam
         moving_camera = world_T_cam if mount is not None else None
         return _FramePoses(world_T_cam.inverse(), world_T_base, {r: tuple(f) for r, f in flags.items()}, moving_camera)
-
-    def _fk_version(self) -> str:
-        return fk_version({r.id: self._kinematics[r.id].urdf_sha256 for r in self.rig.robots})
 
     def _lineage(self, camera: CameraModel) -> Lineage:
         cam = self.rig.camera
@@ -290,15 +278,8 @@ class RoiPipeline:
             )
 
     def process(
-        self,
-        image: np.ndarray,
-        stamp_ns: int,
-        frame_index: int,
-        sync: SyncResult,
-        teleop: TeleopRecord | None = None,
-        *,
-        flagged_joints: frozenset[str] = frozenset(),
-        bases: tuple[BaseSync, ...] = (),
+        self, image: np.ndarray, stamp_ns: int, frame_index: int, sync: SyncResult, teleop: TeleopRecord | None = None, *,
+        flagged_joints: frozenset[str] = frozenset(), bases: tuple[BaseSync, ...] = (),
     ) -> FrameResult:
         """Run the ROI policy on one frame (uint8, calibrated size) for every arm.
 
@@ -320,56 +301,51 @@ class RoiPipeline:
         place_global = (place_in_output, image, (0, 0), output.global_size_px, output.resize_policy, output.interpolation)
         thread = self._global_view_thread if output.global_enabled else None
         pending_global = thread.submit(*place_global) if thread is not None else None
-        rois = tuple(self._process_arm(arm, camera, image, sync, flagged_joints, poses) for arm in self._arms)
+        cam_T_bases = self._cam_T_bases(poses)
+        rois = tuple(
+            self._process_arm(arm, camera, image, sync, flagged_joints, poses, cam_T_bases[arm.config.robot]) for arm in self._arms
+        )
         if self.visibility is not None:
-            rois = self._with_visibility(self.visibility, rois, camera, sync, poses)
+            rois = self._with_visibility(self.visibility, rois, camera, sync, cam_T_bases)
         global_view = None
         if output.global_enabled:
             global_view = (pending_global.result() if pending_global is not None else place_in_output(*place_global[1:])).image
-        if teleop is None:
-            teleop = TeleopRecord(control_hz=rnd(sync.joint_rate_hz, MS_DECIMALS))
+        teleop = teleop or TeleopRecord(control_hz=rnd(sync.joint_rate_hz, MS_DECIMALS))
         record = FrameRecord(
-            stamp_ns=int(stamp_ns),
-            frame_index=int(frame_index),
-            camera_id=self.rig.camera.id,
-            robot_id=self.rig.rig_id,
+            stamp_ns=int(stamp_ns), frame_index=int(frame_index), camera_id=self.rig.camera.id, robot_id=self.rig.rig_id,
             image_size=(camera.width_px, camera.height_px),
             sync=SyncRecord(sync.policy, sync.joint_stamp_ns, rnd(sync.residual_ms, MS_DECIMALS), sync.status),
             joint_positions=tuple(
                 (name, rnd(sync.positions[name], JOINT_DECIMALS) or 0.0) for name in self.state_joints if name in sync.positions
             ),
-            arms=tuple(roi.record for roi in rois),
-            teleop=teleop,
-            lineage=lineage,
+            arms=tuple(roi.record for roi in rois), teleop=teleop, lineage=lineage,
             camera_in_world=None if poses is None or poses.world_T_cam is None else _pose_record(poses.world_T_cam),
             bases=tuple(_base_record(b) for b in bases),
         )
         return FrameResult(int(stamp_ns), int(frame_index), rois, global_view, record, record.to_json())
 
+    def _cam_T_bases(self, poses: _FramePoses | None) -> dict[str, Transform | None]:
+        """Each robot's base in the camera frame; None where the camera's or the base's pose is unknown for this frame."""
+        if poses is None:
+            return self._fixed_cam_T_bases
+        cam_T_world = poses.cam_T_world
+        return {
+            r.id: None if cam_T_world is None or r.id not in poses.world_T_base else cam_T_world @ poses.world_T_base[r.id]
+            for r in self.rig.robots
+        }
+
     def _with_visibility(
-        self, model: VisibilityModel, rois: tuple[ArmRoi, ...], camera: CameraModel, sync: SyncResult, poses: _FramePoses | None
+        self, model: VisibilityModel, rois: tuple[ArmRoi, ...], camera: CameraModel, sync: SyncResult,
+        cam_T_bases: dict[str, Transform | None],
     ) -> tuple[ArmRoi, ...]:
         """The ROIs with each gripper's visibility in their records, and their confidence lowered by a hidden gripper."""
-        if poses is None:
-            assert self.cam_T_world is not None
-            cam_T_bases: dict[str, Transform | None] = {r.id: self.cam_T_world @ r.world_T_base for r in self.rig.robots}
-        else:
-            cam_T_world = poses.cam_T_world
-            cam_T_bases = {
-                r.id: None if cam_T_world is None or r.id not in poses.world_T_base else cam_T_world @ poses.world_T_base[r.id]
-                for r in self.rig.robots
-            }
         windows = {roi.arm_id: roi.record.crop_box if roi.record.projection_valid else None for roi in rois}
         seen = model.measure(camera, self.rig.camera.z_min_m, cam_T_bases, sync.positions, windows)
         return tuple(
-            dataclasses.replace(
-                roi,
-                record=dataclasses.replace(
-                    roi.record,
-                    visibility=seen[roi.arm_id],
-                    confidence=rnd(seen_confidence(roi.record.confidence, seen[roi.arm_id].visible_fraction), RATIO_DECIMALS) or 0.0,
-                ),
-            )
+            dataclasses.replace(roi, record=dataclasses.replace(
+                roi.record, visibility=seen[roi.arm_id],
+                confidence=rnd(seen_confidence(roi.record.confidence, seen[roi.arm_id].visible_fraction), RATIO_DECIMALS) or 0.0,
+            ))
             for roi in rois
         )
 
@@ -389,38 +365,26 @@ class RoiPipeline:
         return dataclasses.replace(sync, positions={n: v for n, v in sync.positions.items() if n not in beyond}), beyond
 
     def _process_arm(
-        self,
-        arm: _ArmModel,
-        camera: CameraModel,
-        image: np.ndarray,
-        sync: SyncResult,
-        flagged_joints: frozenset[str],
-        poses: _FramePoses | None,
+        self, arm: _ArmModel, camera: CameraModel, image: np.ndarray, sync: SyncResult, flagged_joints: frozenset[str],
+        poses: _FramePoses | None, cam_T_base: Transform | None,
     ) -> ArmRoi:
-        cfg = arm.config
-        out_w, out_h = self.rig.output.size_px
-        flags: list[str] = []
-        if sync.status in SYNC_FLAGS:
-            flags.append(SYNC_FLAGS[SyncStatus(sync.status)])
-        if sync.policy == SyncPolicy.LATEST:
-            flags.append(ArmFlag.SYNC_LATEST)
+        cfg, output = arm.config, self.rig.output
+        out_w, out_h = output.size_px
         names = [arm.prefix + j for j in arm.chain]
-        if flagged_joints and any(n in flagged_joints for n in names):
-            flags.append(ArmFlag.JOINT_OUT_OF_LIMITS)
-        cam_T_base = arm.cam_T_base
+        flags: list[str] = [
+            *([SYNC_FLAGS[SyncStatus(sync.status)]] if sync.status in SYNC_FLAGS else []),
+            *([ArmFlag.SYNC_LATEST] if sync.policy == SyncPolicy.LATEST else []),
+            *([ArmFlag.JOINT_OUT_OF_LIMITS] if any(n in flagged_joints for n in names) else []),
+        ]
         if poses is not None:
             flags.extend(poses.flags[cfg.robot])
-            world_T_base = poses.world_T_base.get(cfg.robot)
-            if poses.cam_T_world is None or world_T_base is None:
-                return self._invalid(arm, image, flags, None, None)
-            cam_T_base = poses.cam_T_world @ world_T_base
-        assert cam_T_base is not None
+        if cam_T_base is None:
+            return self._invalid(arm, image, flags, None, None)
         if any(n not in sync.positions for n in names):
             flags.append(ArmFlag.NO_JOINT_STATE)
             return self._invalid(arm, image, flags, None, None)
-        q = {j: sync.positions[arm.prefix + j] for j in arm.chain}
-        frames = [cfg.ee_frame] + ([arm.tip_frame] if arm.tip_frame else [])
-        frame_poses = arm.kinematics.fk(q, frames)
+        frames = [cfg.ee_frame, arm.tip_frame] if arm.tip_frame else [cfg.ee_frame]
+        frame_poses = arm.kinematics.fk({j: sync.positions[arm.prefix + j] for j in arm.chain}, frames)
         base_T_ee = frame_poses[0]
         base_T_tip = frame_poses[1] if arm.tip_frame else base_T_ee @ arm.ee_T_tip  # type: ignore[operator]
         points_cam = cam_T_base.apply(np.vstack([base_T_ee.translation_m, base_T_tip.translation_m]))
@@ -433,17 +397,12 @@ class RoiPipeline:
             return self._invalid(arm, image, flags, base_T_ee, points_cam[0])
         wrist = (float(uv[0, 0]), float(uv[0, 1]))
         tip = (float(uv[1, 0]), float(uv[1, 1])) if valid[1] else None
-        depth_m = float(points_cam[0, 2])
         centre = (float(uv[2, 0]), float(uv[2, 1])) if cfg.offset_m is not None and valid[2] else None
-        if centre is not None:
-            depth_m = float(points_cam[2, 2])
+        depth_m = float(points_cam[0 if centre is None else 2, 2])
         geometry = roi_geometry(cfg, wrist, tip, depth_m, camera.fx_px, centre)
         flags.extend(geometry.flags)
-        resampled, inside = crop_resize(
-            image, geometry.window, (out_w, out_h), self.rig.output.resize_policy, self.rig.output.interpolation
-        )
-        window_area = geometry.window.width * geometry.window.height
-        in_frame = in_frame_ratio(inside, window_area)
+        resampled, inside = crop_resize(image, geometry.window, (out_w, out_h), output.resize_policy, output.interpolation)
+        in_frame = in_frame_ratio(inside, geometry.window.width * geometry.window.height)
         if in_frame == 0.0:
             flags.append(ArmFlag.FULLY_OUT_OF_FRAME)
         elif in_frame < 1.0:
@@ -458,25 +417,16 @@ class RoiPipeline:
         point_r = rnd_list(points_cam[0], M_DECIMALS)
         box = geometry.window.as_list()
         record = ArmRecord(
-            arm_id=cfg.id,
-            projected_center=(wrist_r[0], wrist_r[1]),
-            offset_center=(center_r[0], center_r[1]),
-            inward_dir=(dir_r[0], dir_r[1]),
-            crop_box=(box[0], box[1], box[2], box[3]),
+            arm_id=cfg.id, projected_center=(wrist_r[0], wrist_r[1]), offset_center=(center_r[0], center_r[1]),
+            inward_dir=(dir_r[0], dir_r[1]), crop_box=(box[0], box[1], box[2], box[3]),
             crop_size=(geometry.window.width, geometry.window.height),
-            scale_px=rnd(geometry.scale_px, PX_DECIMALS) or 0.0,
-            scale_factor=rnd(resampled.scale_factor, RATIO_DECIMALS) or 0.0,
-            interpolation=resampled.interpolation,
-            depth_m=rnd(depth_m, M_DECIMALS),
-            ee_pose_base=_pose_record(base_T_ee),
-            ee_point_camera=(point_r[0], point_r[1], point_r[2]),
-            projection_valid=True,
+            scale_px=rnd(geometry.scale_px, PX_DECIMALS) or 0.0, scale_factor=rnd(resampled.scale_factor, RATIO_DECIMALS) or 0.0,
+            interpolation=resampled.interpolation, depth_m=rnd(depth_m, M_DECIMALS), ee_pose_base=_pose_record(base_T_ee),
+            ee_point_camera=(point_r[0], point_r[1], point_r[2]), projection_valid=True,
             confidence=rnd(confidence(True, in_frame, sync.residual_ms, self.rig.sync.max_skew_ms), RATIO_DECIMALS) or 0.0,
             in_frame_ratio=rnd(in_frame, RATIO_DECIMALS) or 0.0,
             padding_ratio=rnd(padding_ratio(in_frame, resampled.content_px, out_w * out_h), RATIO_DECIMALS) or 0.0,
-            roi_to_image=tuple(rnd_list(resampled.roi_to_image, 9)),
-            flags=tuple(flags),
-            gripper_joints=arm.gripper,
+            roi_to_image=tuple(rnd_list(resampled.roi_to_image, 9)), flags=tuple(flags), gripper_joints=arm.gripper,
         )
         return ArmRoi(cfg.id, resampled.image, roi_camera, record)
 
@@ -488,25 +438,12 @@ class RoiPipeline:
         blank = np.zeros((out_h, out_w, *image.shape[2:]), dtype=image.dtype)
         point = None if point_cam is None else rnd_list(point_cam, M_DECIMALS)
         record = ArmRecord(
-            arm_id=arm.config.id,
-            projected_center=None,
-            offset_center=None,
-            inward_dir=(0.0, 0.0),
-            crop_box=(0, 0, 0, 0),
-            crop_size=(0, 0),
-            scale_px=0.0,
-            scale_factor=0.0,
-            interpolation="none",
+            arm_id=arm.config.id, projected_center=None, offset_center=None, inward_dir=(0.0, 0.0), crop_box=(0, 0, 0, 0),
+            crop_size=(0, 0), scale_px=0.0, scale_factor=0.0, interpolation="none",
             depth_m=None if point_cam is None else rnd(float(point_cam[2]), M_DECIMALS),
             ee_pose_base=None if base_T_ee is None else _pose_record(base_T_ee),
-            ee_point_camera=None if point is None else (point[0], point[1], point[2]),
-            projection_valid=False,
-            confidence=0.0,
-            in_frame_ratio=0.0,
-            padding_ratio=1.0,
-            roi_to_image=None,
-            flags=tuple(flags),
-            gripper_joints=arm.gripper,
+            ee_point_camera=None if point is None else (point[0], point[1], point[2]), projection_valid=False,
+            confidence=0.0, in_frame_ratio=0.0, padding_ratio=1.0, roi_to_image=None, flags=tuple(flags), gripper_joints=arm.gripper,
         )
         return ArmRoi(arm.config.id, blank, None, record)
 
@@ -528,15 +465,10 @@ _T = TypeVar("_T")
 class GlobalViewThread:
     """The thread that resamples a pipeline's global view while the ROIs are cut (the area kernels release the GIL).
 
-    It lowers a frame's latency when a second core is free, for extra CPU per
-    frame (the hand-off and the GIL; bench/core.py prints both). Latency is
-    what the live node is for, so `roi-node run` gives its engine one; offline
-    work (replay, its workers, cluster tasks, export) is measured in frames per
-    CPU second, gains little wall time from it beside its own reading and
-    writing, and resamples inline (no thread).
-
-    The thread starts at the first frame. A forked child has none of its
-    parent's threads, so a child that inherited this object starts its own.
+    It trades CPU per frame for latency (bench/core.py prints both): the live
+    node uses one; offline work, measured in frames per CPU second, resamples
+    inline. It starts at the first frame; a forked child, which has none of its
+    parent's threads, starts its own.
     """
 
     def __init__(self) -> None:

@@ -4,12 +4,9 @@ Area resampling (cv2.INTER_AREA's box filter) when shrinking, as the method
 prescribes; it degenerates to nearest-neighbour when enlarging, so windows
 smaller than the output are enlarged with INTER_LINEAR and the metadata says
 so. Shrinking by a non-halving factor runs the exact area kernel
-(area_resample), which reads the window straight from the frame and writes the
-output's content region, so the zero-padded crop is never materialised; an
-exact halving on both axes stays with OpenCV's own fast path. Every function
-returns the affine `roi_to_image` that maps an output pixel centre to the
-original-image pixel centre it was sampled around (pixel (0,0) = centre of the
-top-left pixel, cv2.resize's convention).
+(area_resample); an exact halving on both axes stays with OpenCV's own fast
+path. `roi_to_image` maps an output pixel centre to the original-image pixel
+centre it was sampled around (pixel (0,0) = centre of the top-left pixel).
 """
 
 from __future__ import annotations
@@ -36,10 +33,7 @@ class Resampled:
 
 
 def crop_padded(image: np.ndarray, window: Window) -> tuple[np.ndarray, int]:
-    """The window's pixels, zero outside the image; and how many lie inside it.
-
-    Returns a view (no copy) when the window lies fully inside the image.
-    """
+    """The window's pixels, zero outside the image (a view when it lies inside); and how many lie inside it."""
     h, w = image.shape[:2]
     ix0, iy0 = max(window.x0, 0), max(window.y0, 0)
     ix1, iy1 = min(window.x1, w), min(window.y1, h)
@@ -57,9 +51,8 @@ def resize_to(src: np.ndarray, size_px: tuple[int, int], method: str = "area") -
 
     method "area" is exact cv2.INTER_AREA. "area_pyramid" first halves each
     axis whose factor is >= 2 with INTER_AREA at an exact factor of 2 (OpenCV's
-    fast path, ~20x cheaper), then finishes with exact INTER_AREA: the same
-    box filter up to the phase of the halving grid (bench/core.py measures its
-    PSNR against exact INTER_AREA).
+    fast path), then finishes with exact INTER_AREA: the same box filter up to
+    the phase of the halving grid (bench/core.py measures both).
     """
     h, w = src.shape[:2]
     if (w, h) == size_px:
@@ -108,14 +101,8 @@ def roi_to_image_affine(origin: tuple[int, int], src_size_px: tuple[int, int], l
     """Output pixel centre x_o maps to source x = (x_o - offset + 0.5) / s - 0.5, plus the origin."""
     sx = layout.content_px[0] / src_size_px[0]
     sy = layout.content_px[1] / src_size_px[1]
-    return (
-        1.0 / sx,
-        0.0,
-        origin[0] + (0.5 - layout.offset_px[0]) / sx - 0.5,
-        0.0,
-        1.0 / sy,
-        origin[1] + (0.5 - layout.offset_px[1]) / sy - 0.5,
-    )
+    (ox, oy) = layout.offset_px
+    return (1.0 / sx, 0.0, origin[0] + (0.5 - ox) / sx - 0.5, 0.0, 1.0 / sy, origin[1] + (0.5 - oy) / sy - 0.5)
 
 
 def _scale_factor(src_size_px: tuple[int, int], layout: Layout) -> float:
@@ -134,16 +121,14 @@ def crop_resize(
     image: np.ndarray, window: Window, out_size_px: tuple[int, int], policy: str, method: str = "area"
 ) -> tuple[Resampled, int]:
     """Crop `window` (zero-padded) and resize; returns the result and in-image pixel count."""
-    origin = (window.x0, window.y0)
-    if _fully_outside(image, window):
-        # nothing to resample: the exact result of zero-padding is all zeros
+    origin, inside = (window.x0, window.y0), _inside_px(image, window)
+    if inside == 0:  # nothing to resample: the exact result of zero-padding is all zeros
         src_size = (window.width, window.height)
         layout = output_layout(src_size, out_size_px, policy)
         blank = np.zeros((out_size_px[1], out_size_px[0], *image.shape[2:]), dtype=image.dtype)
-        affine = roi_to_image_affine(origin, src_size, layout)
         content = layout.content_px[0] * layout.content_px[1]
-        return Resampled(blank, affine, _scale_factor(src_size, layout), "none", content), 0
-    return _resample(image, window, origin, out_size_px, policy, method), _inside_px(image, window)
+        return Resampled(blank, roi_to_image_affine(origin, src_size, layout), _scale_factor(src_size, layout), "none", content), 0
+    return _resample(image, window, origin, out_size_px, policy, method), inside
 
 
 def _resample(
@@ -167,8 +152,7 @@ def _resample(
         else:
             out = np.zeros(shape, dtype=image.dtype)
             out[oy : oy + ch, ox : ox + cw] = resized
-    content = cw * ch
-    return Resampled(out, roi_to_image_affine(origin, src_size, layout), _scale_factor(src_size, layout), interpolation, content)
+    return Resampled(out, roi_to_image_affine(origin, src_size, layout), _scale_factor(src_size, layout), interpolation, cw * ch)
 
 
 def _exact_area_kernel_applies(src_size_px: tuple[int, int], content_px: tuple[int, int], method: str) -> bool:
@@ -182,7 +166,3 @@ def _inside_px(image: np.ndarray, window: Window) -> int:
     h, w = image.shape[:2]
     return max(0, min(window.x1, w) - max(window.x0, 0)) * max(0, min(window.y1, h) - max(window.y0, 0))
 
-
-def _fully_outside(image: np.ndarray, window: Window) -> bool:
-    h, w = image.shape[:2]
-    return window.x1 <= 0 or window.y1 <= 0 or window.x0 >= w or window.y0 >= h

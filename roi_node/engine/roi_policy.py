@@ -90,11 +90,7 @@ def window_around(center_px: tuple[float, float], size_px: tuple[float, float]) 
 
 
 def roi_geometry(
-    arm: ArmConfig,
-    wrist_px: tuple[float, float],
-    tip_px: tuple[float, float] | None,
-    depth_m: float,
-    fx_px: float,
+    arm: ArmConfig, wrist_px: tuple[float, float], tip_px: tuple[float, float] | None, depth_m: float, fx_px: float,
     center_px: tuple[float, float] | None = None,
 ) -> RoiGeometry:
     """`center_px` (the projected `offset_m` point; `depth_m` is then its depth) replaces wrist + offset_px * d_in."""

@@ -9,7 +9,7 @@ JSON values /diagnostics has always carried for them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -31,7 +31,7 @@ class Percentiles:
         return cls(float(np.percentile(a, 50)), float(np.percentile(a, 99)), float(a.max()))
 
     def as_dict(self) -> dict[str, float]:
-        return {"p50": self.p50, "p99": self.p99, "max": self.max}
+        return asdict(self)
 
 
 @dataclass(frozen=True)
@@ -43,8 +43,7 @@ class ArmWindow:
     in_frame_ratio_mean: float | None
 
     def as_dict(self) -> dict[str, int | float | None]:
-        return {"frames": self.frames, "projection_valid_ratio": self.projection_valid_ratio,
-                "in_frame_ratio_mean": self.in_frame_ratio_mean}
+        return asdict(self)
 
 
 @dataclass(frozen=True)
@@ -55,7 +54,7 @@ class SyncCounters:
     pending: int
 
     def as_dict(self) -> dict[str, int]:
-        return {"epochs": self.epochs, "pending": self.pending}
+        return asdict(self)
 
 
 @dataclass(frozen=True)

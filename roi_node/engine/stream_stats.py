@@ -11,7 +11,7 @@ driver's own drops.
 
 from __future__ import annotations
 
-from collections import Counter, deque
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -60,13 +60,11 @@ class StreamStats:
         self._window = _Window()
         self._window_start_ns = start_ns
         self._drop_streaks: Counter[str] = Counter()  # by reason: consecutive windows, up to the last, with such drops
-        self._recent_latency: deque[float] = deque(maxlen=1000)
         self._arrivals = FrameLossEstimator()
 
     @property
     def frames_in(self) -> int:
-        """Every image message the driver received (live: taken from DDS; offline: read from the bag), decodable
-        or not, used or not: one definition for both drivers, so the live and offline counts of a stream agree."""
+        """Every image message the driver received, used or not (engine/engine.py defines it for both drivers)."""
         return self.totals["frames_in"]
 
     @property
@@ -130,7 +128,6 @@ class StreamStats:
             self.residuals_ms.append(sync.residual_ms)
         if latency_ms is not None:
             w.latency_ms.append(latency_ms)
-            self._recent_latency.append(latency_ms)
         w.process_ms.append(process_ms)
         self.process_ms_total += process_ms
         for arm in record.arms:

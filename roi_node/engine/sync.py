@@ -1,12 +1,10 @@
 """Pairing camera frames with joint states: one implementation for live and offline.
 
 Decisions depend only on stamps, never on arrival order: samples are kept per
-joint, sorted by stamp; duplicate stamps with conflicting values resolve to the
-smaller value (order-independent) and are counted. Several JointState streams
-merge by joint name. The stream engine (engine/engine.py) drives
-`FrameSynchronizer` for both drivers: offline replay loads all joint states
-before it releases frames, the live node releases a frame once its bracketing
-sample arrived or `max_wait_ms` passed (docs/design.md "Sync").
+joint, sorted by stamp; a stamp repeated with another value keeps the smaller.
+Several JointState streams merge by joint name. Offline replay loads all joint
+states before it releases frames; the live node releases a frame once its
+bracketing sample arrived or `max_wait_ms` passed (docs/design.md "Sync").
 
 Samples and frames carry the epoch their stream's `StreamClock` gave them
 (engine/stamps.py): a frame pairs only with joint samples of its own epoch, so a
@@ -75,11 +73,6 @@ class SyncResult:
     missing: tuple[str, ...] = ()
     joint_rate_hz: float | None = None
 
-    @property
-    def usable(self) -> bool:
-        """Every required joint has a value (the ROIs can be computed, however stale)."""
-        return self.status != SyncStatus.MISSING
-
 
 def _worse(a: SyncStatus, b: SyncStatus) -> SyncStatus:
     return a if STATUS_ORDER.index(a) >= STATUS_ORDER.index(b) else b
@@ -88,19 +81,16 @@ def _worse(a: SyncStatus, b: SyncStatus) -> SyncStatus:
 class _Series:
     """One joint's samples, sorted by stamp."""
 
-    __slots__ = ("conflicted", "stamps", "values")
+    __slots__ = ("stamps", "values")
 
     def __init__(self) -> None:
         self.stamps: list[int] = []
         self.values: list[float] = []
-        self.conflicted: set[int] = set()  # stamps that received different values
 
     def insert(self, stamp_ns: int, value: float) -> None:
-        """Insert; a repeated stamp keeps the smaller value and is remembered if values differed."""
+        """Insert; a repeated stamp keeps the smaller value, whatever the arrival order."""
         i = bisect.bisect_left(self.stamps, stamp_ns)
         if i < len(self.stamps) and self.stamps[i] == stamp_ns:
-            if self.values[i] != value:
-                self.conflicted.add(stamp_ns)
             self.values[i] = min(self.values[i], value)
             return
         self.stamps.insert(i, stamp_ns)
@@ -120,11 +110,6 @@ class JointStateBuffer:
     def __init__(self, continuous_joints: Iterable[str] = ()) -> None:
         self._series: dict[str, _Series] = {}
         self._continuous = frozenset(continuous_joints)
-
-    @property
-    def conflicting_duplicates(self) -> int:
-        """(joint, stamp) pairs that arrived with different values: independent of arrival order."""
-        return sum(len(series.conflicted) for series in self._series.values())
 
     def add(self, stamp_ns: int, names: Sequence[str], positions: Sequence[float], *, where: str = "joint_states") -> list[str]:
         """Insert one JointState; returns names skipped for non-finite positions.
@@ -154,17 +139,11 @@ class JointStateBuffer:
 
     def has_bracket(self, t_ns: int, joints: Iterable[str]) -> bool:
         """Every joint has a sample at or after t (so interpolation cannot improve later)."""
-        for name in joints:
-            series = self._series.get(name)
-            if series is None or not series.stamps or series.stamps[-1] < t_ns:
-                return False
-        return True
+        return all((s := self._series.get(name)) is not None and s.stamps and s.stamps[-1] >= t_ns for name in joints)
 
     def rate_hz(self, t_ns: int, joint: str) -> float | None:
         """Measured sample rate of `joint` over the second before t (f_t)."""
-        series = self._series.get(joint)
-        if series is None:
-            return None
+        series = self._series.get(joint, _Series())
         lo = bisect.bisect_right(series.stamps, t_ns - RATE_WINDOW_NS)
         hi = bisect.bisect_right(series.stamps, t_ns)
         if hi - lo < 2:
@@ -172,15 +151,7 @@ class JointStateBuffer:
         span = series.stamps[hi - 1] - series.stamps[lo]
         return (hi - lo - 1) * NS_PER_S / span if span > 0 else None
 
-    def resolve(
-        self,
-        t_ns: int,
-        joints: Sequence[str],
-        policy: str,
-        max_skew_ns: int,
-        *,
-        latest_limit_ns: int | None = None,
-    ) -> SyncResult:
+    def resolve(self, t_ns: int, joints: Sequence[str], policy: str, max_skew_ns: int, *, latest_limit_ns: int | None = None) -> SyncResult:
         """Joint positions at capture time t under `policy`.
 
         interpolate: linear between the bracketing samples (continuous joints the
@@ -208,16 +179,9 @@ class JointStateBuffer:
                 worst_residual, worst_stamp = residual, used_stamp
         if missing:
             status = SyncStatus.MISSING
+        residual_ms = None if worst_residual is None else worst_residual / NS_PER_MS
         rate = self.rate_hz(t_ns, joints[0]) if joints else None
-        return SyncResult(
-            policy=policy,
-            status=status,
-            positions=positions,
-            residual_ms=None if worst_residual is None else worst_residual / NS_PER_MS,
-            joint_stamp_ns=worst_stamp,
-            missing=tuple(missing),
-            joint_rate_hz=rate,
-        )
+        return SyncResult(policy, status, positions, residual_ms, worst_stamp, tuple(missing), rate)
 
     def _resolve_one(
         self, series: _Series, name: str, t_ns: int, policy: str, max_skew_ns: int, latest_limit_ns: int | None
@@ -225,9 +189,7 @@ class JointStateBuffer:
         stamps, values = series.stamps, series.values
         if policy == SyncPolicy.LATEST:
             limit = latest_limit_ns if latest_limit_ns is not None else stamps[-1]
-            i = bisect.bisect_right(stamps, limit) - 1
-            if i < 0:
-                i = 0
+            i = max(bisect.bisect_right(stamps, limit) - 1, 0)
             residual = abs(t_ns - stamps[i])
             return values[i], stamps[i], residual, SyncStatus.OK if residual <= max_skew_ns else SyncStatus.STALE
         hi = bisect.bisect_left(stamps, t_ns)
@@ -244,14 +206,9 @@ class JointStateBuffer:
             status = SyncStatus.OK if residual <= max_skew_ns else SyncStatus.STALE
             return v0 + frac * delta, nearer, residual, status
         # nearest sample: the policy itself, or the fallback
-        if lo < 0:
-            j = hi
-        elif hi >= len(stamps):
-            j = lo
-        else:
-            j = lo if t_ns - stamps[lo] <= stamps[hi] - t_ns else hi
-        residual = abs(t_ns - stamps[j])
         outside = lo < 0 or hi >= len(stamps)
+        j = (hi if lo < 0 else lo) if outside else (lo if t_ns - stamps[lo] <= stamps[hi] - t_ns else hi)
+        residual = abs(t_ns - stamps[j])
         if residual > max_skew_ns or policy == SyncPolicy.EXACT:
             status = SyncStatus.STALE
         elif policy == SyncPolicy.INTERPOLATE and outside:
@@ -302,37 +259,18 @@ class SampleGroup:
     max_skew_ms: float
 
 
-@dataclass
-class SyncCounters:
-    released: int = 0
-    dropped_overflow: int = 0
-    dropped_out_of_order: int = 0
-    epochs: int = 1  # 1 + the confirmed jumps back in time (loops) seen so far
-    status_counts: dict[str, int] = field(default_factory=lambda: {s.value: 0 for s in SyncStatus})
-
-
 class FrameSynchronizer(Generic[P]):
     """Pending frames in (epoch, stamp) order, released when their joint state is known.
 
-    Bounded: beyond `max_pending` frames the oldest are dropped and counted. A
-    frame older than the last released one of its epoch is dropped (out of
-    order). Joint samples are kept per epoch; an epoch's samples are dropped
-    once a frame of a later epoch is released.
+    Bounded: beyond `max_pending` frames the oldest are dropped (`on_drop`), as
+    is a frame older than the last released one of its epoch. An epoch's joint
+    samples are dropped once a frame of a later epoch is released.
     """
 
     def __init__(
-        self,
-        joints: Sequence[str],
-        policy: str,
-        max_skew_ms: float,
-        max_wait_ms: float,
-        *,
-        continuous_joints: Iterable[str] = (),
-        extra_joints: Sequence[str] = (),
-        max_pending: int = 8,
-        on_drop: Callable[[PendingFrame[P], DropKind], None] | None = None,
-        extra_ready: Callable[[PendingFrame[P]], bool] | None = None,
-        groups: Mapping[str, SampleGroup] | None = None,
+        self, joints: Sequence[str], policy: str, max_skew_ms: float, max_wait_ms: float, *, continuous_joints: Iterable[str] = (),
+        extra_joints: Sequence[str] = (), max_pending: int = 8, on_drop: Callable[[PendingFrame[P], DropKind], None] | None = None,
+        extra_ready: Callable[[PendingFrame[P]], bool] | None = None, groups: Mapping[str, SampleGroup] | None = None,
     ) -> None:
         """`extra_joints` are resolved too (for the record) but never held back for; `extra_ready` is a
         further condition a frame waits for (up to `max_wait_ms`), e.g. its camera info; `groups` are waited for
@@ -346,7 +284,7 @@ class FrameSynchronizer(Generic[P]):
         self.max_pending = max_pending
         self._continuous = tuple(continuous_joints)
         self.buffers: dict[int, JointStateBuffer] = {}
-        self.counters = SyncCounters()
+        self.epochs = 1  # 1 + the confirmed jumps back in time (loops) seen so far
         self._pending: list[PendingFrame[P]] = []
         self._last_released: tuple[int, int] | None = None
         self._on_drop = on_drop
@@ -373,7 +311,7 @@ class FrameSynchronizer(Generic[P]):
         buf = self.buffers.get(epoch)
         if buf is None:
             buf = self.buffers[epoch] = JointStateBuffer(self._continuous)
-            self.counters.epochs = max(self.counters.epochs, epoch + 1)
+            self.epochs = max(self.epochs, epoch + 1)
         return buf
 
     def add_joint_state(
@@ -388,16 +326,12 @@ class FrameSynchronizer(Generic[P]):
         if self._last_released is not None and frame.order <= self._last_released:
             self._drop(frame, DropKind.OUT_OF_ORDER)
             return
-        self.counters.epochs = max(self.counters.epochs, epoch + 1)
+        self.epochs = max(self.epochs, epoch + 1)
         bisect.insort(self._pending, frame, key=lambda f: f.order)
         while len(self._pending) > self.max_pending:
             self._drop(self._pending.pop(0), DropKind.OVERFLOW)
 
     def _drop(self, frame: PendingFrame[P], reason: DropKind) -> None:
-        if reason == DropKind.OVERFLOW:
-            self.counters.dropped_overflow += 1
-        else:
-            self.counters.dropped_out_of_order += 1
         if self._on_drop is not None:
             self._on_drop(frame, reason)
 
@@ -430,8 +364,6 @@ class FrameSynchronizer(Generic[P]):
                                   latest_limit_ns=latest_limit)
                 for name, group in self.groups.items()
             }
-            self.counters.released += 1
-            self.counters.status_counts[result.status] += 1
             self._last_released = frame.order
             for old in [e for e in self.buffers if e < frame.epoch]:
                 del self.buffers[old]

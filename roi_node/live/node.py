@@ -518,7 +518,7 @@ class StreamNode(Node):
                 waiting = engine.waiting_for()
                 sync = engine.synchronizer
                 if sync is not None:
-                    snap = replace(snap, sync_counters=SyncCounters(sync.counters.epochs, sync.pending))
+                    snap = replace(snap, sync_counters=SyncCounters(sync.epochs, sync.pending))
             silence = stream.health.silence(now_ns, self.resolve_topic_name(stream.image_topic), ())
             joints_silence = self._joints_health.silence(now_ns, None, joint_topics, self._base_topics())
             silent = "; ".join(s for s in (silence, joints_silence) if s) or None
