@@ -32,11 +32,11 @@ Targets (issue 33): node CPU per camera frame <= 0.5x the relay's, latency
 beyond the inputs <= the relay's + 1 ms at the median, 0 frames lost.
 
     ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST python bench/live_cpu.py --domain 176 [--rounds 3] [--block-s 10]
-        [--variant NAME "ROS-ARGS" ...]
+        [--executors single multi events]
 
-`--variant` adds a node path with `--ros-args -p ...` parameters (e.g.
-`--variant multi "-p executor:=multi_threaded"`); the default is one path,
-the node as shipped. Each path uses one domain id from --domain on.
+`--executors` adds a node path per executor (bench/independent/node_executor.py
+spins the same CLI on it) beside the node as shipped. Each path uses one
+domain id from --domain on.
 """
 
 from __future__ import annotations
@@ -205,14 +205,16 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--rounds", type=int, default=3, help="rounds of one block per path (default: 3)")
     parser.add_argument("--block-s", type=float, default=10.0, help="seconds of camera stream per block (default: 10)")
-    parser.add_argument("--variant", nargs=2, action="append", metavar=("NAME", "ROS_ARGS"), default=[],
-                        help="a node path with these --ros-args (e.g. multi '-p executor:=multi_threaded'); repeatable")
+    parser.add_argument("--executors", nargs="*", default=[], choices=["single", "multi", "events"],
+                        help="also the node spun by each of these rclpy executors (default: only the node as shipped)")
     parser.add_argument("--domain", type=int, default=176, help="the first ROS domain id; each path uses one")
     args = parser.parse_args()
     frames = round(args.block_s * RATE_HZ)
     if frames <= 2 * WARM_UP_FRAMES:
         parser.error(f"--block-s {args.block_s:g}: too short for the warm-up of {WARM_UP_FRAMES} frames")
-    variants = [("roi_node", ""), *((name, ros_args) for name, ros_args in args.variant)]
+    node_argv = ["run", "--config"]
+    variants = [("roi_node", [sys.executable, "-m", "roi_node.cli", *node_argv])]
+    variants += [(f"node[{kind}]", part("node_executor.py", kind, *node_argv)) for kind in args.executors]
     print(f"load average at start: {os.getloadavg()[0]:.2f} ({os.cpu_count()} CPUs)", flush=True)
     prefixes = [robot.get("joint_prefix", "") for robot in yaml.safe_load(RIG.read_text())["robots"]]
     paths: list[UnderTest] = []
@@ -220,10 +222,8 @@ def main() -> int:
         rig = two_camera_rig(Path(tmp))
         try:
             paths.append(UnderTest(RELAY, part("relay.py", "--cameras", *CAMERAS), args.domain))
-            for i, (name, ros_args) in enumerate(variants):
-                argv = [sys.executable, "-m", "roi_node.cli", "run", "--config", str(rig)]
-                argv += ["--ros-args", *ros_args.split()] if ros_args else []
-                paths.append(UnderTest(name, argv, args.domain + 1 + i))
+            for i, (name, argv) in enumerate(variants):
+                paths.append(UnderTest(name, [*argv, str(rig)], args.domain + 1 + i))
             for path in paths:
                 path.wait_up()
             results = [PathResults(p.name) for p in paths]
