@@ -59,5 +59,5 @@ if __name__ == "__main__":
     if kind == "events":
         spin._spin_until = spin_events
     else:
-        spin.SingleThreadedExecutor = {"single": SingleThreadedExecutor, "multi": MultiThreadedExecutor}[kind]  # type: ignore[assignment]
+        spin.SingleThreadedExecutor = {"single": SingleThreadedExecutor, "multi": MultiThreadedExecutor}[kind]  # type: ignore[assignment,misc]
     sys.exit(main(sys.argv[2:]))
