@@ -278,7 +278,8 @@ class StreamNode(Node):
         with self._lock:
             for stream in self.streams:
                 refusals.append(stream.engine.feed(event))
-            self._lock.notify_all()
+            if any(stream.engine.pending for stream in self.streams):  # else no worker has a frame this could release
+                self._lock.notify_all()
         refusal = refusals[0] if refusals else None  # every engine judges these alike: say it once
         if refusal is not None:
             self._warn(refusal.kind, refusal.message)
