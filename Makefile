@@ -81,7 +81,7 @@ bench: $(STAMP)
 	$(PY) bench/live_agreement.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 8 ))
 	$(PY) bench/live_overload.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 2 ))
 	$(PY) bench/policy.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 6 )) --policies callable  # ACT: run it with .venv-lerobot/bin/python
-	$(PY) bench/live_cpu.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 14 )) --executors events
+	$(PY) bench/live_cpu.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 14 )) --executors single
 	ROS_DOMAIN_ID=$$(( $${ROS_DOMAIN_ID:-73} + 17 )) $(PY) bench/live_wait_set.py
 	ROS_DOMAIN_ID=$$(( $${ROS_DOMAIN_ID:-73} + 18 )) $(PY) bench/live_take.py
 
