@@ -113,10 +113,10 @@ def _executor(kind: ExecutorKind) -> Executor:
     """A new executor of `kind`, the process's SIGINT/SIGTERM handlers as they were.
 
     The EventsExecutor's constructor installs handlers of its own for both
-    signals, which would stop its spin without `spin_node`'s ordered stop (the
-    node then did not stop on SIGTERM): the handlers in place go back at once.
-    Destroying it resets both signals to their defaults, so it must outlive the
-    node's close."""
+    signals, which would stop its spin without `spin_node`'s ordered stop: the
+    handlers in place go back at once. Its signal set is released when it is
+    destroyed, which may reset both signals to their defaults, so it is kept
+    until the node is closed."""
     if kind is ExecutorKind.SINGLE_THREADED:
         return SingleThreadedExecutor()
     handlers = {signum: signal.getsignal(signum) for signum in STOP_SIGNALS}
