@@ -84,6 +84,9 @@ bench: $(STAMP)
 	$(PY) bench/live_agreement.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 8 ))
 	$(PY) bench/live_overload.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 2 ))
 	$(PY) bench/policy.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 6 )) --policies callable  # ACT: run it with .venv-lerobot/bin/python
+	$(PY) bench/live_cpu.py --domain $$(( $${ROS_DOMAIN_ID:-73} + 14 )) --executors single
+	ROS_DOMAIN_ID=$$(( $${ROS_DOMAIN_ID:-73} + 17 )) $(PY) bench/live_wait_set.py
+	ROS_DOMAIN_ID=$$(( $${ROS_DOMAIN_ID:-73} + 18 )) $(PY) bench/live_take.py
 
 # docs/rig-config.md's key table from config/rig.schema.json (test/rig/test_rig_doc.py fails when it is stale)
 docs: $(STAMP)

@@ -15,7 +15,7 @@ frame (sent - stamp is how late it was; published - sent how long the
 publish call held this thread), `start` before the first and `done` after
 the last, for the orchestrator to read.
 
-    python bench/independent/camera.py --width-px 1280 --height-px 720 --frames 1800
+    python bench/independent/camera.py --width-px 1280 --height-px 720 --frames 1800 [--topic image_raw] [--phase-ms 0]
 """
 
 from __future__ import annotations
@@ -68,13 +68,16 @@ def main() -> int:
     parser.add_argument("--rate-hz", type=float, default=30.0)
     parser.add_argument("--subscribers", type=int, default=1, help="matched readers of image_raw to wait for")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--topic", default="image_raw")
+    parser.add_argument("--frame-id", default="front_optical")
+    parser.add_argument("--phase-ms", type=float, default=0.0, help="slot offset from the wall clock's grid of the period")
     args = parser.parse_args()
 
     rng = np.random.default_rng(args.seed)
     pool = [rng.integers(0, 256, (args.height_px, args.width_px, 3), dtype=np.uint8) for _ in range(POOL_TEXTURES)]
     rclpy.init()
     node = rclpy.create_node("independent_camera")
-    publisher = node.create_publisher(Image, "image_raw", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+    publisher = node.create_publisher(Image, args.topic, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
     while publisher.get_subscription_count() < args.subscribers:
         rclpy.spin_once(node, timeout_sec=0.05)
     time.sleep(SETTLE_S)
@@ -84,11 +87,11 @@ def main() -> int:
     # slots on the wall clock's grid of the period (as the joint driver's are on its own): the phase between the
     # two streams is then what the joint driver makes it, not an accident of when each process started
     wall_minus_monotonic_ns = time.time_ns() - time.monotonic_ns()
-    first_slot_ns = (time.time_ns() // period_ns + 2) * period_ns - wall_minus_monotonic_ns
+    first_slot_ns = (time.time_ns() // period_ns + 2) * period_ns + round(args.phase_ms * 1e6) - wall_minus_monotonic_ns
     for index in range(args.frames):
         slot_ns = first_slot_ns + index * period_ns
         sleep_until(slot_ns - BUILD_LEAD_NS)
-        message = image_message(frame_pixels(pool, index), "front_optical")
+        message = image_message(frame_pixels(pool, index), args.frame_id)
         sleep_until(slot_ns)
         stamp_ns = slot_ns + wall_minus_monotonic_ns
         message.header.stamp = Time(sec=stamp_ns // NS_PER_S, nanosec=stamp_ns % NS_PER_S)

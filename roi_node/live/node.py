@@ -38,6 +38,7 @@ from typing import Any
 import cv2
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
@@ -91,6 +92,11 @@ NODE_NAME = "roi_node"
 IDLE_WAIT_S = 0.1
 PENDING_POLL_S = 0.002
 FRAMES_IN_CONVERSION = 3  # beyond the pending ones: the message being taken, its Python copy, the frame in processing
+# rclpy gives every publisher two default QoS event handlers (incompatible QoS, incompatible type) that only log, and
+# its executor rebuilds its wait set with every handler on each wake (200 Hz joint states and every frame): the node's
+# sixteen-odd publishers made that rebuild about three times the cost of the rest of it (docs/performance.md). A reader
+# with incompatible QoS is still told so on its own side; the node's subscriptions keep theirs.
+OUTPUT_EVENTS = PublisherEventCallbacks(use_default_callbacks=False)
 
 
 class StreamNode(Node):
@@ -218,7 +224,8 @@ class StreamNode(Node):
             outputs = topics.output_topics([a.id for a in self.rig.arms], self.rig.output.global_enabled,
                                            transport=p.output_transport, overlay=p.overlay, camera=stream.out_camera)
             # by relative topic name, as wire/frame_outputs.py names a frame's messages
-            stream.output_pubs = {name: self.create_publisher(message_class(msgtype), name, pub_qos) for name, msgtype in outputs.items()}
+            stream.output_pubs = {name: self.create_publisher(message_class(msgtype), name, pub_qos, event_callbacks=OUTPUT_EVENTS)
+                                  for name, msgtype in outputs.items()}
         for topic in p.joint_state_topics:  # draining: see live/drain.py
             draining_subscription(self, JointState, topic, self._joint_callback(topic), p.joint_state_qos())
         if p.command_topic:
@@ -232,8 +239,9 @@ class StreamNode(Node):
             latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
             self.create_subscription(String, topics.ROBOT_DESCRIPTION, self._on_robot_description, latched)
         best = topics.best_view_topics([a.id for a in self.rig.arms], p.output_transport) if self._best is not None else {}
-        self._best_pubs = {name: self.create_publisher(message_class(msgtype), name, pub_qos) for name, msgtype in best.items()}
-        self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self._best_pubs = {name: self.create_publisher(message_class(msgtype), name, pub_qos, event_callbacks=OUTPUT_EVENTS)
+                           for name, msgtype in best.items()}
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10, event_callbacks=OUTPUT_EVENTS)
         self.create_timer(p.diagnostics_period_s, self._publish_diagnostics)
 
     def _log_start(self) -> None:
@@ -278,7 +286,8 @@ class StreamNode(Node):
         with self._lock:
             for stream in self.streams:
                 refusals.append(stream.engine.feed(event))
-            self._lock.notify_all()
+            if any(stream.engine.pending for stream in self.streams):  # else no worker has a frame this could release
+                self._lock.notify_all()
         refusal = refusals[0] if refusals else None  # every engine judges these alike: say it once
         if refusal is not None:
             self._warn(refusal.kind, refusal.message)

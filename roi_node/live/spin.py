@@ -1,12 +1,14 @@
 """Running an rclpy node to completion: `with ros_context()`, one executor thread, clean exit.
 
-One SingleThreadedExecutor serves every subscription; nodes keep their heavy
-work off it (RoiNode processes frames on its own worker thread), so callbacks
-only convert and enqueue. Measured here (Jazzy wheels, 2 cores): a
+One executor thread serves every subscription; nodes keep their heavy work
+off it (RoiNode processes frames on its own worker thread), so callbacks only
+convert and enqueue. Measured here (Jazzy wheels, 2 cores): a
 MultiThreadedExecutor delivered 100 of 1600 JointState messages at 200 Hz next
 to a 720p30 stream, and 1033 of 1600 without it, while a SingleThreadedExecutor
 delivered 1473 of 1600 together with the images (the rest were sent after the
-subscriber stopped).
+subscriber stopped). `roi-node run` spins rclpy's EventsExecutor (ExecutorKind):
+its wait and dispatch run in C++, where the SingleThreadedExecutor rebuilds its
+wait set in Python on every wake (bench/live_cpu.py, docs/performance.md).
 
 Jazzy's `rclpy.init()` is not yet a context manager (it is from Kilted on),
 and `with Context()` takes no arguments, so `ros_context` is the same idiom
@@ -28,10 +30,12 @@ import contextlib
 import signal
 import threading
 from collections.abc import Callable, Iterator, Sequence
+from enum import StrEnum
 from types import FrameType
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
@@ -72,7 +76,15 @@ def _stop_on_signals(stop: Future) -> Iterator[None]:
             signal.signal(signum, old)
 
 
-def spin_node(make_node: Callable[[], Node], ros_args: Sequence[str] = ()) -> int:
+class ExecutorKind(StrEnum):
+    """The rclpy executor `spin_node` spins a node with."""
+
+    SINGLE_THREADED = "single_threaded"
+    EVENTS = "events"  # rclpy.experimental.EventsExecutor
+
+
+def spin_node(make_node: Callable[[], Node], ros_args: Sequence[str] = (), *,
+              executor: ExecutorKind = ExecutorKind.SINGLE_THREADED) -> int:
     """Create the node inside an rclpy context and spin it until SIGINT/SIGTERM or shutdown; returns an exit code.
 
     Errors raised by `make_node` (a bad rig config) propagate before anything
@@ -84,8 +96,9 @@ def spin_node(make_node: Callable[[], Node], ros_args: Sequence[str] = ()) -> in
     stop = Future()
     with ros_context(ros_args, rclpy_signal_handlers=False), _stop_on_signals(stop):
         node = make_node()
+        spinner = _executor(executor)  # kept until the node is closed: see _executor
         try:
-            raised = _spin_until(node, stop)
+            raised = _spin_until(node, stop, spinner)
         finally:
             _close(node)
         if raised is not None:
@@ -96,16 +109,39 @@ def spin_node(make_node: Callable[[], Node], ros_args: Sequence[str] = ()) -> in
     return 0
 
 
-def _spin_until(node: Node, stop: Future) -> BaseException | None:
+def _executor(kind: ExecutorKind) -> Executor:
+    """A new executor of `kind`, the process's SIGINT/SIGTERM handlers as they were.
+
+    The EventsExecutor's constructor installs handlers of its own for both
+    signals, which would stop its spin without `spin_node`'s ordered stop: the
+    handlers in place go back at once. Its signal set is released when it is
+    destroyed, which may reset both signals to their defaults, so it is kept
+    until the node is closed."""
+    if kind is ExecutorKind.SINGLE_THREADED:
+        return SingleThreadedExecutor()
+    handlers = {signum: signal.getsignal(signum) for signum in STOP_SIGNALS}
+    executor = EventsExecutor()
+    for signum, handler in handlers.items():
+        signal.signal(signum, handler)
+    return executor
+
+
+def _spin_until(node: Node, stop: Future, executor: Executor) -> BaseException | None:
     """Spin `node` on an executor thread until `stop` completes or the context shuts down (the node stopped
-    itself, or a lifecycle shutdown); returns what a callback raised, if one did."""
-    executor = SingleThreadedExecutor()
+    itself, or a lifecycle shutdown); returns what a callback raised, if one did.
+
+    The EventsExecutor is spun with `spin_once`: the installed rclpy's `spin()` and `spin_until_future_complete()`
+    take no message and keep a core busy (docs/performance.md)."""
     executor.add_node(node)
     raised: list[BaseException] = []
 
     def spin() -> None:
         try:
-            executor.spin_until_future_complete(stop)
+            if isinstance(executor, SingleThreadedExecutor):
+                executor.spin_until_future_complete(stop)
+            else:
+                while not stop.done() and node.context.ok():
+                    executor.spin_once(timeout_sec=SIGNAL_POLL_S)
         except ExternalShutdownException:
             pass  # the context shut down while the executor waited: as when the loop sees it
         except BaseException as exc:  # handed to the main thread, which closes the node and raises it

@@ -4,7 +4,10 @@ docs/live-node.md, "Status line, shutdown and summary". The child process runs
 `spin_node` (what `roi-node run` runs) on a real rclpy node whose `close` takes
 a second signal itself, at the moment the node's summary would be logged; with
 rclpy's or Python's default handlers back in place that signal would end the
-process (KeyboardInterrupt, exit 130) before the close is done.
+process (KeyboardInterrupt, exit 130) before the close is done. Each test runs
+on every executor `spin_node` offers (the EventsExecutor installs signal
+handlers of its own: spin.py must put its handlers back, and keep them until
+the node is closed).
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import textwrap
 
 import pytest
 
+from roi_node.live.spin import ExecutorKind
 from test.dds.harness import next_domain, ros_env
 from test.support.paths import REPO
 
@@ -27,7 +31,7 @@ CHILD = textwrap.dedent(
 
     from rclpy.node import Node
 
-    from roi_node.live.spin import spin_node
+    from roi_node.live.spin import ExecutorKind, spin_node
 
 
     class SlowToClose(Node):
@@ -41,14 +45,15 @@ CHILD = textwrap.dedent(
             print("closed", flush=True)
 
 
-    sys.exit(spin_node(SlowToClose))
+    sys.exit(spin_node(SlowToClose, executor=ExecutorKind(sys.argv[1])))
     """
 )
 
 
 @pytest.mark.dds
-def test_a_second_signal_while_closing_is_ignored() -> None:
-    child = subprocess.Popen([sys.executable, "-c", CHILD], cwd=REPO, env=ros_env(next_domain()),
+@pytest.mark.parametrize("executor", list(ExecutorKind))
+def test_a_second_signal_while_closing_is_ignored(executor: ExecutorKind) -> None:
+    child = subprocess.Popen([sys.executable, "-c", CHILD, executor.value], cwd=REPO, env=ros_env(next_domain()),
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert child.stdout is not None
@@ -71,7 +76,7 @@ OTHER_THREAD_CHILD = textwrap.dedent(
 
     from rclpy.node import Node
 
-    from roi_node.live.spin import spin_node
+    from roi_node.live.spin import ExecutorKind, spin_node
 
 
     class SignalledOnAnotherThread(Node):
@@ -90,16 +95,17 @@ OTHER_THREAD_CHILD = textwrap.dedent(
             print("closed", flush=True)
 
 
-    sys.exit(spin_node(SignalledOnAnotherThread))
+    sys.exit(spin_node(SignalledOnAnotherThread, executor=ExecutorKind(sys.argv[1])))
     """
 )
 
 
 @pytest.mark.dds
-def test_a_signal_taken_by_another_thread_still_stops_the_node() -> None:
+@pytest.mark.parametrize("executor", list(ExecutorKind))
+def test_a_signal_taken_by_another_thread_still_stops_the_node(executor: ExecutorKind) -> None:
     """A process stopped (SIGSTOP, Ctrl-Z) and sent SIGINT has it taken by whichever thread runs first on SIGCONT: here
     the executor's thread takes it. `roi-node record` stopped, interrupted and continued so never exited before."""
-    child = subprocess.Popen([sys.executable, "-c", OTHER_THREAD_CHILD], cwd=REPO, env=ros_env(next_domain()),
+    child = subprocess.Popen([sys.executable, "-c", OTHER_THREAD_CHILD, executor.value], cwd=REPO, env=ros_env(next_domain()),
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         out, err = child.communicate(timeout=TIMEOUT_S)
