@@ -207,12 +207,27 @@ class PolicyObservationStream:
         the camera rate is the median gap between consecutive stamps; its
         subscriptions end with it. Frames of a new epoch (the stamps went
         back: a looped bag) start the count again, so the rate is measured
-        within one pass.
+        within one pass. A node of several cameras is read off the graph
+        (`node_cameras`), and its frames are those of the first camera by id.
         """
         assert self._node is not None
         started = time.monotonic()
         deadline = started + (self.timeout_s if timeout_s is None else timeout_s)
         cameras = self._node_cameras(started, deadline)
+        while True:  # the graph shows a node's topics one by one: probe again if a camera showed up meanwhile
+            seen, arms = self._probe(cameras, frames, started, deadline)
+            if (now := node_cameras(self._node)) is None or now == cameras:
+                break
+            cameras = now
+        first = seen[0]
+        rois = tuple(_size(first.rois[arm]) for arm in arms)
+        view = None if first.global_image is None else _size(first.global_image)
+        return NodePublication.from_observations([FrameRecord.from_dict(f.metadata) for f in seen], rois, view, cameras)
+
+    def _probe(self, cameras: tuple[str, ...], frames: int, started: float, deadline: float
+               ) -> tuple[list[Observation], tuple[str, ...]]:
+        """`frames` consecutive complete frames of one epoch from a client of these cameras, and the arms it saw."""
+        assert self._node is not None
         probe = ObservationClient(self._node, None, cameras=cameras, max_buffer=frames, transport=self._transport)
         seen: list[Observation] = []
         try:
@@ -226,10 +241,7 @@ class PolicyObservationStream:
                 seen = [*seen, frame] if not seen or seen[-1].epoch == frame.epoch else [frame]
         finally:
             probe.close()
-        first = seen[0]
-        rois = tuple(_size(first.rois[arm]) for arm in probe.arm_ids)
-        view = None if first.global_image is None else _size(first.global_image)
-        return NodePublication.from_observations([FrameRecord.from_dict(f.metadata) for f in seen], rois, view, cameras)
+        return seen, probe.arm_ids
 
     def _node_cameras(self, started: float, deadline: float) -> tuple[str, ...]:
         """The node's cameras, once the graph shows its metadata (`node_cameras`)."""

@@ -10,16 +10,19 @@ the stamp each camera's frame must have (the front camera's own, the head
 camera's nearest, found here by brute force), and the export's own decoded
 frame of the same source stamp, so deployment is fed the pairs training saw.
 A dataset key of a camera the node lacks is refused by the preflight, naming
-the key.
+the key, in the API and by `roi-node policy preflight`; `policy observe` prints
+every camera's keys.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import av
@@ -33,9 +36,9 @@ from roi_node.policy.errors import NodeNotObservedError
 from roi_node.policy.features import ImageFeature, PolicyFeatures
 from roi_node.policy.observations import PIXEL_SCALE, PolicyObservation, PolicyObservationStream
 from roi_node.policy.preflight import PreflightError, require_fit
-from roi_node.sim.bag_sink import write_sim_bag
+from roi_node.sim.bag_sink import SimBagSummary, write_sim_bag
 from roi_node.wire import topics
-from test.dds.harness import LOSSLESS_TRANSPORT, PATIENT_SYNC, next_domain, node_args, process, ros_env, wait_until
+from test.dds.harness import LOSSLESS_TRANSPORT, PATIENT_SYNC, next_domain, node_args, process, ros_env, tool_lines, wait_until
 from test.support.exportbags import images_by_stamp
 from test.support.paths import CONFIG, REPO
 from test.support.rigs import scaled_rig
@@ -57,18 +60,38 @@ def _key(camera: str, view: str) -> str:
     return f"observation.images.{camera}_{view if view == 'global' else 'roi_' + view}"
 
 
-def test_a_two_camera_node_feeds_every_key_by_camera_paired_as_export_pairs(tmp_path: Path) -> None:
-    rig = scaled_rig(CONFIG / "rig_tiago_head.yaml", tmp_path, 0.25)
-    sim = write_sim_bag(rig, tmp_path / "sim", duration_s=DURATION_S, seed=3)
-    roi = replay_bag(sim.path, tmp_path / "roi", rig).output_path
-    dataset = tmp_path / "dataset"
+@dataclass(frozen=True)
+class Session:
+    rig: Path
+    sim: SimBagSummary
+    roi: Path
+    dataset: Path
+
+    def play(self, env: dict[str, str], *options: str) -> subprocess.Popen[str]:
+        inputs = [*self.sim.image_topics, "/front/camera_info", "/head/camera_info", "/joint_states"]
+        return subprocess.Popen([sys.executable, "-m", "roi_node.cli", "play", str(self.sim.path), *options, "--topics", *inputs],
+                                cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory: pytest.TempPathFactory) -> Session:
+    """One simulated session of the two-camera rig, its ROI bag and its lossless export."""
+    folder = tmp_path_factory.mktemp("two_cameras")
+    rig = scaled_rig(CONFIG / "rig_tiago_head.yaml", folder, 0.25)
+    sim = write_sim_bag(rig, folder / "sim", duration_s=DURATION_S, seed=3)
+    roi = replay_bag(sim.path, folder / "roi", rig).output_path
+    dataset = folder / "dataset"
     assert main(["export", "lerobot", str(roi), "-o", str(dataset), "--fps", "30", "--task", "t", "--codec", "lossless"]) == 0
+    return Session(rig, sim, roi, dataset)
+
+
+def test_a_two_camera_node_feeds_every_key_by_camera_paired_as_export_pairs(session: Session, tmp_path: Path) -> None:
+    rig, roi, dataset = session.rig, session.roi, session.dataset
     features = PolicyFeatures.load(dataset)
     assert features.cameras == CAMERAS and features.arm_ids == ARMS and features.with_global
     assert {image.key for image in features.images} == {_key(c, v) for c in CAMERAS for v in VIEWS}
 
     env = ros_env(next_domain())
-    inputs = [*sim.image_topics, "/front/camera_info", "/head/camera_info", "/joint_states"]
     with pytest.MonkeyPatch.context() as patch, \
             process(node_args(rig, *PATIENT_SYNC, *LOSSLESS_TRANSPORT), env, tmp_path / "node.log"):
         for name in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
@@ -76,8 +99,7 @@ def test_a_two_camera_node_feeds_every_key_by_camera_paired_as_export_pairs(tmp_
                 patch.setenv(name, env[name])
         with PolicyObservationStream(features, latest=False, timeout_s=QUIET_S) as stream:
             assert wait_until(stream.matched, 60.0), (tmp_path / "node.log").read_text()
-            player = subprocess.Popen([sys.executable, "-m", "roi_node.cli", "play", str(sim.path), "--topics", *inputs],
-                                      cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            player = session.play(env)
             try:
                 node = stream.describe_node(5)
                 delivered = _drain(stream, player)
@@ -117,6 +139,38 @@ def test_a_two_camera_node_feeds_every_key_by_camera_paired_as_export_pairs(tmp_
                 assert np.array_equal(pixels, expected), f"frame {stamp}: {_key(camera, view)} is not {camera}'s frame {at}"
                 if stamp in exported:
                     assert np.array_equal(pixels, exported[stamp][_key(camera, view)]), f"frame {stamp}: {_key(camera, view)}"
+
+
+def test_policy_observe_and_preflight_read_a_two_camera_node_and_refuse_a_camera_it_lacks(session: Session,
+                                                                                            tmp_path: Path) -> None:
+    """The verbs `policy run` shares its front half with: the preflight and the stream, on the session in a loop."""
+    wrist = tmp_path / "wrist"
+    shutil.copytree(session.dataset / "meta", wrist / "meta")
+    info = json.loads((wrist / "meta/info.json").read_text())
+    info["features"]["observation.images.wrist_roi_left"] = info["features"]["observation.images.head_roi_left"]
+    (wrist / "meta/info.json").write_text(json.dumps(info))
+    env = ros_env(next_domain())
+
+    def verb(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "roi_node.cli", "policy", *args, "--timeout-s", "60"], cwd=REPO, env=env,
+                              capture_output=True, text=True, timeout=180)
+
+    with process(node_args(session.rig), env, tmp_path / "node.log"):
+        player = session.play(env, "--loop")
+        try:
+            observed = verb("observe", "--features", str(session.dataset), "--count", "3")
+            refused = verb("preflight", "--features", str(wrist))
+        finally:
+            player.kill()
+            player.communicate(timeout=60)
+    assert observed.returncode == 0, observed.stderr
+    lines = observed.stdout.splitlines()
+    assert len(lines) == 3 and all(f" {_key(c, v)}=3x" in line for line in lines for c in CAMERAS for v in VIEWS), lines
+    errors = tool_lines(refused.stderr)
+    assert refused.returncode == 2 and len(errors) == 1, refused.stderr
+    assert errors[0].startswith(f"roi-node policy preflight: error: {wrist}: observation.images.wrist_roi_left: the policy "
+                                "expects an image 3x"), errors[0]
+    assert "observation.images.front_global" in errors[0] and "observation.images.head_roi_right" in errors[0]
 
 
 def _drain(stream: PolicyObservationStream, player: subprocess.Popen[str]) -> dict[int, PolicyObservation]:
