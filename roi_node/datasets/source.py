@@ -24,6 +24,7 @@ from roi_node.bagio.reader import DESERIALIZE_ERRORS, Cdr, deserialize, open_bag
 from roi_node.datasets.features import EpisodeSpec, FrameColumns, ImageSize, check_arm_ids, global_key, roi_image_key
 from roi_node.datasets.video import as_rgb
 from roi_node.engine.errors import BagError, ImageError
+from roi_node.engine.stamps import frame_interval_ns, nearest_stamp
 from roi_node.offline.inputs import decode_frame
 from roi_node.quality.gates import GateParams
 from roi_node.quality.results import BagScan
@@ -129,18 +130,9 @@ def _nearest(record_stamps: list[int], have: set[int], *, exact: bool) -> dict[i
     image within one median image interval (another camera's, which captures at its own times)."""
     if exact:
         return {s: s for s in record_stamps if s in have}
-    ordered = np.array(sorted(have), dtype=np.int64)
-    if len(ordered) < 2:
-        return {s: int(ordered[0]) for s in record_stamps if len(ordered) and s == int(ordered[0])}
-    interval = int(np.median(np.diff(ordered)))
-    out = {}
-    for stamp in record_stamps:
-        i = int(np.searchsorted(ordered, stamp))
-        candidates = [int(ordered[j]) for j in (i - 1, i) if 0 <= j < len(ordered)]
-        best = min(candidates, key=lambda c: (abs(c - stamp), c))
-        if abs(best - stamp) <= interval:
-            out[stamp] = best
-    return out
+    ordered = sorted(have)
+    interval_ns = frame_interval_ns(ordered)
+    return {stamp: near for stamp in record_stamps if (near := nearest_stamp(ordered, stamp, interval_ns)) is not None}
 
 
 def _video_topics(bag: RoiBag, arms: tuple[str, ...], camera: str | None) -> dict[str, str]:

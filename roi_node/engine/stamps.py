@@ -20,6 +20,10 @@ live, log order offline, so both judge the same way):
 
 from __future__ import annotations
 
+import bisect
+import itertools
+import statistics
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -108,3 +112,22 @@ def is_later(stamp_ns: int, than_ns: int) -> bool:
     A consumer that took only later stamps never took another frame once a looped bag went back to its start.
     """
     return stamp_ns > than_ns or started_over(stamp_ns, than_ns)
+
+
+
+def frame_interval_ns(ordered_ns: Sequence[int]) -> int | None:
+    """A camera's frame interval: the median step between its sorted stamps; None with fewer than two."""
+    return int(statistics.median(b - a for a, b in itertools.pairwise(ordered_ns))) if len(ordered_ns) > 1 else None
+
+
+def nearest_stamp(ordered_ns: Sequence[int], stamp_ns: int, interval_ns: int | None) -> int | None:
+    """Another camera's frame for a frame stamped `stamp_ns`: its stamp nearest in time (a tie: the earlier) among its
+    sorted stamps `ordered_ns`, if within its frame interval (`frame_interval_ns`; None: only the same stamp). Export
+    (datasets/source.py) and the live observations (rostools/consumer.py) pair cameras by this one rule, so a policy
+    is fed the pairs it was trained on."""
+    i = bisect.bisect_left(ordered_ns, stamp_ns)
+    candidates = [ordered_ns[j] for j in (i - 1, i) if 0 <= j < len(ordered_ns)]
+    if interval_ns is None or not candidates:
+        return stamp_ns if i < len(ordered_ns) and ordered_ns[i] == stamp_ns else None
+    best = min(candidates, key=lambda s: (abs(s - stamp_ns), s))
+    return best if abs(best - stamp_ns) <= interval_ns else None

@@ -23,11 +23,12 @@ from typing import Any
 
 from roi_node.datasets.features import (
     ACTION_KEY,
-    GLOBAL_KEY,
-    ROI_IMAGE_PREFIX,
+    IMAGES_PREFIX,
     SOURCE_FRAME_KEY,
     SOURCE_STAMP_KEY,
     STATE_KEY,
+    global_key,
+    roi_image_key,
 )
 from roi_node.policy.errors import PolicyFeaturesError
 
@@ -61,9 +62,21 @@ class ImageFeature:
         return (self.channels, self.height_px, self.width_px)
 
     @property
+    def camera(self) -> str | None:
+        """The camera a key of a rig of several names (`observation.images.<camera>_global`, `..._roi_<arm>`)."""
+        view = self.key.removeprefix(IMAGES_PREFIX) if self.key.startswith(IMAGES_PREFIX) else ""
+        camera, roi, _ = view.partition("_roi_")
+        return (view.removesuffix("_global") if view.endswith("_global") else camera if roi else "") or None
+
+    @property
     def arm_id(self) -> str | None:
-        """The arm an `observation.images.roi_<arm>` key names; None for the global view or a foreign camera."""
-        return self.key.removeprefix(ROI_IMAGE_PREFIX) if self.key.startswith(ROI_IMAGE_PREFIX) else None
+        """The arm an `observation.images.[<camera>_]roi_<arm>` key names; None for a global view or a foreign camera."""
+        prefix = roi_image_key("", self.camera)
+        return self.key.removeprefix(prefix) if self.key.startswith(prefix) else None
+
+    @property
+    def is_global(self) -> bool:
+        return self.key == global_key(self.camera)
 
 
 @dataclass(frozen=True)
@@ -87,6 +100,7 @@ class PolicyFeatures:
     numeric: tuple[NumericFeature, ...]
     fps: float  # LeRobot writes an int; a float (14.99) is read as it is, never truncated
     robot_type: str | None
+    cameras: tuple[str, ...] = ()  # the training dataset's cameras when several (sorted): the first drives its frames
 
     state_key = STATE_KEY
     action_key = ACTION_KEY
@@ -99,11 +113,11 @@ class PolicyFeatures:
     @property
     def arm_ids(self) -> tuple[str, ...]:
         """The arms whose ROI view the policy takes."""
-        return tuple(arm for image in self.images if (arm := image.arm_id) is not None)
+        return tuple(dict.fromkeys(arm for image in self.images if (arm := image.arm_id) is not None))
 
     @property
     def with_global(self) -> bool:
-        return any(image.key == GLOBAL_KEY for image in self.images)
+        return any(image.is_global for image in self.images)
 
     @classmethod
     def load(cls, path: Path | str, dataset: Path | str | None = None) -> PolicyFeatures:
@@ -207,6 +221,7 @@ def _from_info(given: Path, info_path: Path, info: dict[str, Any], kind: Feature
         numeric=tuple(numeric),
         fps=float(fps),
         robot_type=info.get("robot_type") if isinstance(info.get("robot_type"), str) else None,
+        cameras=tuple(sorted({camera for image in images if (camera := image.camera) is not None})),
     )
 
 
@@ -229,7 +244,8 @@ def _with_checkpoint_shapes(features: PolicyFeatures, config: dict[str, Any], pa
                                           f"({features.source}) names {len(features.state_names)} joints")
     kept = tuple(n for n in features.numeric if n.key in inputs)
     return PolicyFeatures(features.source if features.kind is FeatureSource.DATASET else path.parent, FeatureSource.CHECKPOINT,
-                          tuple(images), features.state_names, features.action_names, kept, features.fps, features.robot_type)
+                          tuple(images), features.state_names, features.action_names, kept, features.fps, features.robot_type,
+                          features.cameras)
 
 
 def _ints(path: Path, key: str, shape: Any, length: int | None) -> tuple[int, ...]:

@@ -39,13 +39,14 @@ import numpy as np
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from roi_node.datasets.features import GLOBAL_KEY, STATE_KEY, FrameColumns, ImageSize
+from roi_node.datasets.features import STATE_KEY, FrameColumns, ImageSize, global_key, roi_image_key
 from roi_node.engine.records import FrameRecord
 from roi_node.policy.errors import NodeNotObservedError, StopRequestedError
 from roi_node.policy.features import LEROBOT_DEFAULT_KEYS, PolicyFeatures
 from roi_node.policy.preflight import NodePublication
-from roi_node.rostools.consumer import Observation, ObservationClient
+from roi_node.rostools.consumer import STOP_POLL_S, CameraFrame, Observation, ObservationClient, node_cameras
 from roi_node.rostools.remote_node import client_node
+from roi_node.wire import topics
 from roi_node.wire.compressed_outputs import OutputTransport
 
 TASK_KEY = "task"
@@ -71,11 +72,23 @@ def image_chw(pixels: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(pixels.transpose(2, 0, 1)).astype(np.float32) / PIXEL_SCALE
 
 
+def observation_images(observation: Observation) -> dict[str, np.ndarray]:
+    """Every image of a frame under its dataset key, named as export names it: by camera id and arm, never by position."""
+    frames: list[tuple[str | None, CameraFrame]] = [*observation.cameras.items()] or [
+        (None, CameraFrame(observation.stamp_ns, observation.global_image, observation.rois))]
+    out: dict[str, np.ndarray] = {}
+    for camera, frame in frames:
+        out |= {global_key(camera): frame.global_image} if frame.global_image is not None else {}
+        out |= {roi_image_key(arm, camera): pixels for arm, pixels in frame.rois.items()}
+    return out
+
+
 def make_batch(features: PolicyFeatures, observation: Observation, record: FrameRecord, task: str) -> dict[str, np.ndarray | str]:
     """The LeRobotDataset-shaped mapping of one complete frame (keys in LeRobot's order: images, columns, task)."""
     batch: dict[str, np.ndarray | str] = {}
+    images = observation_images(observation)
     for image in features.images:
-        pixels = observation.global_image if image.key == GLOBAL_KEY else observation.rois.get(image.arm_id or "")
+        pixels = images.get(image.key)
         if pixels is None:
             raise KeyError(image.key)  # the preflight refuses features whose images the node does not publish
         batch[image.key] = image_chw(pixels)
@@ -130,7 +143,8 @@ class PolicyObservationStream:
         assert self._node is not None
         # subscribed to the policy's images from the start, so no frame the node sends once they matched is missed
         self._client = ObservationClient(self._node, self.features.arm_ids or None, with_global=self.features.with_global,
-                                         max_buffer=4 if self.latest else 60, transport=self._transport)
+                                         cameras=self.features.cameras, max_buffer=4 if self.latest else 60,
+                                         transport=self._transport)
         if self._spinner is not None:
             self._spinner.start()
         return self
@@ -193,12 +207,28 @@ class PolicyObservationStream:
         the camera rate is the median gap between consecutive stamps; its
         subscriptions end with it. Frames of a new epoch (the stamps went
         back: a looped bag) start the count again, so the rate is measured
-        within one pass.
+        within one pass. A node of several cameras is read off the graph
+        (`node_cameras`), and its frames are those of the first camera by id.
         """
         assert self._node is not None
-        probe = ObservationClient(self._node, None, max_buffer=frames, transport=self._transport)
         started = time.monotonic()
         deadline = started + (self.timeout_s if timeout_s is None else timeout_s)
+        cameras = self._node_cameras(started, deadline)
+        while True:  # the graph shows a node's topics one by one: probe again if a camera showed up meanwhile
+            seen, arms = self._probe(cameras, frames, started, deadline)
+            if (now := node_cameras(self._node)) is None or now == cameras:
+                break
+            cameras = now
+        first = seen[0]
+        rois = tuple(_size(first.rois[arm]) for arm in arms)
+        view = None if first.global_image is None else _size(first.global_image)
+        return NodePublication.from_observations([FrameRecord.from_dict(f.metadata) for f in seen], rois, view, cameras)
+
+    def _probe(self, cameras: tuple[str, ...], frames: int, started: float, deadline: float
+               ) -> tuple[list[Observation], tuple[str, ...]]:
+        """`frames` consecutive complete frames of one epoch from a client of these cameras, and the arms it saw."""
+        assert self._node is not None
+        probe = ObservationClient(self._node, None, cameras=cameras, max_buffer=frames, transport=self._transport)
         seen: list[Observation] = []
         try:
             while len(seen) < frames:
@@ -211,10 +241,20 @@ class PolicyObservationStream:
                 seen = [*seen, frame] if not seen or seen[-1].epoch == frame.epoch else [frame]
         finally:
             probe.close()
-        first = seen[0]
-        rois = tuple(_size(first.rois[arm]) for arm in probe.arm_ids)
-        view = None if first.global_image is None else _size(first.global_image)
-        return NodePublication.from_observations([FrameRecord.from_dict(f.metadata) for f in seen], rois, view)
+        return seen, probe.arm_ids
+
+    def _node_cameras(self, started: float, deadline: float) -> tuple[str, ...]:
+        """The node's cameras, once the graph shows its metadata (`node_cameras`)."""
+        assert self._node is not None
+        while (cameras := node_cameras(self._node)) is None:
+            if self._stop_waits is not None and self._stop_waits.is_set():
+                raise StopRequestedError("the node's frames for the preflight")
+            if time.monotonic() >= deadline:
+                metadata = self._node.resolve_topic_name(topics.METADATA)
+                raise NodeNotObservedError(time.monotonic() - started, f"no publisher of {metadata} nor of a camera's "
+                                           f"{metadata.removesuffix('metadata')}<camera>/metadata (another namespace or ROS_DOMAIN_ID?)")
+            time.sleep(STOP_POLL_S)
+        return cameras
 
 
 def _size(pixels: np.ndarray) -> ImageSize:

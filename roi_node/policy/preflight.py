@@ -26,7 +26,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 
-from roi_node.datasets.features import GLOBAL_KEY, SOURCE_FRAME_KEY, SOURCE_STAMP_KEY, ImageSize, RoiField, roi_image_key, roi_key
+from roi_node.datasets.features import SOURCE_FRAME_KEY, SOURCE_STAMP_KEY, ImageSize, RoiField, global_key, roi_image_key, roi_key
 from roi_node.engine.errors import RoiNodeError
 from roi_node.engine.records import FrameRecord
 from roi_node.policy.features import PolicyFeatures
@@ -97,21 +97,26 @@ class NodePublication:
     joint_names: tuple[str, ...]  # the records' joint_positions keys, in their order
     camera_rate_hz: float
     frames_observed: int
+    cameras: tuple[str, ...] = ()  # a node of several cameras: their ids (each publishes the same images)
 
     @classmethod
     def from_observations(cls, records: Sequence[FrameRecord], roi_sizes: Sequence[ImageSize],
-                          global_size: ImageSize | None) -> NodePublication:
-        """From consecutive complete frames (at least two): sizes from the images, the rest from the records."""
+                          global_size: ImageSize | None, cameras: Sequence[str] = ()) -> NodePublication:
+        """From consecutive complete frames (at least two; the driving camera's): sizes from the images, the rest from
+        the records."""
         first = records[0]
         stamps = sorted(r.stamp_ns for r in records)
         rate_hz = camera_rate_hz(stamps)
         return cls(first.robot_id, tuple(arm.arm_id for arm in first.arms), tuple(roi_sizes), global_size,
-                   tuple(name for name, _ in first.joint_positions), rate_hz, len(records))
+                   tuple(name for name, _ in first.joint_positions), rate_hz, len(records), tuple(cameras))
 
     def image_sizes(self) -> dict[str, ImageSize]:
-        """Dataset image key -> size, for every image the node publishes."""
-        out = {GLOBAL_KEY: self.global_size} if self.global_size is not None else {}
-        return out | {roi_image_key(arm): size for arm, size in zip(self.arms, self.roi_sizes, strict=True)}
+        """Dataset image key -> size, for every image the node publishes (by camera id in a node of several)."""
+        out: dict[str, ImageSize] = {}
+        for camera in self.cameras or (None,):
+            out |= {global_key(camera): self.global_size} if self.global_size is not None else {}
+            out |= {roi_image_key(arm, camera): size for arm, size in zip(self.arms, self.roi_sizes, strict=True)}
+        return out
 
     def numeric_keys(self) -> set[str]:
         """The non-image observation keys the live stream makes from a record."""

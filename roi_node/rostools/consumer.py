@@ -18,6 +18,14 @@ previous one is the node's stream starting over (a bag played with
 Parts were once kept only for stamps after the newest complete one, so a
 looped bag never completed a frame again. Every wait takes a timeout and an optional stop
 event, looked at every STOP_POLL_S.
+
+A node of several cameras (`cameras`, its ids: `node_cameras` reads them off the
+graph) publishes each camera's outputs under `roi/<camera>/`; each camera's
+frame is matched on that camera's own stamps, and an observation is made per
+frame of the first camera by id (the driving one, as export drives its grid),
+with each other camera's frame nearest in stamp by export's rule
+(engine.stamps.nearest_stamp), decided once that camera has a frame at or after
+the stamp: `Observation.cameras`. The state and record are the driving camera's.
 """
 
 from __future__ import annotations
@@ -38,7 +46,7 @@ from std_msgs.msg import String
 
 from roi_node.engine.errors import ConfigError
 from roi_node.engine.records import FrameRecord, RecordFormatError
-from roi_node.engine.stamps import is_later
+from roi_node.engine.stamps import frame_interval_ns, is_later, nearest_stamp
 from roi_node.live.conversions import stamp_ns
 from roi_node.wire import topics
 from roi_node.wire.compressed_outputs import OutputTransport, compressed_topic
@@ -46,6 +54,15 @@ from roi_node.wire.image_codec import image_from_compressed, image_from_msg
 
 GLOBAL = "global"
 STOP_POLL_S = 0.05  # how often a wait given a stop event looks at it
+
+
+@dataclass(frozen=True)
+class CameraFrame:
+    """One camera's frame of an observation: its own stamp and images."""
+
+    stamp_ns: int
+    global_image: np.ndarray | None
+    rois: dict[str, np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -57,6 +74,7 @@ class Observation:
     metadata: dict[str, Any]  # the record as its JSON mapping (record.as_dict())
     record: FrameRecord
     epoch: int = 0  # how often the node's stamps went back (started over) before this frame
+    cameras: dict[str, CameraFrame] = field(default_factory=dict)  # a node of several: each camera's paired frame
 
     def as_dict(self) -> dict[str, Any]:
         """The mapping a policy server usually takes: {stamp_ns, global, rois, joint_positions, metadata}."""
@@ -75,9 +93,21 @@ class _Partial:
     record: FrameRecord | None = None
 
 
+def node_cameras(node: Node) -> tuple[str, ...] | None:
+    """The cameras of the roi_node the graph shows in `node`'s namespace: () for a node of one camera (`roi/metadata`),
+    the sorted ids of `roi/<camera>/metadata` for a node of several, None while neither is published."""
+    metadata = node.resolve_topic_name(topics.METADATA)
+    prefix, suffix = metadata.removesuffix("metadata"), "/metadata"
+    names = {name for name, _ in node.get_topic_names_and_types() if node.count_publishers(name)}
+    if metadata in names:
+        return ()
+    found = sorted(n[len(prefix):-len(suffix)] for n in names if n.startswith(prefix) and n.endswith(suffix) and n != metadata)
+    return tuple(c for c in found if "/" not in c) or None
+
+
 class ObservationClient:
     """Assemble observations from `roi/<arm>/image_raw`, `roi/global/image_raw` (or their `/compressed`)
-    and `roi/metadata`.
+    and `roi/metadata`; with `cameras`, those of each camera (`roi/<camera>/...`).
 
     `arm_ids` None: the arms the first metadata record lists; `with_global`
     None: whether the node publishes the global view (a publisher of it on the
@@ -91,6 +121,7 @@ class ObservationClient:
         arm_ids: Sequence[str] | None = None,
         *,
         with_global: bool | None = None,
+        cameras: Sequence[str] = (),
         max_buffer: int = 4,
         max_partial: int = 8,
         qos: QoSProfile | None = None,
@@ -108,13 +139,17 @@ class ObservationClient:
         self.with_global = with_global
         self.listed_arms: tuple[str, ...] | None = None  # what the first metadata record lists
         self._expected: set[str] | None = None  # the image keys an observation needs, once subscribed
-        self._received: Counter[str] = Counter()  # messages so far, by key ("metadata", arm ids, GLOBAL)
+        self._received: Counter[Any] = Counter()  # messages so far: "metadata" (the driving camera's), (camera, arm or GLOBAL)
         self._start_s = time.monotonic()
-        self._partial: OrderedDict[int, _Partial] = OrderedDict()
+        self.cameras: tuple[str, ...] = tuple(sorted(cameras))
+        self._driving = self.cameras[0] if self.cameras else None
+        self._partial: dict[str | None, OrderedDict[int, _Partial]] = {c: OrderedDict() for c in self.cameras or (None,)}
+        self._paired: dict[str | None, OrderedDict[int, _Partial]] = {c: OrderedDict() for c in self.cameras[1:]}  # complete
+        self._driven: OrderedDict[int, _Partial] = OrderedDict()  # complete driving frames waiting for the others
         self._max_partial = max_partial
         self._ready: deque[Observation] = deque(maxlen=max_buffer)
         self._latest: Observation | None = None
-        self._record_ns: int | None = None  # the stamp of the last record
+        self._record_ns: dict[str | None, int] = {}  # per camera, the stamp of its last record
         self.epochs = 0  # times the stamps went back more than a second: a looped bag, a restarted source
         self._cond = threading.Condition()
         self.dropped_unconsumed = 0  # complete observations pushed out of the full buffer
@@ -124,17 +159,17 @@ class ObservationClient:
         self._subscriptions: list[Subscription] = []
         if arm_ids is not None and with_global is not None:
             self._subscribe_images()
-        self._subscriptions.append(node.create_subscription(String, topics.METADATA, self._on_metadata, self._qos))
+        for camera in self.cameras or (None,):
+            self._subscriptions.append(node.create_subscription(String, topics.metadata_topic(camera),
+                                                                self._metadata_callback(camera), self._qos))
 
     def _subscribe_images(self) -> None:
-        sources = {arm: topics.roi_image(arm) for arm in self.arm_ids} | ({GLOBAL: topics.GLOBAL_IMAGE} if self.with_global else {})
-        for key, topic in sources.items():
-            if self._compressed:
-                sub = self._node.create_subscription(CompressedImage, compressed_topic(topic), self._image_callback(key), self._qos)
-            else:
-                sub = self._node.create_subscription(Image, topic, self._image_callback(key), self._qos)
-            self._subscriptions.append(sub)
         self._expected = set(self.arm_ids) | ({GLOBAL} if self.with_global else set())
+        for camera in self.cameras or (None,):
+            for key in self._expected:
+                topic = self._image_topic(key, camera)
+                kind = CompressedImage if self._compressed else Image
+                self._subscriptions.append(self._node.create_subscription(kind, topic, self._image_callback(key, camera), self._qos))
 
     def _discover(self, record: FrameRecord) -> None:
         """The first record: which arms exist, and (unless given) whether a global view is published."""
@@ -144,7 +179,7 @@ class ObservationClient:
         if not self.arm_ids:
             self.arm_ids = self.listed_arms
         if self.with_global is None:
-            self.with_global = self._node.count_publishers(self._node.resolve_topic_name(self._image_topic(GLOBAL))) > 0
+            self.with_global = self._node.count_publishers(self._node.resolve_topic_name(self._image_topic(GLOBAL, self._driving))) > 0
         self._subscribe_images()
 
     def matched(self) -> bool:
@@ -163,7 +198,7 @@ class ObservationClient:
             if self._latest is not None:
                 return None
             after = f"after {time.monotonic() - self._start_s:.0f} s"
-            metadata = self._node.resolve_topic_name(topics.METADATA)
+            metadata = self._node.resolve_topic_name(topics.metadata_topic(self._driving))
             if self.last_malformed is not None and self.listed_arms is None:
                 return (f"metadata on {metadata} is malformed ({self.malformed_records} records {after}), "
                         f"the latest: {self.last_malformed}")
@@ -172,30 +207,34 @@ class ObservationClient:
                     return f"no metadata on {metadata} {after}, and no publisher of it (another namespace or ROS_DOMAIN_ID?)"
                 return f"no metadata on {metadata} {after} (it has a publisher: is the node receiving images?)"
             listed = ", ".join(self.listed_arms or ()) or "none"
-            for key in sorted(self._expected or (), key=lambda k: (k == GLOBAL, k)):
-                if not self._received[key]:
-                    topic = self._node.resolve_topic_name(self._image_topic(key))
+            for camera, key in sorted(((c, k) for c in self.cameras or (None,) for k in self._expected or ()),
+                                      key=lambda ck: (ck[0] or "", ck[1] == GLOBAL, ck[1])):
+                if not self._received[(camera, key)]:
+                    topic = self._node.resolve_topic_name(self._image_topic(key, camera))
                     hint = " (without a global view: --no-global / with_global=False)" if key == GLOBAL else ""
                     return f"no image on {topic} {after}; metadata lists arms {listed}{hint}"
             malformed = f", {self.malformed_records} malformed records, the latest: {self.last_malformed}" if self.last_malformed else ""
             return f"images and metadata arrive but no frame has all of them {after} ({self.dropped_incomplete} incomplete{malformed})"
 
-    def _image_topic(self, key: str) -> str:
-        topic = topics.GLOBAL_IMAGE if key == GLOBAL else topics.roi_image(key)
+    def _image_topic(self, key: str, camera: str | None = None) -> str:
+        topic = topics.global_image_topic(camera) if key == GLOBAL else topics.roi_image(key, camera)
         return compressed_topic(topic) if self._compressed else topic
 
-    def _image_callback(self, key: str) -> Any:
+    def _image_callback(self, key: str, camera: str | None) -> Any:
         def callback(msg: Any) -> None:
             # own the pixels: the message buffer is reused (a decoded JPEG is a new array already)
             pixels = image_from_compressed(msg.format, msg.data, key) if self._compressed else image_from_msg(msg, key).copy()
             with self._cond:
-                self._received[key] += 1
-                self._part(stamp_ns(msg.header), False).images[key] = pixels
-                self._complete(stamp_ns(msg.header))
+                self._received[(camera, key)] += 1
+                self._part(camera, stamp_ns(msg.header), False).images[key] = pixels
+                self._complete(camera, stamp_ns(msg.header))
 
         return callback
 
-    def _on_metadata(self, msg: String) -> None:
+    def _metadata_callback(self, camera: str | None) -> Callable[[String], None]:
+        return lambda msg: self._on_metadata(msg, camera)
+
+    def _on_metadata(self, msg: String, camera: str | None = None) -> None:
         try:
             record = FrameRecord.from_json(msg.data)
         except RecordFormatError as exc:
@@ -205,39 +244,72 @@ class ObservationClient:
                 self.last_malformed = exc
             return
         with self._cond:
-            self._received["metadata"] += 1
+            self._received["metadata"] += camera == self._driving
             if self.listed_arms is None:
                 self._discover(record)
-            went_back = self._record_ns is not None and record.stamp_ns <= self._record_ns
-            self._record_ns = record.stamp_ns
-            self._part(record.stamp_ns, went_back).record = record
-            self._complete(record.stamp_ns)
+            last = self._record_ns.get(camera)
+            went_back = last is not None and record.stamp_ns <= last
+            self._record_ns[camera] = record.stamp_ns
+            self._part(camera, record.stamp_ns, went_back).record = record
+            self._complete(camera, record.stamp_ns)
 
-    def _part(self, stamp: int, went_back: bool) -> _Partial:
-        """The parts of `stamp` so far; `went_back` (a record not after the previous one) starts a new epoch: the old
-        epoch's parts never complete, but this frame's images may have come before its record and are kept."""
+    def _part(self, camera: str | None, stamp: int, went_back: bool) -> _Partial:
+        """The parts of `camera`'s frame `stamp` so far; `went_back` (a record not after the camera's previous one)
+        starts a new epoch (counted on the driving camera): the old epoch's parts never complete, but this frame's
+        images may have come before its record and are kept."""
+        partial = self._partial[camera]
         if went_back:
-            self.epochs += 1
-            first = self._partial.pop(stamp, None)
-            self.dropped_incomplete += len(self._partial)
-            self._partial.clear()
+            self.epochs += camera == self._driving
+            first = partial.pop(stamp, None)
+            stale = self._driven if camera == self._driving else self._paired[camera]
+            self.dropped_incomplete += len(partial) + (len(stale) if camera == self._driving else 0)
+            partial.clear()
+            stale.clear()
             if first is not None:
-                self._partial[stamp] = first
-        if stamp not in self._partial:
-            self._partial[stamp] = _Partial()
-            while len(self._partial) > self._max_partial:
-                self._partial.popitem(last=False)
+                partial[stamp] = first
+        if stamp not in partial:
+            partial[stamp] = _Partial()
+            while len(partial) > self._max_partial:
+                partial.popitem(last=False)
                 self.dropped_incomplete += 1
-        return self._partial[stamp]
+        return partial[stamp]
 
-    def _complete(self, stamp: int) -> None:
-        part = self._partial[stamp]
+    def _complete(self, camera: str | None, stamp: int) -> None:
+        partial = self._partial[camera]
+        part = partial[stamp]
         if part.record is None or self._expected is None or set(part.images) != self._expected:
             return
-        del self._partial[stamp]
-        for older in [s for s in self._partial if s < stamp]:  # a newer frame is complete: older ones are stale
-            del self._partial[older]
+        del partial[stamp]
+        for older in [s for s in partial if s < stamp]:  # a newer frame is complete: older ones are stale
+            del partial[older]
+            self.dropped_incomplete += camera == self._driving
+        frames = self._driven if camera == self._driving else self._paired[camera]
+        frames[stamp] = part
+        while len(frames) > self._max_partial:
+            frames.popitem(last=False)
+            self.dropped_incomplete += camera == self._driving
+        while self._driven and (paired := self._pair(next(iter(self._driven)))) is not None:
+            self._emit(next(iter(self._driven)), self._driven.popitem(last=False)[1], paired)
+
+    def _pair(self, stamp: int) -> dict[str | None, int | None] | None:
+        """Each other camera's frame for the driving frame `stamp` (None: none near enough, the frame is dropped), once
+        every other camera has a frame at or after it and two frames (its interval); None until then."""
+        out: dict[str | None, int | None] = {}
+        for camera, frames in self._paired.items():
+            ordered = sorted(frames)
+            if (interval_ns := frame_interval_ns(ordered)) is None or ordered[-1] < stamp:
+                return None
+            out[camera] = nearest_stamp(ordered, stamp, interval_ns)
+        return out
+
+    def _emit(self, stamp: int, part: _Partial, paired: dict[str | None, int | None]) -> None:
+        if any(s is None for s in paired.values()):
             self.dropped_incomplete += 1
+            return
+        assert part.record is not None
+        views = {self._driving: (stamp, part)} | {c: (s, self._paired[c][s]) for c, s in paired.items() if s is not None}
+        cameras = {c: CameraFrame(s, p.images.get(GLOBAL), {arm: p.images[arm] for arm in self.arm_ids})
+                   for c, (s, p) in views.items() if c is not None}
         observation = Observation(
             stamp_ns=stamp,
             global_image=part.images.get(GLOBAL),
@@ -246,6 +318,7 @@ class ObservationClient:
             metadata=part.record.as_dict(),
             record=part.record,
             epoch=self.epochs,
+            cameras=cameras,
         )
         if len(self._ready) == self._ready.maxlen:
             self.dropped_unconsumed += 1

@@ -6,7 +6,16 @@ import numpy as np
 
 from roi_node.engine.config import load_rig_config
 from roi_node.engine.engine import CameraInfoEvent, FrameEvent, JointStateEvent, StreamEngine
-from roi_node.engine.stamps import CONFIRMING_STAMPS, NS_PER_S, StampVerdict, StreamClock, ns_to_stamp, stamp_to_ns
+from roi_node.engine.stamps import (
+    CONFIRMING_STAMPS,
+    NS_PER_S,
+    StampVerdict,
+    StreamClock,
+    frame_interval_ns,
+    nearest_stamp,
+    ns_to_stamp,
+    stamp_to_ns,
+)
 from test.support.paths import CONFIG
 
 T0 = 1_700_000_000 * NS_PER_S
@@ -89,3 +98,13 @@ def test_frames_held_over_a_loop_still_wait_for_their_epochs_camera_info() -> No
     for ready in engine.pop_ready(None):
         prepared += engine.prepare(ready) is not None
     assert not engine.stats.drops and prepared == frames
+
+
+def test_nearest_stamp_is_the_nearest_within_the_interval_and_a_tie_the_earlier() -> None:
+    ordered = [0, 100, 200, 300, 700]
+    interval = frame_interval_ns(ordered)
+    assert interval == 100
+    assert [nearest_stamp(ordered, s, interval) for s in (50, 130, 300, 450, 800, 801, -100, -101)] == \
+        [0, 100, 300, None, 700, None, 0, None]
+    assert frame_interval_ns([5]) is None
+    assert [nearest_stamp([5], s, None) for s in (5, 6)] == [5, None]  # one frame: no interval, only its own stamp

@@ -128,3 +128,38 @@ def test_stamps_that_go_back_start_a_new_epoch_and_keep_completing(spun_node: No
     assert client.epochs == 2 and client.dropped_incomplete == 0
     stop.set()
     assert client.get(timeout_s=3600.0, stop=stop) is None  # a set stop ends a wait at once, whatever its timeout
+
+
+@pytest.mark.dds
+def test_two_cameras_pair_each_frame_of_the_first_with_the_others_nearest_frame(spun_node: Node, bimanual_rig_path: Path,
+                                                                                 tmp_path: Path) -> None:
+    """Camera `a` drives (the first by id, given second); camera `b`'s frames, 100 ms apart, are published before each
+    step's `a` frame so each decision is the same whatever the arrival order: a tie takes the earlier frame, the
+    nearer one wins, and an `a` frame with no `b` frame within b's interval is dropped and counted."""
+    replay_bag(write_sim_bag(bimanual_rig_path, tmp_path / "sim", duration_s=0.2, seed=3).path, tmp_path / "roi", bimanual_rig_path)
+    doc = json.loads(metadata_texts(tmp_path / "roi")[0])
+    arms = [arm["arm_id"] for arm in doc["arms"]]
+    client = ObservationClient(spun_node, arms, cameras=("b", "a"), with_global=False, max_buffer=10, qos=RELIABLE)
+    pubs = {c: (spun_node.create_publisher(String, topics.metadata_topic(c), RELIABLE),
+                [spun_node.create_publisher(Image, topics.roi_image(arm, c), RELIABLE) for arm in arms]) for c in "ab"}
+    assert wait_until(client.matched, 30.0), "the client's subscriptions never matched"
+    ms = 1_000_000
+
+    def frame(camera: str, stamp_ms: int) -> None:
+        metadata, images = pubs[camera]
+        for pub in images:
+            pub.publish(arm_image(stamp_ms * ms, stamp_ms // 10))
+        metadata.publish(String(data=json.dumps(doc | {"stamp_ns": stamp_ms * ms})))
+
+    for b_frames, a_frame, paired in (((0, 100), 50, 0), ((200, 300, 700), 130, 100)):
+        for stamp in b_frames:
+            frame("b", stamp)
+        frame("a", a_frame)
+        observation = client.get(timeout_s=30.0)
+        assert observation is not None, client.waiting_for()
+        assert observation.stamp_ns == a_frame * ms and observation.record.stamp_ns == a_frame * ms
+        assert observation.cameras["a"].stamp_ns == a_frame * ms and observation.cameras["b"].stamp_ns == paired * ms
+        assert int(observation.cameras["b"].rois[arms[0]][0, 0, 0]) == paired // 10
+        assert int(observation.rois[arms[0]][0, 0, 0]) == a_frame // 10  # the driving camera's own
+    frame("a", 450)  # b's nearest are 300 and 700, both farther than its 100 ms interval
+    assert wait_until(lambda: client.dropped_incomplete == 1, 30.0), client.waiting_for()
