@@ -21,10 +21,8 @@ import av
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from jsonschema import Draft202012Validator
-from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import Image, JointState
@@ -40,8 +38,9 @@ from roi_node.offline.replay import ReplaySummary, replay_bag
 from roi_node.sim.bag_sink import write_sim_bag
 from roi_node.wire import topics
 from roi_node.wire.compressed_outputs import OutputTransport
-from test.dds.harness import next_domain, wait_until
+from test.dds.harness import wait_until
 from test.support.exportbags import images_by_stamp
+from test.support.inprocess_node import PATIENT, inprocess_node
 from test.support.paths import CONFIG
 from test.support.rigs import scaled_rig, two_camera_bimanual
 from test.wire.test_frame_way_out import _NotingPublisher, _recorded, _written
@@ -76,18 +75,8 @@ def replayed(rig_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Replay
 
 @pytest.fixture()
 def node(rig_path: Path) -> Iterator[RoiNode]:
-    rclpy.init(domain_id=next_domain())
-    try:
-        overrides = [Parameter("config", value=str(rig_path)), Parameter("output_transport", value="both"),
-                     Parameter("sync.max_wait_ms", value=1000.0), Parameter("sync.max_pending_frames", value=64)]
-        live = RoiNode(parameter_overrides=overrides)
-        try:
-            yield live
-        finally:
-            live.close()
-            live.destroy_node()
-    finally:
-        rclpy.try_shutdown()
+    with inprocess_node(rig_path, output_transport="both", **PATIENT) as live:
+        yield live
 
 
 def _best_only(messages: list[tuple[str, bytes]]) -> list[tuple[str, bytes]]:

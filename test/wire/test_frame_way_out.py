@@ -18,9 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import rclpy
 from mcap.reader import make_reader
-from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import Image, JointState
@@ -33,8 +31,8 @@ from roi_node.live.node import RoiNode
 from roi_node.offline.replay import replay_bag
 from roi_node.wire import topics
 from roi_node.wire.compressed_outputs import OutputTransport
-from test.dds.harness import next_domain
 from test.support.bagtools import IMAGE_TOPIC, JOINT_TOPIC, BagSpec, write_bag
+from test.support.inprocess_node import PATIENT, inprocess_node
 
 pytestmark = pytest.mark.dds  # a DDS participant, on a domain of its own (live/harness.py next_domain)
 
@@ -67,25 +65,9 @@ def bag(tmp_path_factory: pytest.TempPathFactory, bimanual_rig_path: Path) -> Ba
 @pytest.fixture()
 def node(bimanual_rig_path: Path) -> Iterator[RoiNode]:
     """A real RoiNode in this process, on the default context (initialized here and shut down however the test ends)."""
-    rclpy.init(domain_id=next_domain())
-    try:
-        overrides = [
-            Parameter("config", value=str(bimanual_rig_path)),
-            Parameter("image_topic", value=IMAGE_TOPIC),
-            Parameter("joint_state_topics", value=[JOINT_TOPIC]),
-            Parameter("output_transport", value="both"),
-            Parameter("overlay", value=True),
-            Parameter("sync.max_wait_ms", value=1000.0),
-            Parameter("sync.max_pending_frames", value=64),
-        ]
-        live = RoiNode(parameter_overrides=overrides)
-        try:
-            yield live
-        finally:
-            live.close()
-            live.destroy_node()
-    finally:
-        rclpy.try_shutdown()
+    with inprocess_node(bimanual_rig_path, image_topic=IMAGE_TOPIC, joint_state_topics=[JOINT_TOPIC], output_transport="both", overlay=True,
+                        **PATIENT) as live:
+        yield live
 
 
 def _recorded(path: Path) -> list[tuple[str, bytes]]:

@@ -8,9 +8,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-import rclpy
 import yaml
-from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image, JointState
 
@@ -20,8 +18,9 @@ from roi_node.engine.pipeline import RoiPipeline
 from roi_node.live.node import RoiNode
 from roi_node.offline.replay import replay_bag
 from roi_node.wire import topics
-from test.dds.harness import next_domain, wait_until
+from test.dds.harness import wait_until
 from test.support.bagtools import IMAGE_TOPIC, JOINT_TOPIC, BagSpec, write_bag
+from test.support.inprocess_node import PATIENT, inprocess_node
 from test.support.paths import CONFIG
 from test.support.rigs import write_rig
 from test.wire.test_frame_way_out import _content, _NotingPublisher, _recorded, _written
@@ -46,25 +45,9 @@ def bag(tmp_path_factory: pytest.TempPathFactory, rig_path: Path) -> BagSpec:
 
 @pytest.fixture()
 def node(rig_path: Path) -> Iterator[RoiNode]:
-    rclpy.init(domain_id=next_domain())
-    try:
-        overrides = [
-            Parameter("config", value=str(rig_path)),
-            Parameter("image_topic", value=IMAGE_TOPIC),
-            Parameter("joint_state_topics", value=[JOINT_TOPIC]),
-            Parameter("output_transport", value="both"),
-            Parameter("overlay", value=True),
-            Parameter("sync.max_wait_ms", value=1000.0),
-            Parameter("sync.max_pending_frames", value=64),
-        ]
-        live = RoiNode(parameter_overrides=overrides)
-        try:
-            yield live
-        finally:
-            live.close()
-            live.destroy_node()
-    finally:
-        rclpy.try_shutdown()
+    with inprocess_node(rig_path, image_topic=IMAGE_TOPIC, joint_state_topics=[JOINT_TOPIC], output_transport="both", overlay=True,
+                        **PATIENT) as live:
+        yield live
 
 
 def test_live_and_replay_publish_the_same_visibility_records(node: RoiNode, bag: BagSpec, rig_path: Path, tmp_path: Path) -> None:
