@@ -183,13 +183,14 @@ def test_injected_latency_holds_the_contract_and_rtc_smooths_the_chunk_boundarie
         if values["late_ticks"] > STARVED_TICKS:  # what follows compares times and the executed trajectory's ticks
             pytest.skip(f"{mode}: the machine held the runner past {values['late_ticks']} ticks; latencies not judged")
         # the latency as served (injected, plus what a loaded machine adds to the server's sleep) beside the diagnostics:
-        # a chunk arrives that long after its observation was sent, is stale by the ceiling of its age on arrival in
-        # periods, and its first step waits for the next tick
+        # a chunk arrives at least that long after its observation was sent (medians: within a period), is stale by the
+        # ceiling of its age on arrival in periods, and its first step waits for the next tick. How much later it
+        # arrives (the answer's transport and decoding) depends on the machine: bench/policy.py measures it
         served_ms = float(np.median(server.served_s)) * 1e3
         assert served_ms >= latency_s * 1e3 * 0.7
         p50 = {k: v["p50"] for k, v in values.items() if isinstance(v, dict) and "p50" in v}  # type: ignore[index]
         shown = p50 | {"served_ms": served_ms}
-        assert abs(p50["frame_to_chunk_ms"] - (p50["frame_to_observation_ms"] + served_ms)) <= period_ms, shown
+        assert p50["frame_to_chunk_ms"] >= p50["frame_to_observation_ms"] + served_ms - period_ms, shown
         assert abs(p50["stale_steps_on_arrival"] - (p50["frame_to_chunk_ms"] / period_ms + 0.5)) <= 1.0, shown
         assert 0 <= p50["frame_to_first_action_ms"] - p50["frame_to_chunk_ms"] <= period_ms * 1.5, shown
         # chunk boundaries: where the frame behind the command changes; a jump is the command's step there less the step
