@@ -117,6 +117,9 @@ def bench_rig(name: str, frames: int, ray_frames: int) -> None:
     except ImportError:
         print("  ray casting: trimesh is not installed; skipped")
         return
+    if not trimesh.ray.has_embree:
+        print("  ray casting: embreex is not installed (pip install embreex); skipped")
+        return
     engine = type(trimesh.Trimesh(vertices=np.eye(3), faces=[[0, 1, 2]]).ray).__module__
     ray_ms, differences = [], []
     step = max(1, frames // ray_frames)

@@ -223,13 +223,18 @@ class VisibilityModel:
         uv, valid = np.zeros((len(points), 2)), np.zeros(len(points), dtype=np.bool_)
         if rows:
             projected = np.concatenate(rows)
-            uv[projected], valid[projected] = camera.project(points[projected], z_min_m)
+            uv_near, valid_near = camera.project(points[projected], z_min_m)
+            uv_near[~valid_near] = 0.0  # the only rows project() leaves NaN
+            uv[projected], valid[projected] = uv_near, valid_near
+        near_face = near[self._face_labels]  # the faces of far links are never drawn, never in front
+        near_faces = self._faces[near_face]
+        f0, f1, f2 = near_faces[:, 0], near_faces[:, 1], near_faces[:, 2]
+        drawn_near = valid[f0] & valid[f1] & valid[f2]
         behind = points[:, 2] <= z_min_m
-        f0, f1, f2 = self._faces[:, 0], self._faces[:, 1], self._faces[:, 2]
-        drawn = valid[f0] & valid[f1] & valid[f2]
-        if (~drawn & ~(behind[f0] & behind[f1] & behind[f2])).any():
+        if (~drawn_near & ~(behind[f0] & behind[f1] & behind[f2])).any():
             return None
-        uv = np.nan_to_num(uv)
+        drawn = np.zeros(len(self._faces), dtype=np.bool_)
+        drawn[near_face] = drawn_near
         starts = self._vertex_starts
         boxes = np.stack([np.minimum.reduceat(uv[:, 0], starts), np.minimum.reduceat(uv[:, 1], starts),
                           np.maximum.reduceat(uv[:, 0], starts), np.maximum.reduceat(uv[:, 1], starts)], axis=1)
