@@ -41,7 +41,6 @@ from roi_node.wire import topics
 from roi_node.wire.compressed_outputs import compressed_topic
 
 METADATA_TOPIC = topics.absolute(topics.METADATA)
-GLOBAL_TOPIC = topics.absolute(topics.GLOBAL_IMAGE)
 _CAMERA_METADATA = re.compile(rf"^{re.escape(topics.BAG_OUTPUT_PREFIX)}([^/]+)/metadata$")
 # where to look for a frame's images around its metadata's log time: outputs share it exactly; recorded
 # inputs (replay --include-inputs) trail their header stamp by the recorder's latency
