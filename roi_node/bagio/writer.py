@@ -49,7 +49,6 @@ METADATA_NAME = "metadata.yaml"
 RESERVE_NAME = ".roi_node_space_reserve"
 RESERVE_BYTES = 4 << 20
 CHUNK_MAX_AGE_NS = 500_000_000  # in place, a chunk older than this goes to disk even if not full
-_ZERO = QosTime(0, 0)
 INFINITE_DURATION = QosTime(2147483647, 4294967295)  # rmw's "infinite" as rosbag2 records it
 
 

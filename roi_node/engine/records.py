@@ -286,7 +286,7 @@ class FrameRecord:
     def from_json(cls, text: str | bytes) -> FrameRecord:
         """A record from its JSON text; `from_json(r.to_json()).to_json() == r.to_json()`."""
         try:
-            doc = json.loads(text, parse_constant=_no_constant)
+            doc = json.loads(text, parse_constant=no_constant)
         except ValueError as exc:
             raise RecordFormatError("(whole record)", f"not JSON ({exc})") from exc
         return cls.from_dict(doc)
@@ -373,7 +373,7 @@ class BestViewRecord:
 
     @classmethod
     def from_json(cls, text: str | bytes) -> BestViewRecord:
-        doc = json.loads(text, parse_constant=_no_constant)
+        doc = json.loads(text, parse_constant=no_constant)
         if doc.get("schema") != BEST_VIEW_SCHEMA:
             raise RecordFormatError("schema", f"expected {BEST_VIEW_SCHEMA!r}, got {doc.get('schema')!r}")
         try:
@@ -394,5 +394,6 @@ def _tuple(values: list[Any] | None) -> tuple[Any, ...] | None:
     return None if values is None else tuple(values)
 
 
-def _no_constant(name: str) -> float:
+def no_constant(name: str) -> float:
+    """json.loads' parse_constant: NaN and Infinity are not JSON, and no record holds them."""
     raise ValueError(f"non-finite number {name}")

@@ -3,13 +3,13 @@
 `StreamStats.snapshot` returns a `StreamSnapshot`; the live node's
 diagnostics read its attributes. The mappings that remain are counts keyed by
 an open set of names (drop reasons, exception types, sync statuses,
-`<arm>:<flag>`), published as they are. `as_dict()` of the parts gives the
-JSON values /diagnostics has always carried for them.
+`<arm>:<flag>`), published as they are. `dataclasses.asdict` of the parts
+gives the JSON values /diagnostics has always carried for them.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -30,9 +30,6 @@ class Percentiles:
         a = np.asarray(values)
         return cls(float(np.percentile(a, 50)), float(np.percentile(a, 99)), float(a.max()))
 
-    def as_dict(self) -> dict[str, float]:
-        return asdict(self)
-
 
 @dataclass(frozen=True)
 class ArmWindow:
@@ -42,9 +39,6 @@ class ArmWindow:
     projection_valid_ratio: float | None
     in_frame_ratio_mean: float | None
 
-    def as_dict(self) -> dict[str, int | float | None]:
-        return asdict(self)
-
 
 @dataclass(frozen=True)
 class SyncCounters:
@@ -52,9 +46,6 @@ class SyncCounters:
 
     epochs: int
     pending: int
-
-    def as_dict(self) -> dict[str, int]:
-        return asdict(self)
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
+from dataclasses import asdict
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
@@ -38,7 +39,7 @@ def _fmt(value: float | None) -> str:
 
 
 def _percentiles(summary: Percentiles | None) -> dict[str, float] | None:
-    return None if summary is None else summary.as_dict()
+    return None if summary is None else asdict(summary)
 
 
 def _status(name: str, level: bytes, message: str, values: dict[str, object]) -> DiagnosticStatus:
@@ -167,7 +168,7 @@ def diagnostic_statuses(
     residual = snap.residual_ms
     sync_values: dict[str, object] = {"status_counts": status_counts, "residual_ms": _percentiles(residual)}
     if snap.sync_counters is not None:
-        sync_values["sync_counters"] = snap.sync_counters.as_dict()
+        sync_values["sync_counters"] = asdict(snap.sync_counters)
     statuses.append(
         _status(
             "sync",
@@ -185,7 +186,7 @@ def diagnostic_statuses(
                 f"arm {arm_id}",
                 level,
                 f"valid {_fmt(valid)}, in-frame {_fmt(arm.in_frame_ratio_mean)}",
-                {**arm.as_dict(), "flags_since_start": flagged},
+                {**asdict(arm), "flags_since_start": flagged},
             )
         )
     if lineage is not None:

@@ -41,8 +41,8 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from roi_node.engine.errors import RoiNodeError
+from roi_node.util.stop_signals import STOP_SIGNALS, handling_stop_signals
 
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 # Python runs a signal's handler on the main thread, at its next bytecode. A signal the kernel hands to another thread
 # (any thread may take one that arrived while the process was stopped, SIGSTOP or Ctrl-Z) does not interrupt the main
 # thread's wait, so the main thread waits in slices this long and then takes the handler.
@@ -60,20 +60,14 @@ def ros_context(ros_args: Sequence[str] = (), *, rclpy_signal_handlers: bool = T
         rclpy.try_shutdown()
 
 
-@contextlib.contextmanager
-def _stop_on_signals(stop: Future) -> Iterator[None]:
+def _stop_on_signals(stop: Future) -> contextlib.AbstractContextManager[None]:
     """SIGINT and SIGTERM complete `stop` (the previous handlers are restored on exit)."""
 
     def handler(signum: int, frame: FrameType | None) -> None:
         if not stop.done():
             stop.set_result(signal.Signals(signum).name)
 
-    previous = {signum: signal.signal(signum, handler) for signum in STOP_SIGNALS}
-    try:
-        yield
-    finally:
-        for signum, old in previous.items():
-            signal.signal(signum, old)
+    return handling_stop_signals(handler)
 
 
 class ExecutorKind(StrEnum):

@@ -57,6 +57,3 @@ class ActionPublisher:
     def publish_diagnostics(self) -> None:
         self._diagnostics.publish(policy_diagnostics_msg(time.time_ns(), self.stats, self._commands.topic_name))
         self.stats.end_window()
-
-    def subscription_count(self) -> int:
-        return int(self._commands.get_subscription_count())

@@ -65,9 +65,9 @@ from roi_node.policy.policy_worker import WAIT_SLICE_S, LatestObservation, Polic
 from roi_node.policy.preflight import require_fit
 from roi_node.policy.remote_grpc import load_grpc
 from roi_node.policy.server_mapping import ServerMapping, server_mapping
+from roi_node.util.stop_signals import handling_stop_signals
 
 DIAGNOSTICS_PERIOD_NS = NS_PER_S
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 @dataclass(frozen=True)
@@ -119,12 +119,8 @@ def stop_on_signals(stop: threading.Event) -> Iterator[StopSignals]:
         if signals.interrupting:
             raise KeyboardInterrupt
 
-    previous = {signum: signal.signal(signum, handler) for signum in STOP_SIGNALS}
-    try:
+    with handling_stop_signals(handler):
         yield signals
-    finally:
-        for signum, old in previous.items():
-            signal.signal(signum, old)
 
 
 def run_policy(features: PolicyFeatures, options: RunOptions) -> int:

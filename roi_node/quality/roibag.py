@@ -34,14 +34,13 @@ from roi_node.bagio.reader import (
 )
 from roi_node.engine.errors import BagError, ImageError
 from roi_node.engine.metadata import METADATA_SCHEMA, metadata_schema
-from roi_node.engine.records import FrameRecord
+from roi_node.engine.records import FrameRecord, no_constant
 from roi_node.offline.inputs import IMAGE_TYPES, decode_frame
 from roi_node.quality.schema_check import RecordChecker
 from roi_node.wire import topics
 from roi_node.wire.compressed_outputs import compressed_topic
 
 METADATA_TOPIC = topics.absolute(topics.METADATA)
-GLOBAL_TOPIC = topics.absolute(topics.GLOBAL_IMAGE)
 _CAMERA_METADATA = re.compile(rf"^{re.escape(topics.BAG_OUTPUT_PREFIX)}([^/]+)/metadata$")
 # where to look for a frame's images around its metadata's log time: outputs share it exactly; recorded
 # inputs (replay --include-inputs) trail their header stamp by the recorder's latency
@@ -81,10 +80,6 @@ class MetadataMessage:
     log_ns: int
     position: int  # 0-based position of the message on /roi/metadata
     record: FrameRecord
-
-
-def _no_constants(name: str) -> float:
-    raise ValueError(f"non-finite number {name}")
 
 
 def _frame_name(position: int, record: object, topic: str) -> str:
@@ -162,7 +157,7 @@ class RoiBag:
         for position, (connection, log_ns, raw) in enumerate(read_messages(self.reader, self._metadata, self.path)):
             try:
                 text: str = deserialize(self.reader, raw, connection.msgtype).data
-                record = json.loads(text, parse_constant=_no_constants)
+                record = json.loads(text, parse_constant=no_constant)
             except DESERIALIZE_ERRORS as exc:  # json.JSONDecodeError is a ValueError
                 raise BagError(f"{self.path}: message {position} on {self.metadata_topic} is not a JSON metadata record ({exc})") from exc
             where = _frame_name(position, record, self.metadata_topic)

@@ -34,7 +34,6 @@ from roi_node.rig.rig_extrinsics import WORLD_FRAME, ExtrinsicsBlock, RigEditErr
 from roi_node.util.atomic_output import atomic_output
 
 DEFAULT_CHILD_FRAME = "camera_optical_frame"
-WORLD_UP = (0.0, 0.0, 1.0)
 
 
 @dataclass(frozen=True)

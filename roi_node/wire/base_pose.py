@@ -14,7 +14,6 @@ from roi_node.engine.config import BasePoseSource, BasePoseTopic
 from roi_node.engine.errors import InputDataError
 from roi_node.engine.stamps import NS_PER_S, ns_to_stamp
 from roi_node.engine.transforms import Transform
-from roi_node.wire import topics
 
 MESSAGE_TYPES = {
     BasePoseSource.ODOMETRY: "nav_msgs/msg/Odometry",
@@ -68,11 +67,6 @@ def base_poses(msg: Any, config: BasePoseTopic, where: str) -> list[tuple[int, T
     else:
         pose = msg.pose
     return [(_stamp_ns(msg.header), _transform(pose.position, pose.orientation, where))]
-
-
-def base_pose_topic(config: BasePoseTopic) -> str:
-    """The topic as a bag names it."""
-    return topics.absolute(config.topic)
 
 
 def base_pose_message(types: Any, stamp_ns: int, config: BasePoseTopic, world_T_base: Transform) -> Any:

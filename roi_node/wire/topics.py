@@ -10,7 +10,6 @@ from roi_node.engine.config import BEST_VIEW, CAMERA_INFO_TOPIC, IMAGE_TOPIC, Ri
 from roi_node.wire.compressed_outputs import OutputTransport, compressed_topic
 
 IMAGE = IMAGE_TOPIC
-COMPRESSED_IMAGE = IMAGE_TOPIC + "/compressed"
 CAMERA_INFO = CAMERA_INFO_TOPIC
 JOINT_STATES = "joint_states"
 ROBOT_DESCRIPTION = "robot_description"
