@@ -4,7 +4,8 @@ For each policy (the hold-pose callable, examples/hold_pose_policy.py, a
 LeRobot ACT policy with random weights built from the dataset's features, on
 the CPU, and each remote transport: `ws`, an openpi-protocol server on
 loopback answering at once, test/policy/openpi_server.py, with the DROID
-preset's two images resized to 224x224 on the robot side), one run of real processes on one loopback DDS domain: `roi-node
+preset's two images resized to 224x224 on the robot side, and `grpc`, LeRobot's own async-inference
+PolicyServer serving the random-weight ACT on the CPU), one run of real processes on one loopback DDS domain: `roi-node
 sim` (the bundled 1280x720 bimanual rig at 30 Hz, following the commands),
 `roi-node run`, and `roi-node policy run`. After --warmup-s, the bench reads
 the runner's /diagnostics status ('roi_node: policy actions') for
@@ -16,9 +17,9 @@ is printed in ms and as a ratio to that period. The first action of a chunk
 is what a frame's observation changes on the robot; the other steps of a
 chunk were computed from an older frame by design.
 
-ACT needs lerobot and torch: run the bench with .venv-lerobot/bin/python (the
-ACT case is skipped, and says so, where lerobot is missing). Run:
-`.venv-lerobot/bin/python bench/policy.py --domain 205 [--seconds 30] [--policies callable act ws]`
+ACT and grpc need lerobot and torch: run the bench with .venv-lerobot/bin/python
+(those cases are skipped, and say so, where lerobot is missing). Run:
+`.venv-lerobot/bin/python bench/policy.py --domain 205 [--seconds 30] [--policies callable act ws grpc]`
 A transport is benched by adding its server to REMOTE_SERVERS (a context manager
 yielding the --policy URL and options).
 """
@@ -26,10 +27,12 @@ yielding the --policy URL and options).
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import itertools
 import json
 import os
 import signal
+import socket
 import statistics
 import subprocess
 import sys
@@ -172,7 +175,46 @@ def ws_server(dataset: Path) -> Iterator[list[str]]:
         server.close()
 
 
-REMOTE_SERVERS: dict[str, Callable[[Path], AbstractContextManager[list[str]]]] = {"ws": ws_server}
+@contextmanager
+def grpc_server(dataset: Path) -> Iterator[list[str]]:
+    """LeRobot's own async-inference PolicyServer on loopback, serving an ACT policy with random weights built from
+    the dataset's features (on the CPU, as the ACT case runs it): needs .venv-lerobot."""
+    from urllib.parse import quote
+
+    from test.datasets.lerobot.act_policy import save_random_act
+
+    act = dataset.parent / "act_grpc"
+    save_random_act(dataset, act, chunk_size=FPS)
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = int(probe.getsockname()[1])
+    server_dir = dataset.parent / "grpc_server"  # the server writes its logs/ under its working directory
+    server_dir.mkdir()
+    server = subprocess.Popen([sys.executable, "-m", "lerobot.async_inference.policy_server", "--host=127.0.0.1",
+                               f"--port={port}", f"--fps={FPS}", "--inference_latency=0", "--obs_queue_timeout=5"],
+                              cwd=server_dir, env=env_for(0), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while server.poll() is None and time.monotonic() < deadline:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                time.sleep(0.2)
+        if server.poll() is not None or time.monotonic() >= deadline:
+            raise RuntimeError(f"lerobot's PolicyServer did not listen on port {port} within 120 s")
+        spec = f"grpc://127.0.0.1:{port}?policy_type=act&checkpoint={quote(str(act), safe='/')}"
+        yield ["--policy", spec, "--features", str(act), "--dataset", str(dataset)]
+    finally:
+        server.send_signal(signal.SIGINT)
+        try:
+            server.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait()
+
+
+REMOTE_SERVERS: dict[str, Callable[[Path], AbstractContextManager[list[str]]]] = {"ws": ws_server, "grpc": grpc_server}
 
 
 def report(name: str, result: dict[str, Any]) -> None:
@@ -219,6 +261,9 @@ def main() -> int:
                 return 1
         for name in (n for n in args.policies if n in REMOTE_SERVERS):
             sys.path.insert(0, str(REPO))
+            if name == "grpc" and importlib.util.find_spec("lerobot") is None:
+                print("grpc: skipped: lerobot is not installed here (run with .venv-lerobot/bin/python)", file=sys.stderr)
+                continue
             with REMOTE_SERVERS[name](dataset) as policy:
                 if not bench_case(name, policy, args, tmp):
                     return 1

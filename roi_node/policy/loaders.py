@@ -58,12 +58,15 @@ REMOTE_SCHEMES = {"ws": PolicyKind.WEBSOCKET, "grpc": PolicyKind.GRPC}  # a tran
 class ChunkRequest:
     """What a remote policy is told with an observation: the chunk it returns starts at the frame `stamp_ns`;
     `inference_delay` steps (`prefix`, (d, A) in the action names' order) will execute before it can arrive. The
-    transport calls `sent(time.time_ns())` as the observation leaves (frame -> observation sent is measured there)."""
+    transport calls `sent(time.time_ns())` as the observation leaves (frame -> observation sent is measured there).
+    `images`: the batch's images as the node sent them (uint8 H x W x 3 by dataset key), which a server takes as they
+    are, with no round trip through the batch's float32."""
 
     stamp_ns: int
     inference_delay: int
     prefix: np.ndarray
     sent: Callable[[int], None]
+    images: Mapping[str, np.ndarray]
 
 
 @dataclass(frozen=True)

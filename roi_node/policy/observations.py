@@ -31,15 +31,16 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
 from types import TracebackType
+from typing import Any
 
 import numpy as np
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from roi_node.datasets.features import STATE_KEY, FrameColumns, ImageSize, global_key, roi_image_key
+from roi_node.datasets.features import IMAGES_PREFIX, STATE_KEY, FrameColumns, ImageSize, global_key, roi_image_key
 from roi_node.engine.records import FrameRecord
 from roi_node.policy.errors import NodeNotObservedError, StopRequestedError
 from roi_node.policy.features import LEROBOT_DEFAULT_KEYS, PolicyFeatures
@@ -65,11 +66,19 @@ class PolicyObservation:
     joint_age_s: float | None  # delivery time - the synchronised joint sample's stamp; None without one
     record: FrameRecord
     epoch: int = 0  # how often the node's stamps went back (a looped bag, a restarted source) before this frame
+    images: dict[str, np.ndarray] = field(default_factory=dict)  # the batch's images as the node sent them: uint8 HxWx3
 
 
 def image_chw(pixels: np.ndarray) -> np.ndarray:
     """H x W x 3 uint8 RGB -> 3 x H x W float32 in [0, 1], as LeRobot's decoder turns a uint8 frame into a tensor."""
     return np.ascontiguousarray(pixels.transpose(2, 0, 1)).astype(np.float32) / PIXEL_SCALE
+
+
+def batch_pixels(batch: Mapping[str, Any]) -> dict[str, np.ndarray]:
+    """The batch's images made uint8 H x W x 3 again (exactly the node's pixels: `image_chw` inverted), for a policy
+    called with a batch alone."""
+    return {key: np.rint(np.asarray(value).transpose(1, 2, 0) * PIXEL_SCALE).astype(np.uint8)
+            for key, value in batch.items() if key.startswith(IMAGES_PREFIX)}
 
 
 def observation_images(observation: Observation) -> dict[str, np.ndarray]:
@@ -83,10 +92,11 @@ def observation_images(observation: Observation) -> dict[str, np.ndarray]:
     return out
 
 
-def make_batch(features: PolicyFeatures, observation: Observation, record: FrameRecord, task: str) -> dict[str, np.ndarray | str]:
-    """The LeRobotDataset-shaped mapping of one complete frame (keys in LeRobot's order: images, columns, task)."""
+def make_batch(features: PolicyFeatures, images: dict[str, np.ndarray], record: FrameRecord, task: str
+               ) -> dict[str, np.ndarray | str]:
+    """The LeRobotDataset-shaped mapping of one complete frame, its `observation_images` and record (keys in LeRobot's
+    order: images, columns, task)."""
     batch: dict[str, np.ndarray | str] = {}
-    images = observation_images(observation)
     for image in features.images:
         pixels = images.get(image.key)
         if pixels is None:
@@ -186,13 +196,15 @@ class PolicyObservationStream:
     def next(self, timeout_s: float | None = None) -> PolicyObservation:
         """The next observation (see `latest`); NodeNotObservedError after `timeout_s` (default: the stream's)."""
         frame = self._next_frame(self.timeout_s if timeout_s is None else timeout_s)
-        record = FrameRecord.from_dict(frame.metadata)
-        batch = make_batch(self.features, frame, record, self.task)
+        record = frame.record
+        images = observation_images(frame)
+        batch = make_batch(self.features, images, record, self.task)
         assert self._node is not None
         now_ns = self._node.get_clock().now().nanoseconds
         joint_ns = record.sync.joint_stamp_ns
         return PolicyObservation(batch, frame.stamp_ns, (now_ns - frame.stamp_ns) / 1e9,
-                                 None if joint_ns is None else (now_ns - joint_ns) / 1e9, record, frame.epoch)
+                                 None if joint_ns is None else (now_ns - joint_ns) / 1e9, record, frame.epoch,
+                                 {image.key: images[image.key] for image in self.features.images})
 
     def __iter__(self) -> Iterator[PolicyObservation]:
         while True:
@@ -222,7 +234,7 @@ class PolicyObservationStream:
         first = seen[0]
         rois = tuple(_size(first.rois[arm]) for arm in arms)
         view = None if first.global_image is None else _size(first.global_image)
-        return NodePublication.from_observations([FrameRecord.from_dict(f.metadata) for f in seen], rois, view, cameras)
+        return NodePublication.from_observations([f.record for f in seen], rois, view, cameras)
 
     def _probe(self, cameras: tuple[str, ...], frames: int, started: float, deadline: float
                ) -> tuple[list[Observation], tuple[str, ...]]:

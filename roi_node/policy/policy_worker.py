@@ -3,8 +3,11 @@
 A policy may take longer than a frame period (a transformer on a CPU takes
 many): asked on the control loop's thread, every tick it computed through
 would go without a command. `PolicyWorker` takes a request when the chunk
-runs low, waits for an observation newer than the last one it used, acts on
-it and hands back the validated chunk; meanwhile the loop keeps publishing
+runs low, waits for the first observation delivered after the request (not
+one that has waited since its delivery: the observation leaves as fresh as the
+node can make it, at the cost of waiting up to a frame period; the first
+request takes the frame the loop started on, just delivered), acts on it and
+hands back the validated chunk; meanwhile the loop keeps publishing
 the rest of the current chunk. A refused output (NaN/inf) is counted (said once
 while it repeats) and the next request tries a newer frame; any other failure is kept and raised on
 the loop's thread by `take`. A remote policy (`act_request`) is also told the
@@ -80,7 +83,7 @@ class PolicyWorker:
         self._stop = threading.Event()
         self._result: PolicyChunk | None = None
         self._error: BaseException | None = None
-        self._used: PolicyObservation | None = None
+        self._used: PolicyObservation | None = None  # the open request is answered from a newer observation
         self._prefix = np.zeros((0, len(self.action_names)))
         self.asked_ns = 0  # monotonic time of the open request: the server deadline counts from it
         self._thread = threading.Thread(target=self._run, name="policy", daemon=True)
@@ -97,6 +100,8 @@ class PolicyWorker:
             self._prefix = prefix
         else:
             self._prefix = np.zeros((0, len(self.action_names)))
+        if self.asked_ns:  # not the first request (module docstring)
+            self._used = self.latest.observation or self._used
         self.asked_ns = time.monotonic_ns()
         self._requested.set()
 
@@ -140,9 +145,10 @@ class PolicyWorker:
         def sent(now_ns: int) -> None:  # the frame's age as its observation leaves for the policy
             self.stats.count_observation_age((now_ns - observation.stamp_ns) / 1e9)
 
+
         try:
             if self.policy.act_request is not None:
-                request = ChunkRequest(observation.stamp_ns, len(self._prefix), self._prefix, sent)
+                request = ChunkRequest(observation.stamp_ns, len(self._prefix), self._prefix, sent, observation.images)
                 output = self.policy.act_request(observation.batch, request)
             else:
                 sent(time.time_ns())

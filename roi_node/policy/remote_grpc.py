@@ -34,16 +34,15 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
-from roi_node.datasets.features import STATE_KEY
+from roi_node.datasets.features import IMAGES_PREFIX, STATE_KEY
 from roi_node.policy.action_errors import PolicyLoadError
 from roi_node.policy.errors import RemotePolicyError
 from roi_node.policy.loaders import LoadedPolicy, PolicyKind
-from roi_node.policy.observations import PIXEL_SCALE, TASK_KEY
+from roi_node.policy.observations import TASK_KEY, batch_pixels
 from roi_node.policy.safe_unpickle import TimedAction, safe_loads
 
 SERVICE = "/transport.AsyncInference/"
 HELPERS = "lerobot.async_inference.helpers"  # where LeRobot's message classes live
-IMAGE_PREFIX = "observation.images."
 PART_BYTES = 2 * 1024 * 1024  # lerobot/transport/utils.py CHUNK_SIZE
 MAX_MESSAGE_BYTES = 4 * 1024 * 1024  # and its MAX_MESSAGE_SIZE, which its server keeps
 TRANSFER_BEGIN, TRANSFER_MIDDLE, TRANSFER_END = 1, 2, 3  # services.proto TransferState
@@ -138,17 +137,16 @@ def observation_parts(data: bytes) -> Iterator[bytes]:
         yield bytes([0x08, state]) + encode_bytes_field(2, data[start:start + PART_BYTES])
 
 
-def robot_observation(batch: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
-    """The batch as LeRobot's RawObservation, and the features (hw_to_dataset_features' form) the server reads it by."""
+def robot_observation(batch: Mapping[str, Any], images: Mapping[str, np.ndarray]) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+    """The batch (its state and task) and its images (uint8 H x W x 3 by dataset key) as LeRobot's RawObservation, and
+    the features (hw_to_dataset_features' form) the server reads it by."""
     state = np.asarray(batch[STATE_KEY], dtype=np.float32)
     names = [f"state_{i}" for i in range(state.shape[0])]
     raw: dict[str, Any] = {n: float(v) for n, v in zip(names, state, strict=True)}
     features: dict[str, dict[str, Any]] = {STATE_KEY: {"dtype": "float32", "shape": (len(names),), "names": names}}
-    for key, value in batch.items():
-        if key.startswith(IMAGE_PREFIX):
-            pixels = np.rint(np.asarray(value) * PIXEL_SCALE).astype(np.uint8).transpose(1, 2, 0)
-            raw[key.removeprefix(IMAGE_PREFIX)] = np.ascontiguousarray(pixels)
-            features[key] = {"dtype": "image", "shape": pixels.shape, "names": ["height", "width", "channels"]}
+    for key, pixels in images.items():
+        raw[key.removeprefix(IMAGES_PREFIX)] = np.ascontiguousarray(pixels)
+        features[key] = {"dtype": "image", "shape": pixels.shape, "names": ["height", "width", "channels"]}
     if isinstance(batch.get(TASK_KEY), str):
         raw[TASK_KEY] = batch[TASK_KEY]
     return raw, features
@@ -162,9 +160,11 @@ class LeRobotGrpcClient:
         self._channel: Any = None
         self._timestep = 0
 
-    def act(self, batch: Mapping[str, Any], sent: Callable[[int], None] | None = None) -> np.ndarray:
-        """The chunk answering `batch`; `sent(time.time_ns())` is called as the observation leaves (ChunkRequest.sent)."""
-        raw, features = robot_observation(batch)
+    def act(self, batch: Mapping[str, Any], sent: Callable[[int], None] | None = None,
+            images: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
+        """The chunk answering `batch`; `sent(time.time_ns())` is called as the observation leaves (ChunkRequest.sent);
+        `images` (ChunkRequest.images), else the batch's own, made uint8 H x W x 3 again."""
+        raw, features = robot_observation(batch, batch_pixels(batch) if images is None else images)
         if self._channel is None:
             self._open(features)
         timestep, self._timestep = self._timestep, self._timestep + 1
@@ -219,4 +219,4 @@ def load_grpc(spec: str) -> LoadedPolicy:
                                         "pip install 'roi_node[grpc]', or run it with .venv-lerobot's python") from exc
     client = LeRobotGrpcClient(target)
     return LoadedPolicy(spec, PolicyKind.GRPC, client.act, lambda: None,
-                        act_request=lambda batch, request: client.act(batch, request.sent))
+                        act_request=lambda batch, request: client.act(batch, request.sent, request.images))

@@ -21,6 +21,7 @@ import numpy as np
 from roi_node.engine.errors import InputDataError
 from roi_node.policy.action_errors import PolicyLoadError
 from roi_node.policy.loaders import ChunkRequest, LoadedPolicy, PolicyKind
+from roi_node.policy.observations import batch_pixels
 from roi_node.policy.server_mapping import ServerMapping, check_metadata
 
 RTC_METADATA_KEY = "real_time_chunking"
@@ -52,7 +53,7 @@ def connect_websocket(spec: str, mapping: ServerMapping, state_names: Sequence[s
     names = list(state_names)
 
     def act_request(batch: Mapping[str, Any], request: ChunkRequest) -> Any:
-        observation = mapping.request(batch, names)
+        observation = mapping.request(batch, request.images, names)
         if takes_prefix:
             observation |= {"inference_delay": request.inference_delay, "prefix": request.prefix}
         request.sent(time.time_ns())
@@ -63,6 +64,6 @@ def connect_websocket(spec: str, mapping: ServerMapping, state_names: Sequence[s
         return answer[mapping.actions_key]
 
     def act(batch: Mapping[str, Any]) -> Any:
-        return act_request(batch, ChunkRequest(0, 0, np.zeros((0, action_count)), lambda now_ns: None))
+        return act_request(batch, ChunkRequest(0, 0, np.zeros((0, action_count)), lambda now_ns: None, batch_pixels(batch)))
 
     return LoadedPolicy(spec, PolicyKind.WEBSOCKET, act, client.reset, act_request, takes_prefix)

@@ -5,8 +5,8 @@ policy spec and the action names against the rig (no DDS yet), the running
 node described from its outputs and the preflight (before any weights file
 is opened), then the policy's weights. The loop then ticks at the features'
 fps on absolute deadlines: when fewer than `refill_below` steps of the
-current chunk remain and a newer observation than the last one used has
-arrived, the policy is asked, on a thread of its own (policy_worker.py), while the
+current chunk remain, the policy is asked, on a thread of its own
+(policy_worker.py), with the first observation delivered after, while the
 rest of the chunk keeps being published; its chunk replaces what is left
 once it is ready. One step is clamped and published per tick. With no step
 left and no new chunk, the last target is published again and the tick

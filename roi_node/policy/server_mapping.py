@@ -86,14 +86,14 @@ class ServerMapping:
         out = {i.server_key: (i.shape, "uint8") for i in self.images}
         return out | {s.server_key: ((len(s.joints),), "float64") for s in self.states}
 
-    def request(self, batch: Mapping[str, Any], state_names: Sequence[str]) -> dict[str, Any]:
-        """The server's observation from one LeRobot-shaped batch (images float32 CHW in [0, 1], the state by name)."""
+    def request(self, batch: Mapping[str, Any], images: Mapping[str, np.ndarray], state_names: Sequence[str]) -> dict[str, Any]:
+        """The server's observation from one LeRobot-shaped batch (the state by name, the task) and its images as the
+        node sent them (uint8 H x W x 3 by dataset key)."""
         from openpi_client import image_tools
 
         flat: dict[str, Any] = {}
         for image in self.images:
-            hwc = np.rint(np.asarray(batch[image.source_key]).transpose(1, 2, 0) * 255.0).astype(np.uint8)
-            resized = image_tools.resize_with_pad(hwc, image.height_px, image.width_px)
+            resized = image_tools.resize_with_pad(np.asarray(images[image.source_key]), image.height_px, image.width_px)
             flat[image.server_key] = np.ascontiguousarray(resized if image.layout is ImageLayout.HWC else resized.transpose(2, 0, 1))
         index = {n: i for i, n in enumerate(state_names)}
         state = np.asarray(batch["observation.state"], dtype=np.float64)

@@ -15,6 +15,7 @@ from roi_node.policy.action_errors import PolicyLoadError
 from roi_node.policy.actions import AVERAGE_OLD_WEIGHT, ActionChunkQueue, MergeMode
 from roi_node.policy.features import FeatureSource, ImageFeature, PolicyFeatures
 from roi_node.policy.loaders import ChunkRequest
+from roi_node.policy.observations import batch_pixels, image_chw
 from roi_node.policy.remote_ws import connect_websocket
 from roi_node.policy.server_mapping import ServerMappingError, check_metadata, server_mapping
 from test.policy.openpi_server import OpenpiTestServer, ServerSpec
@@ -30,20 +31,27 @@ def features(*arms: str) -> PolicyFeatures:
     return PolicyFeatures(Path("features"), FeatureSource.DATASET, images, STATE, STATE, (), 30.0, None)
 
 
-def batch(rng: np.random.Generator, feats: PolicyFeatures) -> dict[str, object]:
-    """A LeRobot-shaped batch as the stream makes it: uint8 pixels / 255 as float32 CHW, the state as float32."""
-    out: dict[str, object] = {i.key: rng.integers(0, 256, (3, i.height_px, i.width_px), dtype=np.uint8).astype(np.float32) / np.float32(255)
-                              for i in feats.images}
-    return out | {"observation.state": rng.normal(size=len(STATE)).astype(np.float32), "task": "stack"}
+def batch(rng: np.random.Generator, feats: PolicyFeatures) -> tuple[dict[str, object], dict[str, np.ndarray]]:
+    """A LeRobot-shaped batch as the stream makes it (image_chw of the node's uint8 pixels, the state as float32), and
+    those pixels (PolicyObservation.images)."""
+    pixels = {i.key: rng.integers(0, 256, (i.height_px, i.width_px, 3), dtype=np.uint8) for i in feats.images}
+    out: dict[str, object] = {key: image_chw(p) for key, p in pixels.items()}
+    return out | {"observation.state": rng.normal(size=len(STATE)).astype(np.float32), "task": "stack"}, pixels
+
+
+def test_a_batch_alone_gives_back_the_nodes_pixels_exactly() -> None:
+    """What a remote policy called with a batch alone sends (batch_pixels) is the node's pixels, not a rounding of them."""
+    given, pixels = batch(np.random.default_rng(3), features("left", "right"))
+    back = batch_pixels(given)
+    assert back.keys() == pixels.keys() and all(np.array_equal(back[k], pixels[k]) and back[k].dtype == np.uint8 for k in pixels)
 
 
 def test_the_droid_preset_resizes_like_openpi_and_orders_the_arm_by_name() -> None:
     feats, rng = features("left", "right"), np.random.default_rng(0)
     mapping = server_mapping("droid", feats, load_rig_config(BIMANUAL))
-    given = batch(rng, feats)
-    request = mapping.request(given, STATE)
-    pixels = np.rint(np.asarray(given[GLOBAL_KEY]).transpose(1, 2, 0) * 255).astype(np.uint8)
-    assert np.array_equal(request["observation/exterior_image_1_left"], image_tools.resize_with_pad(pixels, 224, 224))
+    given, pixels = batch(rng, feats)
+    request = mapping.request(given, pixels, STATE)
+    assert np.array_equal(request["observation/exterior_image_1_left"], image_tools.resize_with_pad(pixels[GLOBAL_KEY], 224, 224))
     assert request["observation/wrist_image_left"].shape == (224, 224, 3) and request["prompt"] == "stack"
     state = np.asarray(given["observation.state"], dtype=np.float64)
     assert np.array_equal(request["observation/joint_position"], state[:7])  # left_panda_joint1..7
@@ -52,11 +60,11 @@ def test_the_droid_preset_resizes_like_openpi_and_orders_the_arm_by_name() -> No
 
 def test_the_aloha_preset_nests_the_cameras_chw_and_takes_six_joints_and_a_gripper_per_arm() -> None:
     feats, rng = features("left", "right"), np.random.default_rng(1)
-    given = batch(rng, feats)
-    request = server_mapping("aloha", feats, load_rig_config(BIMANUAL)).request(given, STATE)
+    given, pixels = batch(rng, feats)
+    request = server_mapping("aloha", feats, load_rig_config(BIMANUAL)).request(given, pixels, STATE)
     assert set(request) == {"images", "state", "prompt"}
     assert set(request["images"]) == {"cam_high", "cam_left_wrist", "cam_right_wrist"}
-    right = np.rint(np.asarray(given[roi_image_key("right")]).transpose(1, 2, 0) * 255).astype(np.uint8)
+    right = pixels[roi_image_key("right")]
     assert np.array_equal(request["images"]["cam_right_wrist"], image_tools.resize_with_pad(right, 224, 224).transpose(2, 0, 1))
     state = np.asarray(given["observation.state"], dtype=np.float64)
     assert np.array_equal(request["state"], np.concatenate([state[0:6], state[7:8], state[9:15], state[16:17]]))
@@ -98,7 +106,8 @@ def test_a_server_that_takes_real_time_chunking_gets_the_delay_and_the_prefix() 
         assert policy.takes_prefix and policy.act_request is not None
         prefix = rng.normal(size=(3, len(STATE)))
         sent: list[int] = []
-        chunk = policy.act_request(batch(rng, feats), ChunkRequest(7, 3, prefix, sent.append))
+        given, pixels = batch(rng, feats)
+        chunk = policy.act_request(given, ChunkRequest(7, 3, prefix, sent.append, pixels))
     finally:
         server.close()
     (request,) = server.received()
