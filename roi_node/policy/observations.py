@@ -29,15 +29,17 @@ clock) and the age of the joint sample its state was synchronised to.
 from __future__ import annotations
 
 import contextlib
+import queue
 import threading
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
 
 import numpy as np
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.guard_condition import GuardCondition
 from rclpy.node import Node
 
 from roi_node.datasets.features import IMAGES_PREFIX, STATE_KEY, FrameColumns, ImageSize, global_key, roi_image_key
@@ -144,12 +146,15 @@ class PolicyObservationStream:
         self._stop = threading.Event()
         self._stop_waits = stop
         self._spinner: threading.Thread | None = None
+        self._between_spins: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
+        self._wake_spinner: GuardCondition | None = None
         self._last: tuple[int, int] | None = None  # (epoch, stamp_ns) of the last frame handed out
 
     def __enter__(self) -> PolicyObservationStream:
         if self._given_node is None:
             self._node, self._executor = self._owned.enter_context(client_node(self._ros_args))
             self._spinner = threading.Thread(target=self._spin, name="policy-observations", daemon=True)
+            self._wake_spinner = self._node.create_guard_condition(lambda: None)  # a call queued: spin again now
         assert self._node is not None
         # subscribed to the policy's images from the start, so no frame the node sends once they matched is missed
         self._client = ObservationClient(self._node, self.features.arm_ids or None, with_global=self.features.with_global,
@@ -168,7 +173,29 @@ class PolicyObservationStream:
     def _spin(self) -> None:
         assert self._executor is not None
         while not self._stop.is_set():
+            while not self._between_spins.empty():
+                self._between_spins.get()()
             self._executor.spin_once(timeout_sec=0.05)
+
+    def _on_spinner(self, call: Callable[[], None]) -> None:
+        """`call` on the spinning thread between two spins, waited for: subscriptions destroyed while the executor
+        builds its wait set from them break the wait (rclpy's InvalidHandle, raised on the spinning thread)."""
+        if self._spinner is None or not self._spinner.is_alive():
+            call()
+            return
+        done = threading.Event()
+
+        def call_and_say() -> None:
+            call()
+            done.set()
+
+        self._between_spins.put(call_and_say)
+        assert self._wake_spinner is not None
+        self._wake_spinner.trigger()
+        while not done.wait(STOP_POLL_S):
+            if not self._spinner.is_alive():  # stopped meanwhile: nothing spins any more
+                call()
+                return
 
     @property
     def client(self) -> ObservationClient:
@@ -252,7 +279,7 @@ class PolicyObservationStream:
                                                f"{len(seen)} of {frames} complete frames")
                 seen = [*seen, frame] if not seen or seen[-1].epoch == frame.epoch else [frame]
         finally:
-            probe.close()
+            self._on_spinner(probe.close)
         return seen, probe.arm_ids
 
     def _node_cameras(self, started: float, deadline: float) -> tuple[str, ...]:
