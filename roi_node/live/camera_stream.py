@@ -34,6 +34,7 @@ class CameraStream:
     image_topic: str  # as subscribed (`/compressed` appended for compressed input)
     camera_info_topic: str
     label: str  # how messages about this camera start: "" in a rig of one camera, "camera <id>: " else
+    wake: threading.Condition  # on the node's lock: notified when this camera's engine may have a frame to release
     frame_id: str = ""  # the newest frame's header frame_id, which its outputs carry
     output_pubs: dict[str, Publisher] = field(default_factory=dict)  # by relative topic name
     decoder: FrameDecoder | None = None  # compressed input only

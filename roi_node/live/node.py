@@ -126,7 +126,7 @@ class StreamNode(Node):
         policy = declare_policy(self, load_rig_config(self.params.config), self.params)
         self.rig: RigConfig = policy.rig
         check_camera_topics(self.rig, self.params)
-        self._lock = threading.Condition()
+        self._lock = threading.RLock()  # guards every engine; each camera's worker waits on its stream's `wake`
         self._stop = threading.Event()
         self.failure: str | None = None  # set when the node stops because it cannot work
         self._throttle: dict[str, float] = {}
@@ -185,7 +185,7 @@ class StreamNode(Node):
         stream = CameraStream(
             camera, topics.output_camera(self.rig, camera.id), engine,
             StreamHealth(start_ns, round(self.params.silence_timeout_s * NS_PER_S)), StatusWindow(stats, start_ns),
-            image_topic, info_topic, label,
+            image_topic, info_topic, label, threading.Condition(self._lock),
         )
         self._prefault_receive_heap(stream)
         return stream
@@ -276,7 +276,7 @@ class StreamNode(Node):
         """Hand one event to a camera's engine under the lock; a refusal is logged (throttled), the engine counted it."""
         with self._lock:
             refusal = stream.engine.feed(event)
-            self._lock.notify_all()
+            stream.wake.notify()
         if refusal is not None:
             self._warn(refusal.kind, stream.label + refusal.message)
 
@@ -286,8 +286,9 @@ class StreamNode(Node):
         with self._lock:
             for stream in self.streams:
                 refusals.append(stream.engine.feed(event))
-            if any(stream.engine.pending for stream in self.streams):  # else no worker has a frame this could release
-                self._lock.notify_all()
+            for stream in self.streams:
+                if stream.engine.pending:  # else its worker has no frame this could release
+                    stream.wake.notify()
         refusal = refusals[0] if refusals else None  # every engine judges these alike: say it once
         if refusal is not None:
             self._warn(refusal.kind, refusal.message)
@@ -442,7 +443,7 @@ class StreamNode(Node):
                 with self._lock:
                     ready = engine.pop_ready(time.monotonic_ns(), limit=1)
                     if not ready:
-                        self._lock.wait(PENDING_POLL_S if engine.pending else IDLE_WAIT_S)
+                        stream.wake.wait(PENDING_POLL_S if engine.pending else IDLE_WAIT_S)
                         continue
                     prepared = engine.prepare(ready[0])
                     frame_id = stream.frame_id
@@ -598,7 +599,8 @@ class StreamNode(Node):
         undecoded = {stream.id: stream.decoder_closed() for stream in self.streams}
         self._stop.set()
         with self._lock:
-            self._lock.notify_all()
+            for stream in self.streams:
+                stream.wake.notify()
         for stream in self.streams:
             if stream.worker is not None:
                 stream.worker.join(timeout=5.0)
