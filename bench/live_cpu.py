@@ -32,11 +32,13 @@ Targets (issue 33): node CPU per camera frame <= 0.5x the relay's, latency
 beyond the inputs <= the relay's + 1 ms at the median, 0 frames lost.
 
     ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST python bench/live_cpu.py --domain 176 [--rounds 3] [--block-s 10]
-        [--executors single multi events]
+        [--executors single multi events] [--visibility]
 
 `--executors` adds a node path per executor (bench/independent/node_executor.py
-spins the same CLI on it) beside the node as shipped. Each path uses one
-domain id from --domain on.
+spins the same CLI on it) beside the node as shipped; `--visibility` adds
+the node as shipped with the rig's gripper visibility render on (issue 34:
+the CPU budget still met with visibility on). Each path uses one domain id
+from --domain on.
 """
 
 from __future__ import annotations
@@ -72,8 +74,9 @@ def part(script: str, *args: str) -> list[str]:
     return [sys.executable, str(PARTS / script), *args]
 
 
-def two_camera_rig(tmp: Path) -> Path:
-    """The bundled bimanual rig with a second fixed camera, `side`, beside `front` (same intrinsics)."""
+def two_camera_rig(tmp: Path, visibility: bool = False) -> Path:
+    """The bundled bimanual rig with a second fixed camera, `side`, beside `front` (same intrinsics); `visibility`: with
+    the gripper visibility render on (its `visibility.enabled`)."""
     doc: dict[str, Any] = yaml.safe_load(RIG.read_text())
     front = doc.pop("camera")
     front["intrinsics"] = str(RIG.parent / front["intrinsics"])
@@ -82,7 +85,9 @@ def two_camera_rig(tmp: Path) -> Path:
     side["extrinsics"]["child"] = "side_optical"
     side["extrinsics"]["translation"][1] += SIDE_SHIFT_M
     doc["cameras"] = [front, side]
-    path = tmp / "rig_two_cameras.yaml"
+    if visibility:
+        doc["visibility"] = {"enabled": True}
+    path = tmp / f"rig_two_cameras{'_visibility' if visibility else ''}.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path
 
@@ -207,6 +212,8 @@ def main() -> int:
     parser.add_argument("--block-s", type=float, default=10.0, help="seconds of camera stream per block (default: 10)")
     parser.add_argument("--executors", nargs="*", default=[], choices=["single", "multi", "events"],
                         help="also the node spun by each of these rclpy executors (default: only the node as shipped)")
+    parser.add_argument("--visibility", action="store_true",
+                        help="also the node as shipped with the gripper visibility render on (issue 34's budget)")
     parser.add_argument("--domain", type=int, default=176, help="the first ROS domain id; each path uses one")
     args = parser.parse_args()
     frames = round(args.block_s * RATE_HZ)
@@ -222,8 +229,12 @@ def main() -> int:
         rig = two_camera_rig(Path(tmp))
         try:
             paths.append(UnderTest(RELAY, part("relay.py", "--cameras", *CAMERAS), args.domain))
-            for i, (name, argv) in enumerate(variants):
-                paths.append(UnderTest(name, [*argv, str(rig)], args.domain + 1 + i))
+            rigs = [str(rig)] * len(variants)
+            if args.visibility:
+                variants.append(("roi_node+vis", variants[0][1]))
+                rigs.append(str(two_camera_rig(Path(tmp), visibility=True)))
+            for i, ((name, argv), rig_path) in enumerate(zip(variants, rigs, strict=True)):
+                paths.append(UnderTest(name, [*argv, rig_path], args.domain + 1 + i))
             for path in paths:
                 path.wait_up()
             results = [PathResults(p.name) for p in paths]

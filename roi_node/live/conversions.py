@@ -77,11 +77,13 @@ def camera_info_msg(t_ns: int, frame_id: str, camera: CameraModel | None, width_
 
 
 @functools.cache
-def _bag_messages() -> MessageFactory:
+def bag_messages() -> MessageFactory:
+    """The factory of the bytes both drivers send; the live node builds it at start, since building its typestore
+    (imports and type classes) on the first frame would delay that frame and charge its CPU to the stream."""
     return MessageFactory(typestore())
 
 
 def camera_info_cdr(t_ns: int, frame_id: str, camera: CameraModel | None, width_px: int, height_px: int) -> bytes:
     """An ROI's CameraInfo as the bytes to publish (`Publisher.publish(bytes)`): exactly what replay writes."""
-    return _bag_messages().camera_info_cdr(t_ns, frame_id, camera, width_px, height_px)
+    return bag_messages().camera_info_cdr(t_ns, frame_id, camera, width_px, height_px)
 

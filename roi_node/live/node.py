@@ -71,7 +71,7 @@ from roi_node.engine.stamps import NS_PER_MS, NS_PER_S
 from roi_node.engine.stream_snapshot import SyncCounters
 from roi_node.engine.stream_stats import StreamStats
 from roi_node.live.camera_stream import CameraStream
-from roi_node.live.conversions import stamp_ns
+from roi_node.live.conversions import bag_messages, stamp_ns
 from roi_node.live.diagnostics import StreamHealth, best_view_status, diagnostic_statuses, diagnostics_msg
 from roi_node.live.drain import draining_subscription
 from roi_node.live.frame_decoder import CodecLines, EncodedFrame, FrameDecoder
@@ -121,6 +121,7 @@ class StreamNode(Node):
         before = self._entities()
         # a pipeline built later (URDF from the topic) must not stall a callback on the kernels' first compile
         start_warm_up()
+        bag_messages()
         # OpenCV's thread pool costs more than it saves on 256 px resizes (bench/live.py shows CPU per frame)
         cv2.setNumThreads(self.params.opencv_threads)
         policy = declare_policy(self, load_rig_config(self.params.config), self.params)
