@@ -82,6 +82,7 @@ def test_check_config_passes_and_names_every_arm(rig: Path, capsys: pytest.Captu
     assert all(joints["chain"] for joints in printed["arm_joints"].values())
 
 
+@pytest.mark.slow
 def test_the_sim_bag_replays_every_frame_paired_with_the_simulated_joints(rig_run: RigRun) -> None:
     """Each camera's frames, paired at that camera's own stamp (the cameras capture out of phase)."""
     sim = rig_run.sim

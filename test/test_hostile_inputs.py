@@ -145,6 +145,7 @@ def _damaged_db3(good: Path, out: Path, rig: Path) -> Path:
     return bag
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damage", ["truncated", "zeroed_summary", "garbage", "damaged_db3"])
 def test_damaged_bag_files_give_one_line_naming_the_file(tmp_path: Path, good_bag: Path, rig: Path, damage: str) -> None:
     if damage == "damaged_db3":

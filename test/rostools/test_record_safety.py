@@ -37,8 +37,10 @@ STALL_S = 1.5  # a recorder held still this long (SIGSTOP) loses nothing
 
 
 def _publisher(tmp_path: Path, env: dict[str, str], frames: int, subscribers: int) -> subprocess.Popen[bytes]:
+    # 2 s of joint states before the first frame: the sigkill test's splits count on them; the publisher waits for the
+    # recorders' acknowledgements of its first joint states before the first frame and of everything before it exits
     spec = {"rig": str(BIMANUAL), "frames": frames, "rate_hz": RATE_HZ, "distinct_frames": 15, "min_subscribers": subscribers,
-            "settle_s": 1.0, "linger_s": 2.0}  # a recorder a loaded machine holds back has its last frames by then
+            "joint_warmup_s": 2.0}
     (tmp_path / "spec.json").write_text(json.dumps(spec))
     log = (tmp_path / "pub.log").open("wb")
     return subprocess.Popen([sys.executable, "-m", "test.dds.publisher", str(tmp_path / "spec.json"), str(tmp_path / "truth.json")],
