@@ -17,7 +17,7 @@ from mcap_ros2.reader import read_ros2_messages
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosbags.highlevel import AnyReader
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import String
 
 from roi_node import __version__
@@ -235,6 +235,8 @@ def test_a_node_started_after_the_camera_equals_the_replay_by_stamp_with_the_rec
         images: list[object] = []
         records: list[String] = []
         probe.create_subscription(Image, "image_raw", images.append, 10)
+        # the publisher waits for two readers of each stream: without this one it waited its 30 s for the node
+        probe.create_subscription(JointState, "joint_states", lambda _: None, 10)
         probe.create_subscription(String, "roi/metadata", records.append, QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE))
         executor = SingleThreadedExecutor(context=probe.context)
         executor.add_node(probe)
@@ -249,7 +251,8 @@ def test_a_node_started_after_the_camera_equals_the_replay_by_stamp_with_the_rec
                     # published) and the recorder has written as many outputs as the node published
                     last_ns = json.loads((tmp_path / "truth.json").read_text())["frames"][-1]["stamp_ns"]
                     def last_heard() -> bool:
-                        executor.spin_once(timeout_sec=0.05)
+                        for _ in range(100):  # every callback ready by now, not one a poll
+                            executor.spin_once(timeout_sec=0.0)
                         return any(json.loads(r.data)["stamp_ns"] == last_ns for r in records)
 
                     assert wait_until(last_heard, 30.0), (tmp_path / "node.log").read_text()
