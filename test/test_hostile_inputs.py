@@ -308,6 +308,7 @@ RIG_VALUE_CASES = [
 ]
 
 
+@pytest.mark.slow
 def test_out_of_range_rig_values_are_refused_naming_the_key(tmp_path: Path, good_bag: Path, rig: Path) -> None:
     hostile = []
     for case in RIG_VALUE_CASES:
@@ -332,6 +333,7 @@ RIG_FILE_CASES = [
 ]
 
 
+@pytest.mark.slow
 def test_hostile_rig_files_are_refused_naming_the_file(tmp_path: Path, good_bag: Path) -> None:
     paths = []
     for case in RIG_FILE_CASES:
