@@ -150,7 +150,7 @@ def main(spec_path: str, truth_path: str) -> int:
     for f in frames:
         events.append((f["index"] * period_ns, 1, "frame", f))
     n_joint = int(n * period_ns / joint_period_ns) + 10
-    warmup = int(spec.get("joint_warmup_s", 0.5) * NS / joint_period_ns)  # joint states stream before the camera starts
+    warmup = int(spec.get("joint_warmup_s", 2.0) * NS / joint_period_ns)  # joint states stream before the camera starts
     for j in range(-warmup, n_joint):
         rel = offset_ns + j * joint_period_ns
         frame_k = max(0, rel // period_ns)

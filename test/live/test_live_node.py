@@ -131,10 +131,9 @@ def test_compressed_input_camera_info_intrinsics_and_robot_description_topic(tmp
     config = _rig_without_intrinsics(tmp_path)
     urdf = resolve_robot_reference("example-robot-data:panda", "test")
     # 10 Hz, reliable, a deep joint queue: what is tested is where intrinsics and URDF come from, not how a node
-    # starved by the other test worker keeps up with 720p PNG decoding (test_live_faults has that); joint states
-    # stream 2 s before the first frame: the node builds its pipeline from the URDF it hears and drops joint states till then
+    # starved by the other test worker keeps up with 720p PNG decoding (test_live_faults has that)
     spec = {"frames": 20, "rate_hz": 10.0, "transport": "compressed", "camera_info": True, "robot_description": str(urdf),
-            "render_rig": str(BIMANUAL), "joint_warmup_s": 2.0}
+            "render_rig": str(BIMANUAL)}
     collector, truth, log = run_session(
         tmp_path, spec, "image_transport:=compressed", "robot_description_source:=topic", *PATIENT_SYNC, *LOSSLESS_TRANSPORT, config=config
     )
