@@ -35,10 +35,11 @@ test: $(STAMP)
 	# --durations: the 25 slowest tests close the output, where a run that grew slower shows it
 	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-71} timeout -s INT -k 60 2400 $(PY) -m pytest -q -n 2 --dist loadgroup --durations=25 test
 
-# The edit loop: everything but the DDS, Ray, colcon and demo tests (markers dds and ray; see pyproject.toml).
+# The edit loop: everything but the DDS, Ray, colcon and demo tests and the slowest of the rest (markers dds, ray and
+# slow; see pyproject.toml).
 test-fast: $(STAMP)
 	$(PY) -c "from roi_node.engine.area_resample import warm_up; warm_up()"
-	$(PY) -m pytest -q -n 2 --dist loadgroup -m "not dds and not ray" test
+	$(PY) -m pytest -q -n 2 --dist loadgroup -m "not dds and not ray and not slow" test
 
 # Opt-in, not part of `make test`: the real LeRobot reader (lerobot pulls torch, several GB) in its own
 # venv loads what `roi-node export lerobot` writes. Offline: nothing is fetched from the Hub.

@@ -82,6 +82,7 @@ def test_check_config_passes_and_names_every_arm(rig: Path, capsys: pytest.Captu
     assert all(joints["chain"] for joints in printed["arm_joints"].values())
 
 
+@pytest.mark.slow
 def test_the_sim_bag_replays_every_frame_paired_with_the_simulated_joints(rig_run: RigRun) -> None:
     """Each camera's frames, paired at that camera's own stamp (the cameras capture out of phase)."""
     sim = rig_run.sim
@@ -97,6 +98,7 @@ def test_the_sim_bag_replays_every_frame_paired_with_the_simulated_joints(rig_ru
                 assert abs(recorded[name] - position) <= JOINT_MATCH_RAD, (camera.id, record["frame_index"], name)
 
 
+@pytest.mark.slow
 def test_validate_passes_every_gate_and_draws_the_contact_sheet(rig_run: RigRun) -> None:
     """Each camera is judged alone: every gate passes but those of an arm the camera never shows (a head camera that
     looks at one arm), which fail and make validate exit 1."""
@@ -114,6 +116,7 @@ def test_validate_passes_every_gate_and_draws_the_contact_sheet(rig_run: RigRun)
     assert len(sheets) == len(sim.cameras) and all(sheet.stat().st_size > 0 for sheet in sheets)
 
 
+@pytest.mark.slow
 def test_every_crop_box_holds_its_simulated_tip(rig_run: RigRun) -> None:
     """For every frame, each arm's crop box (as the contact sheet draws it) holds the tip's projection whenever it is in the image.
 
@@ -154,6 +157,7 @@ def test_every_crop_box_holds_its_simulated_tip(rig_run: RigRun) -> None:
         assert max(tips_checked[camera.id, a.id] for a in sim.arms) >= frames // 2, tips_checked
 
 
+@pytest.mark.slow
 def test_the_scaled_rig_differs_from_the_bundled_one_only_in_pixels(rig_run: RigRun) -> None:
     bundled, scaled = load_rig_config(rig_run.bundled), load_rig_config(rig_run.scaled)
     for big, small in zip(bundled.cameras, scaled.cameras, strict=True):

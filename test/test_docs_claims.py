@@ -245,6 +245,7 @@ def test_the_where_a_change_goes_section_names_real_files_and_names() -> None:
         assert name in section and re.search(rf"\b{name}\b", sources), name
 
 
+@pytest.mark.slow
 def test_the_python_api_page_runs_and_its_table_is_the_packages_exports() -> None:
     """docs/python-api.md: its code block runs as written, and its table names exactly `roi_node.__all__`."""
     import roi_node

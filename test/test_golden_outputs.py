@@ -17,6 +17,7 @@ def golden() -> GoldenOutputs:
     return GoldenOutputs.from_json(GOLDEN.read_text())
 
 
+@pytest.mark.slow
 def test_replay_writes_the_same_messages(outputs: GoldenOutputs, golden: GoldenOutputs) -> None:
     assert len(outputs.replay_messages) == len(golden.replay_messages) > 0
     changed = [(new, old) for new, old in zip(outputs.replay_messages, golden.replay_messages, strict=True) if new != old]

@@ -145,6 +145,7 @@ def _damaged_db3(good: Path, out: Path, rig: Path) -> Path:
     return bag
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damage", ["truncated", "zeroed_summary", "garbage", "damaged_db3"])
 def test_damaged_bag_files_give_one_line_naming_the_file(tmp_path: Path, good_bag: Path, rig: Path, damage: str) -> None:
     if damage == "damaged_db3":
@@ -307,6 +308,7 @@ RIG_VALUE_CASES = [
 ]
 
 
+@pytest.mark.slow
 def test_out_of_range_rig_values_are_refused_naming_the_key(tmp_path: Path, good_bag: Path, rig: Path) -> None:
     hostile = []
     for case in RIG_VALUE_CASES:
@@ -331,6 +333,7 @@ RIG_FILE_CASES = [
 ]
 
 
+@pytest.mark.slow
 def test_hostile_rig_files_are_refused_naming_the_file(tmp_path: Path, good_bag: Path) -> None:
     paths = []
     for case in RIG_FILE_CASES:

@@ -10,9 +10,11 @@ a node of its own.
 from __future__ import annotations
 
 import ast
+import functools
 import json
 import subprocess
 import sys
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -80,13 +82,15 @@ class _ImportVisitor(ast.NodeVisitor):
             self._add(submodule if submodule in MODULES else source, node.lineno)
 
 
-def import_edges() -> list[ImportEdge]:
+@functools.cache
+def import_edges() -> tuple[ImportEdge, ...]:
+    """Every import of the package, parsed once for the module's tests (the files do not change during a run)."""
     edges: list[ImportEdge] = []
     for module, path in MODULES.items():
         visitor = _ImportVisitor(module, path.name == "__init__.py")
         visitor.visit(ast.parse(path.read_text(), str(path)))
         edges.extend(visitor.edges)
-    return edges
+    return tuple(edges)
 
 
 def package_of(module: str) -> str:
@@ -95,7 +99,7 @@ def package_of(module: str) -> str:
     return parts[1] if len(parts) > 1 else parts[0]
 
 
-def package_graph(edges: list[ImportEdge]) -> dict[str, set[str]]:
+def package_graph(edges: Iterable[ImportEdge]) -> dict[str, set[str]]:
     graph: dict[str, set[str]] = {package_of(m): set() for m in MODULES}
     for edge in edges:
         source, target = package_of(edge.module), package_of(edge.target)

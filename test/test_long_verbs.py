@@ -20,6 +20,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from test.support.paths import CONFIG
 
 PROGRESS = re.compile(r"^(?P<label>\S+ \S+): (?P<done>\d+)/(?P<total>\d+) (?P<unit>[A-Za-z ]+), [\d.]+ (?P=unit)/s, "
@@ -37,6 +39,7 @@ def _progress(stderr: str, label: str) -> list[re.Match[str]]:
     return lines
 
 
+@pytest.mark.slow
 def test_outputs_into_missing_parent_folders_with_progress_off_a_terminal(tmp_path: Path) -> None:
     steps = [
         ("sim", "--bag", "a/b/sim", "--duration", "0.5", "--rate-hz", "10"),

@@ -76,7 +76,8 @@ def test_colcon_build_installs_executables_index_marker_and_config(tmp_path: Pat
             cwd=tmp_path, env=node_env, stdout=sink, stderr=subprocess.STDOUT,
         )
         deadline = time.monotonic() + 60
-        while "rig demo_bimanual" not in log.read_text() and node.poll() is None and time.monotonic() < deadline:
+        while "rig demo_bimanual" not in log.read_text():
+            assert node.poll() is None and time.monotonic() < deadline, log.read_text()
             time.sleep(0.1)
         node.send_signal(signal.SIGINT)
         node.wait(timeout=20)

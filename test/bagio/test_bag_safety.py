@@ -53,6 +53,7 @@ def sim_bag(tmp_path_factory: pytest.TempPathFactory, rig: Path) -> Path:
     return write_sim_bag(rig, tmp_path_factory.mktemp("sim") / "sim", duration_s=2.0, seed=3).path
 
 
+@pytest.mark.slow
 def test_chunks_carry_crcs_that_the_mcap_reader_verifies(sim_bag: Path, capfd: pytest.CaptureFixture[str]) -> None:
     storage = sim_bag / "sim.mcap"
     with storage.open("rb") as stream:
@@ -108,6 +109,7 @@ def test_a_corrupted_chunk_is_named_by_inspect_check_and_replay(
     assert sum(_counts(tmp_path / "fixed").values()) == sum(_counts(sim_bag).values()) - in_chunk > 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("compression", ["lz4", "zstd"])
 def test_compressed_bags_replay_like_raw_ones(
     tmp_path: Path, sim_bag: Path, rig: Path, compression: str, capfd: pytest.CaptureFixture[str]
@@ -208,6 +210,7 @@ def test_split_recording_lists_each_finished_file_in_metadata_yaml_as_it_goes(tm
     assert run_cli(capfd, "inspect", "--check", bag).returncode == 0
 
 
+@pytest.mark.slow
 def test_a_failing_validate_report_keeps_the_previous_report(
     tmp_path: Path, sim_bag: Path, rig: Path, capfd: pytest.CaptureFixture[str]
 ) -> None:
@@ -226,6 +229,7 @@ def test_a_failing_validate_report_keeps_the_previous_report(
     assert _digest(report) == before and sorted(p.name for p in tmp_path.iterdir()) == ["broken", "report", "roi"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("budget", range(3_000, 160_000, 6_100))
 def test_a_write_failure_anywhere_leaves_a_finalized_bag_of_what_was_written(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, budget: int
@@ -366,6 +370,7 @@ sys.stdin.read()
 """
 
 
+@pytest.mark.slow
 def test_a_rerun_settles_what_a_killed_run_left(tmp_path: Path, sim_bag: Path, rig: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from roi_node.cli import main
 

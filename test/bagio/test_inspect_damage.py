@@ -122,6 +122,7 @@ def _outcome(bag: Path, damage: Damage, work: Path, rig: Path, capsys: pytest.Ca
     return Outcome(damage.label, code == 2, not check.ok, lines)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("compression", ["none", "zstd"])
 def test_check_flags_every_bag_replay_refuses(tmp_path: Path, bags: dict[str, Path], rig: Path, compression: str,
                                              capsys: pytest.CaptureFixture[str]) -> None:

@@ -123,6 +123,7 @@ def test_a_slower_camera_is_held_and_its_duplicates_reported(bags: ExportBags, t
     assert grid_report(tmp_path / "ds")["duplicated"] == duplicated
 
 
+@pytest.mark.slow
 def test_a_missing_frame_is_one_duplicate_and_a_gap_beyond_max_age_refuses_the_bag(
     bags: ExportBags, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -15,6 +15,7 @@ from test.support.paths import REPO
 PROBE = "import roi_node.engine.area_resample as a, sys; assert a.__file__.startswith(sys.argv[1]), a.__file__; a.warm_up()"
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(
     os.geteuid() != 0 or shutil.which("unshare") is None or shutil.which("mount") is None,
     reason="needs root and util-linux to mount the package read-only in a private mount namespace",

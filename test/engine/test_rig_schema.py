@@ -165,6 +165,7 @@ def test_schema_and_loader_accept_the_same_keys(judge: Judge) -> None:
     assert probed == len(SITES) >= 10
 
 
+@pytest.mark.slow
 def test_removing_each_key_is_judged_alike(judge: Judge) -> None:
     """Required in the schema exactly where the loader refuses a document without the key."""
     removed = 0
@@ -201,6 +202,7 @@ NOT_PROBED_AT_BOUNDS = {  # unit norm
 }
 
 
+@pytest.mark.slow
 def test_every_range_is_the_same(judge: Judge) -> None:
     """Each bound accepted by both, a step beyond refused by both, and the loader's line names the key."""
     exercised: set[Path_] = set()
@@ -235,6 +237,7 @@ def test_every_range_is_the_same(judge: Judge) -> None:
     )
 
 
+@pytest.mark.slow
 def test_every_choice_and_type_is_the_same(judge: Judge) -> None:
     """Enums: each value accepted, another refused with the loader's list equal to the enum; a constant's other value
     refused naming it; wrong types refused by both."""

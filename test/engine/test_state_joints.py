@@ -72,6 +72,7 @@ def check_state(records: list[dict[str, Any]], rig: RigConfig, sim: SimRig) -> N
             assert record["joint_positions"][name] == pytest.approx(expected[name], abs=2e-6), name  # interpolated at 200 Hz
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("robot", ["panda", "baxter"])
 def test_offline_records_carry_the_fingers_of_every_arm(tmp_path: Path, robot: str) -> None:
     config = RIGS[robot](tmp_path)

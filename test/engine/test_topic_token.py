@@ -77,6 +77,7 @@ def test_an_id_that_cannot_name_a_topic_is_refused_naming_the_key_and_the_rule(t
         assert load_rig_config(write_rig(tmp_path, _rig_doc(site, value)))
 
 
+@pytest.mark.slow
 def test_the_rule_is_no_looser_than_rcl_for_any_character_anywhere(tmp_path: Path) -> None:
     """Every printable ASCII character and a few others, alone, leading, inside and trailing an id: whenever rcl refuses
     an output topic made of the arm id, the loader refused the id; and every id accepted at the length bound makes

@@ -37,6 +37,7 @@ def _frame(pipeline: RoiPipeline, positions: dict[str, float]) -> FrameRecord:
     return record
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["rig_demo_bimanual.yaml", "rig_baxter.yaml"])
 def test_the_visible_fraction_is_what_rays_cast_in_3d_see(tmp_path: Path, name: str) -> None:
     """Random poses within the joint limits: the rasterised fraction equals the ray-cast one within 0.03, and a

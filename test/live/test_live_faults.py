@@ -269,7 +269,8 @@ def test_play_of_a_truncated_bag_and_play_interrupted_say_one_line(tmp_path: Pat
     play_log = tmp_path / "play.log"
     with process(["-m", "roi_node.cli", "play", str(bag)], {**env, "ROI_NODE_PROGRESS_S": "1"}, play_log) as player:
         deadline = time.monotonic() + 30  # discovery wait, then playing a 10 s bag: interrupt it once it reported progress
-        while "play bag: " not in play_log.read_text() and player.poll() is None and time.monotonic() < deadline:
+        while "play bag: " not in play_log.read_text():
+            assert player.poll() is None and time.monotonic() < deadline, play_log.read_text()
             time.sleep(0.2)
         player.send_signal(signal.SIGINT)
         player.wait(timeout=20)

@@ -78,6 +78,7 @@ def test_a_bad_value_is_refused_naming_the_parameter_and_the_policy_stays(name: 
     assert policy.rig is rig
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", NUMERIC_PARAMETERS)
 def test_edge_values_get_the_rig_files_verdict_and_message(tmp_path: Path, name: str) -> None:
     """NaN and infinities are refused for every parameter; zero and negatives as a rig file with them is (offset_px

@@ -109,6 +109,7 @@ def _content(topic: str, msg: Any) -> tuple[Any, ...]:
     return (msg.data,)
 
 
+@pytest.mark.slow
 def test_round_trip_rosbags_and_mcap_ros2_read_the_same_output(replayed: dict[str, ReplaySummary], bags: dict[str, BagSpec]) -> None:
     out = replayed["mcap_rgb8"].output_path
     info = yaml.safe_load((out / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
@@ -129,6 +130,7 @@ def test_round_trip_rosbags_and_mcap_ros2_read_the_same_output(replayed: dict[st
         assert log in stamps
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_markers_land_where_the_metadata_says_and_sync_matches_the_phase(
     variant: str, bags: dict[str, BagSpec], replayed: dict[str, ReplaySummary]
@@ -300,6 +302,7 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
+@pytest.mark.slow
 def test_ctrl_c_leaves_a_finalized_readable_bag_holding_what_was_done(tmp_path: Path) -> None:
     rig = small_rig(tmp_path)
     spec = write_bag(tmp_path / "long", RoiPipeline(load_rig_config(rig)), frames=2000)
@@ -468,6 +471,7 @@ def test_existing_output_is_refused_unless_overwrite(
     assert inspect_bag(out).status == "complete" and not (out / "keep.txt").exists()
 
 
+@pytest.mark.slow
 def test_workers_2_one_bad_bag_fails_alone(
     tmp_path: Path, bags: dict[str, BagSpec], replayed: dict[str, ReplaySummary], bimanual_rig_path: Path,
     capsys: pytest.CaptureFixture[str],
@@ -498,6 +502,7 @@ KEEPS_A_THREAD = ("import sys, threading; threading.Thread(target=threading.Even
                   "from roi_node.cli import main; sys.exit(main(sys.argv[1:]))")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("start", "launcher"), [("fork", ["-m", "roi_node.cli"]), ("spawn", ["-c", KEEPS_A_THREAD])])
 def test_forked_and_spawned_workers_give_the_bytes_of_a_replay_in_this_process(
     tmp_path: Path, bags: dict[str, BagSpec], replayed: dict[str, ReplaySummary], bimanual_rig_path: Path, start: str,
@@ -517,6 +522,7 @@ def test_forked_and_spawned_workers_give_the_bytes_of_a_replay_in_this_process(
 
 
 
+@pytest.mark.slow
 def test_a_killed_worker_fails_the_unfinished_bags_by_name_and_leaves_no_temporary_output(tmp_path: Path) -> None:
     rig = small_rig(tmp_path)
     pipeline = RoiPipeline(load_rig_config(rig))
@@ -550,6 +556,7 @@ def test_a_killed_worker_fails_the_unfinished_bags_by_name_and_leaves_no_tempora
         assert not kept.exists() or any(line.endswith(f"its finalized partial output is {kept}") for line in failed), stderr
 
 
+@pytest.mark.slow
 def test_an_early_ctrl_c_starts_no_bag_and_fails_none(tmp_path: Path) -> None:
     """Ctrl-C to the whole process group as the workers start (before any bag's output exists): exit 130, no bag
     replayed to the end, none reported failed, and the third bag, already queued to a worker, never starts."""
@@ -614,6 +621,7 @@ print(result.interrupted, len(result.outcomes), [o.error for o in result.outcome
 """
 
 
+@pytest.mark.slow
 def test_a_ctrl_c_at_the_worst_moment_of_waiting_for_the_workers_stops_the_batch(tmp_path: Path) -> None:
     """A Ctrl-C that lands inside concurrent.futures while it holds a future's lock (injected: after the first of the
     locks that waiting on the futures takes) is a KeyboardInterrupt nowhere: as a KeyboardInterrupt it left the lock

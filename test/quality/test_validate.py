@@ -458,6 +458,7 @@ def _peak_bytes(path: Path) -> int:
         tracemalloc.stop()
 
 
+@pytest.mark.slow
 def test_memory_stays_flat_with_bag_length(bags: BagSet, tmp_path: Path) -> None:
     """Records are reduced to a few numbers as they stream by: 4x the frames costs ~100 bytes per extra frame,
     where keeping the parsed records would cost kilobytes per frame."""

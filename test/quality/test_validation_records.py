@@ -42,6 +42,7 @@ def roi_bags(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     return out[0], out[1]
 
 
+@pytest.mark.slow
 def test_validation_json_reads_back_byte_for_byte(roi_bags: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     bag, baseline = roi_bags
     report = tmp_path / "report"

@@ -28,6 +28,7 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> RigConfig:
     return load_rig_config(two_camera_bimanual(tmp_path_factory.mktemp("rig")))
 
 
+@pytest.mark.slow
 def test_the_chosen_camera_is_the_truly_better_one_where_the_two_clearly_differ(rig: RigConfig) -> None:
     sim = SimRig(rig, seed=1, rate_hz=RATE_HZ)
     selector = BestViewSelector(rig.camera_ids, [a.id for a in rig.arms])

@@ -16,6 +16,7 @@ from test.support.rigs import ok_sync
 MIN_SILHOUETTE_PX = 50  # an arm-frame "in frame": the drawn gripper covers at least this much of its crop window
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["rig_demo_bimanual.yaml", "rig_baxter.yaml"])
 def test_the_visible_fraction_is_within_0_1_of_the_drawn_truth_and_names_the_link_that_hides_most(name: str) -> None:
     """Over the simulator's script: |visible fraction - truth| <= 0.10 for >= 90% of in-frame arm-frames, and where one

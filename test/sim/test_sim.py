@@ -339,6 +339,7 @@ def test_pipeline_rois_contain_the_drawn_gripper(sim_10hz: SimRig) -> None:
     assert out_ratios and min(out_ratios) < 0.5
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bundled", sorted(CONFIG.glob("rig_*.yaml")), ids=lambda p: p.stem)
 def test_every_bundled_arm_passes_a_partial_and_a_full_exit_within_40_s(bundled: Path, tmp_path: Path) -> None:
     """docs/new-robot.md: a 40 s bag shows each arm's partial exit and, where its reach can take the gripper out of

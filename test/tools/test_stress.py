@@ -26,6 +26,7 @@ def stress(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:  # ty
     return out, json.loads((out / "stress.json").read_text())
 
 
+@pytest.mark.slow
 def test_curves_are_monotone_where_they_should_be(stress: tuple[Path, dict]) -> None:  # type: ignore[type-arg]
     _, result = stress
     sweeps = {s["name"]: s for s in result["perturbations"]}

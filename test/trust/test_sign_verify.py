@@ -82,6 +82,7 @@ def trip(tmp_path_factory: pytest.TempPathFactory) -> RoundTrip:
     return RoundTrip(root, lab, chain, trust, session, roi, dataset)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["session", "roi", "dataset"])
 def test_each_step_verifies_and_model_signing_accepts_it(trip: RoundTrip, name: str, capsys: pytest.CaptureFixture[str]) -> None:
     path = getattr(trip, name)

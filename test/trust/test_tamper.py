@@ -313,6 +313,7 @@ CASES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("target", ["session", "roi", "dataset"])
 def test_untouched_copies_verify(world: World, target: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     copy = copy_signed(getattr(world, target), tmp_path)

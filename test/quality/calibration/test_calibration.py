@@ -155,6 +155,7 @@ def _cli(*argv: str) -> tuple[int, str]:
 
 
 # --- delays -----------------------------------------------------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize("rig", ["bimanual", "tiago"])
 def test_injected_camera_delay_is_found_and_judged_off_with_the_hint(sim_bags: SimBags, rig: str) -> None:
     spec = DELAYED[rig]
@@ -177,6 +178,7 @@ def test_single_arm_delay_in_the_cli_text(sim_bags: SimBags) -> None:
 
 
 # --- clean recordings -------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_clean_recordings_over_rigs_raise_no_alarm(sim_bags: SimBags) -> None:
     """The clean single Panda and xArm7, and the delayed two-arm bags judged against rigs that configure their delays.
 
@@ -253,6 +255,7 @@ def test_rough_look_really_differs(sim_bags: SimBags) -> None:
 
 
 # --- validate ---------------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_validate_passes_the_calibration_gates_with_the_right_delay_and_fails_the_delay_gate_with_a_wrong_one(
     sim_bags: SimBags, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
