@@ -7,7 +7,9 @@ loopback answering at once, test/policy/openpi_server.py, with the DROID
 preset's two images resized to 224x224 on the robot side, and `grpc`, LeRobot's own async-inference
 PolicyServer serving the random-weight ACT on the CPU), one run of real processes on one loopback DDS domain: `roi-node
 sim` (the bundled 1280x720 bimanual rig at 30 Hz, following the commands),
-`roi-node run`, and `roi-node policy run`. After --warmup-s, the bench reads
+`roi-node run`, and `roi-node policy run`; with `--source camera`, a camera
+driver's stand-in and a joint-state sender instead of the simulator, so no
+renderer shares the cores with what is measured. After --warmup-s, the bench reads
 the runner's /diagnostics status ('roi_node: policy actions') for
 --seconds: its frame_to_observation_ms (the observation leaving for the
 policy or server), frame_to_chunk_ms and frame_to_first_action_ms p50/p99
@@ -44,8 +46,11 @@ from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 REPO = Path(__file__).resolve().parents[1]
 RIG = REPO / "config" / "rig_demo_bimanual.yaml"
+INDEPENDENT = REPO / "bench" / "independent"
 FPS = 30
 COMMAND_TOPIC = "joint_commands"
 STATUS_NAME = "roi_node: policy actions"
@@ -129,15 +134,29 @@ def _decoded(text: str) -> Any:
         return text
 
 
-def run_case(name: str, policy: list[str], domain: int, warmup_s: float, seconds: float, logs: Path) -> dict[str, Any] | None:
+def source_args(source: str) -> list[str]:
+    """The frames' and joint states' sender: `sim` renders the rig and follows the commands (its renderer shares the
+    cores with what is measured); `camera`, a camera driver's stand-in (bench/independent/camera.py: noise frames,
+    sent at their slot) and every joint at 200 Hz (bench/independent/joints.py), commands going nowhere."""
+    if source == "sim":
+        return cli("sim", "--config", str(RIG), "--follow-commands", COMMAND_TOPIC, "--duration", "3600", "--rate-hz",
+                   str(FPS), "--min-subscribers", "1")
+    return [sys.executable, str(INDEPENDENT / "camera.py"), "--width-px", "1280", "--height-px", "720", "--frames",
+            str(3600 * FPS), "--rate-hz", str(FPS), "--topic", "image_raw", "--frame-id", "front_optical"]
+
+
+def run_case(name: str, policy: list[str], domain: int, warmup_s: float, seconds: float, logs: Path, source: str
+             ) -> dict[str, Any] | None:
     env = env_for(domain)
     listener = Listener(domain)
-    procs = [subprocess.Popen(cli(*args), env=env, cwd=REPO, stdout=(logs / f"{name}_{tag}.log").open("wb"), stderr=subprocess.STDOUT)
-             for tag, args in (("node", ("run", "--config", str(RIG))),
-                               ("sim", ("sim", "--config", str(RIG), "--follow-commands", COMMAND_TOPIC, "--duration", "3600",
-                                        "--rate-hz", str(FPS), "--min-subscribers", "1")),
-                               ("policy", ("policy", "run", *policy, "--config", str(RIG), "--command-topic", COMMAND_TOPIC,
-                                           "--timeout-s", "120")))]
+    prefixes = [robot.get("joint_prefix", "") for robot in yaml.safe_load(RIG.read_text())["robots"]]
+    commands = [("node", cli("run", "--config", str(RIG))), ("source", source_args(source)),
+                ("policy", cli("policy", "run", *policy, "--config", str(RIG), "--command-topic", COMMAND_TOPIC,
+                               "--timeout-s", "120"))]
+    if source == "camera":
+        commands.append(("joints", [sys.executable, str(INDEPENDENT / "joints.py"), "--prefixes", *prefixes]))
+    procs = [subprocess.Popen(argv, env=env, cwd=REPO, stdout=(logs / f"{name}_{tag}.log").open("wb"), stderr=subprocess.STDOUT)
+             for tag, argv in commands]
     try:
         deadline = time.monotonic() + 300
         while not listener.status.get("frame_to_first_action_ms"):
@@ -240,7 +259,10 @@ def main() -> int:
     parser.add_argument("--warmup-s", type=float, default=5.0, help="after the first action, before measuring (default: 5)")
     parser.add_argument("--policies", nargs="+", choices=["callable", "act", *REMOTE_SERVERS],
                         default=["callable", "act", *REMOTE_SERVERS])
+    parser.add_argument("--source", choices=["sim", "camera"], default="sim",
+                        help="what sends the frames and joint states (source_args; default: sim, following the commands)")
     args = parser.parse_args()
+    print(f"source: {args.source}; load average at start: {os.getloadavg()[0]:.2f} ({os.cpu_count()} CPUs)")
     with tempfile.TemporaryDirectory(prefix="bench_policy_") as folder:
         tmp = Path(folder)
         dataset = export_dataset(tmp, env_for(args.domain))
@@ -271,7 +293,7 @@ def main() -> int:
 
 
 def bench_case(name: str, policy: list[str], args: argparse.Namespace, tmp: Path) -> bool:
-    result = run_case(name, policy, args.domain, args.warmup_s, args.seconds, tmp)
+    result = run_case(name, policy, args.domain, args.warmup_s, args.seconds, tmp, args.source)
     if result is None:
         print((tmp / f"{name}_policy.log").read_text()[-2000:], file=sys.stderr)
         return False

@@ -79,6 +79,7 @@ class LoadedPolicy:
     reset: Callable[[], None]
     act_request: Callable[[Mapping[str, Any], ChunkRequest], Any] | None = None  # a remote policy's call (see module doc)
     takes_prefix: bool = False  # the server takes inference_delay and prefix (real-time chunking)
+    connect: Callable[[], None] | None = None  # a server's setup, run after the preflight and before the first request
 
 
 def policy_kind(spec: str) -> PolicyKind:

@@ -12,8 +12,11 @@ framed here by hand, so neither protobuf nor lerobot is needed on the robot;
 grpcio and torch (the actions are torch tensors) are. LeRobot's classes are
 named in the pickles sent, never imported.
 
-The channel opens and the server loads the checkpoint at the first `act`, so
-the preflight still runs before any weights are opened. The observation is
+The channel opens and the server loads the checkpoint when the run connects,
+after the preflight and before its first request (`LoadedPolicy.connect`), so
+no weights are opened before the preflight and the first observation does not
+wait for the checkpoint to load; a client that acts without connecting first
+connects at its first `act`. The observation is
 what LeRobot's client sends from a robot: each image `observation.images.<n>`
 of the batch as H x W x 3 uint8 under `<n>` (the batch's [0, 1] floats times
 255: the node's pixels exactly), which the server resizes (bilinear) to its
@@ -37,6 +40,7 @@ import numpy as np
 from roi_node.datasets.features import IMAGES_PREFIX, STATE_KEY
 from roi_node.policy.action_errors import PolicyLoadError
 from roi_node.policy.errors import RemotePolicyError
+from roi_node.policy.features import PolicyFeatures
 from roi_node.policy.loaders import LoadedPolicy, PolicyKind
 from roi_node.policy.observations import TASK_KEY, batch_pixels
 from roi_node.policy.safe_unpickle import TimedAction, safe_loads
@@ -137,6 +141,14 @@ def observation_parts(data: bytes) -> Iterator[bytes]:
         yield bytes([0x08, state]) + encode_bytes_field(2, data[start:start + PART_BYTES])
 
 
+def robot_features(features: PolicyFeatures) -> dict[str, dict[str, Any]]:
+    """What `robot_observation` declares for observations of `features` (their images at the features' sizes)."""
+    names = [f"state_{i}" for i in range(len(features.state_names))]
+    out: dict[str, dict[str, Any]] = {STATE_KEY: {"dtype": "float32", "shape": (len(names),), "names": names}}
+    return out | {image.key: {"dtype": "image", "shape": (image.height_px, image.width_px, image.channels),
+                              "names": ["height", "width", "channels"]} for image in features.images}
+
+
 def robot_observation(batch: Mapping[str, Any], images: Mapping[str, np.ndarray]) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
     """The batch (its state and task) and its images (uint8 H x W x 3 by dataset key) as LeRobot's RawObservation, and
     the features (hw_to_dataset_features' form) the server reads it by."""
@@ -166,7 +178,7 @@ class LeRobotGrpcClient:
         `images` (ChunkRequest.images), else the batch's own, made uint8 H x W x 3 again."""
         raw, features = robot_observation(batch, batch_pixels(batch) if images is None else images)
         if self._channel is None:
-            self._open(features)
+            self.connect(features)
         timestep, self._timestep = self._timestep, self._timestep + 1
         observation = lerobot_pickle("TimedObservation", (time.time(), timestep, raw, True))
         if sent is not None:
@@ -186,7 +198,8 @@ class LeRobotGrpcClient:
         except (pickle.UnpicklingError, EOFError, TypeError, ValueError, AttributeError, IndexError, ImportError) as exc:
             raise RemotePolicyError(self.target.address, f"GetActions answered {type(exc).__name__}: {str(exc)[:300]}") from exc
 
-    def _open(self, features: dict[str, dict[str, Any]]) -> None:
+    def connect(self, features: dict[str, dict[str, Any]]) -> None:
+        """The channel opened and the policy set up on the server (it loads the checkpoint onto its device)."""
         import grpc
 
         t = self.target
@@ -208,8 +221,9 @@ class LeRobotGrpcClient:
         return reply
 
 
-def load_grpc(spec: str) -> LoadedPolicy:
-    """The client for a grpc:// spec, checked (grpcio and torch importable, the spec complete); it connects on its first act."""
+def load_grpc(spec: str, features: PolicyFeatures | None = None) -> LoadedPolicy:
+    """The client for a grpc:// spec, checked (grpcio and torch importable, the spec complete); with `features`, its
+    `connect` sets the server up for their observations, else it connects on its first act."""
     target = parse_grpc_spec(spec)
     for module in ("grpc", "torch"):
         try:
@@ -219,4 +233,5 @@ def load_grpc(spec: str) -> LoadedPolicy:
                                         "pip install 'roi_node[grpc]', or run it with .venv-lerobot's python") from exc
     client = LeRobotGrpcClient(target)
     return LoadedPolicy(spec, PolicyKind.GRPC, client.act, lambda: None,
-                        act_request=lambda batch, request: client.act(batch, request.sent, request.images))
+                        act_request=lambda batch, request: client.act(batch, request.sent, request.images),
+                        connect=None if features is None else lambda: client.connect(robot_features(features)))

@@ -143,7 +143,7 @@ def _run(features: PolicyFeatures, options: RunOptions, signals: StopSignals, st
     elif kind is PolicyKind.CALLABLE:
         policy = _import_policy(options.policy, signals)
     elif kind is PolicyKind.GRPC:  # checked before DDS; it connects at its first call
-        policy = load_grpc(options.policy)
+        policy = load_grpc(options.policy, features)
     if not features.action_names:
         raise RoiNodeError(f"{features.source}: names no action (features.action.names): nothing to command")
     rig = load_rig_config(options.rig)
@@ -163,6 +163,8 @@ def _run(features: PolicyFeatures, options: RunOptions, signals: StopSignals, st
             publisher = ActionPublisher(node, options.command_topic, features.action_names, clamp, stats)
             if policy is None:
                 policy = _load_after_preflight(kind, options.policy, features, mapping)
+            if policy.connect is not None:
+                policy.connect()
             print(f"roi-node policy run: {policy.label} ({policy.kind}) -> {options.command_topic} at {features.fps:g} Hz, "
                   f"{len(features.action_names)} joints", file=sys.stderr, flush=True)
             latest = LatestObservation()

@@ -30,6 +30,7 @@ import numpy as np
 import pytest
 
 from roi_node.policy.errors import RefusedPickleError, RemotePolicyError
+from roi_node.policy.features import FeatureSource, ImageFeature, PolicyFeatures
 from roi_node.policy.remote_grpc import bytes_field, encode_bytes_field, load_grpc
 from roi_node.wire import topics
 from test.dds.harness import LOSSLESS_TRANSPORT, next_domain, node_args, process, ros_env, wait_until
@@ -199,3 +200,20 @@ def test_a_server_that_is_not_there_or_answers_no_actions_is_one_line_naming_the
         load_grpc(f"grpc://127.0.0.1:{port}?policy_type=act&checkpoint=user/act").act(BATCH)
     with ScriptedServer(b"") as server, pytest.raises(RemotePolicyError, match="GetActions answered no actions"):
         load_grpc(f"grpc://127.0.0.1:{server.port}?policy_type=act&checkpoint=user/act").act(BATCH)
+
+
+def test_connect_sets_the_server_up_before_any_observation_declaring_what_the_first_act_would() -> None:
+    """The run connects after the preflight (LoadedPolicy.connect): the server loads the checkpoint before the first
+    observation, with the features a client connecting at its first act declares for observations of those features."""
+    features = PolicyFeatures(Path("features"), FeatureSource.DATASET, (ImageFeature("observation.images.global", 3, 4, 6),),
+                              ("a", "b"), ("a", "b"), (), FPS, None)
+    with ScriptedServer(b"") as early, ScriptedServer(pickle.dumps([])) as late:
+        connected = load_grpc(f"grpc://127.0.0.1:{early.port}?policy_type=act&checkpoint=user/act", features)
+        assert connected.connect is not None
+        connected.connect()
+        assert len(early.received["SendPolicyInstructions"]) == 1 and not early.received["SendObservations"]
+        with pytest.raises(RemotePolicyError):  # an empty list of actions: only the setup it sent is looked at
+            load_grpc(f"grpc://127.0.0.1:{late.port}?policy_type=act&checkpoint=user/act").act(BATCH)
+    declared = [pickle.loads(bytes_field(server.received["SendPolicyInstructions"][0], 1)).lerobot_features
+                for server in (early, late)]
+    assert declared[0] == declared[1]
