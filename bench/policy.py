@@ -51,6 +51,7 @@ import yaml
 REPO = Path(__file__).resolve().parents[1]
 RIG = REPO / "config" / "rig_demo_bimanual.yaml"
 INDEPENDENT = REPO / "bench" / "independent"
+START_TIMEOUT_S = 60.0
 FPS = 30
 COMMAND_TOPIC = "joint_commands"
 STATUS_NAME = "roi_node: policy actions"
@@ -84,6 +85,7 @@ class Listener:
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
+        from sensor_msgs.msg import JointState
         from std_msgs.msg import String
 
         self.context = Context()
@@ -94,6 +96,8 @@ class Listener:
         self.recording = False
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._diagnostics, 100)
         self.node.create_subscription(String, "roi/metadata", self._metadata, 100)
+        self.joint_states = threading.Event()  # a joint state seen: the sender is up and discovered
+        self.node.create_subscription(JointState, "joint_states", lambda _: self.joint_states.set(), 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)
@@ -150,17 +154,27 @@ def run_case(name: str, policy: list[str], domain: int, warmup_s: float, seconds
     env = env_for(domain)
     listener = Listener(domain)
     prefixes = [robot.get("joint_prefix", "") for robot in yaml.safe_load(RIG.read_text())["robots"]]
-    commands = [("node", cli("run", "--config", str(RIG))), ("source", source_args(source)),
+    commands = [("node", cli("run", "--config", str(RIG))),
                 ("policy", cli("policy", "run", *policy, "--config", str(RIG), "--command-topic", COMMAND_TOPIC,
                                "--timeout-s", "120"))]
-    if source == "camera":
-        commands.append(("joints", [sys.executable, str(INDEPENDENT / "joints.py"), "--prefixes", *prefixes]))
-    procs = [subprocess.Popen(argv, env=env, cwd=REPO, stdout=(logs / f"{name}_{tag}.log").open("wb"), stderr=subprocess.STDOUT)
-             for tag, argv in commands]
+    if source == "camera":  # the joint states flow before the first frame, as a robot's do before its camera's
+        commands.insert(1, ("joints", [sys.executable, str(INDEPENDENT / "joints.py"), "--prefixes", *prefixes]))
+    procs: list[subprocess.Popen[bytes]] = []
+
+    def start(tag: str, argv: list[str]) -> None:
+        procs.append(subprocess.Popen(argv, env=env, cwd=REPO, stdout=(logs / f"{name}_{tag}.log").open("wb"),
+                                      stderr=subprocess.STDOUT))
+
+    for tag, argv in commands:
+        start(tag, argv)
     try:
+        if source == "camera" and not listener.joint_states.wait(START_TIMEOUT_S):
+            print(f"{name}: no joint state within {START_TIMEOUT_S:g} s (see {logs / (name + '_joints.log')})", file=sys.stderr)
+            return None
+        start("source", source_args(source))
         deadline = time.monotonic() + 300
         while not listener.status.get("frame_to_first_action_ms"):
-            if time.monotonic() > deadline or procs[2].poll() is not None:
+            if time.monotonic() > deadline or any(p.poll() is not None for p in procs):
                 print(f"{name}: the runner published no action (see {logs / (name + '_policy.log')})", file=sys.stderr)
                 return None
             time.sleep(0.2)
