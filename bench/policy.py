@@ -98,6 +98,7 @@ class Listener:
         self.node.create_subscription(String, "roi/metadata", self._metadata, 100)
         self.joint_states = threading.Event()  # a joint state seen: the sender is up and discovered
         self.node.create_subscription(JointState, "joint_states", lambda _: self.joint_states.set(), 10)
+        self.synced = threading.Event()  # a record of the node with the joint state its frame was paired with
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)
@@ -116,8 +117,11 @@ class Listener:
                 self.status = {kv.key: _decoded(kv.value) for kv in status.values}
 
     def _metadata(self, msg: Any) -> None:
+        record = json.loads(msg.data)
+        if record.get("joint_positions"):
+            self.synced.set()
         if self.recording:
-            self.stamps_ns.append(int(json.loads(msg.data)["stamp_ns"]))
+            self.stamps_ns.append(int(record["stamp_ns"]))
 
     def frame_period_ms(self) -> float:
         stamps = sorted(set(self.stamps_ns))
@@ -154,11 +158,9 @@ def run_case(name: str, policy: list[str], domain: int, warmup_s: float, seconds
     env = env_for(domain)
     listener = Listener(domain)
     prefixes = [robot.get("joint_prefix", "") for robot in yaml.safe_load(RIG.read_text())["robots"]]
-    commands = [("node", cli("run", "--config", str(RIG))),
-                ("policy", cli("policy", "run", *policy, "--config", str(RIG), "--command-topic", COMMAND_TOPIC,
-                               "--timeout-s", "120"))]
+    commands = [("node", cli("run", "--config", str(RIG)))]
     if source == "camera":  # the joint states flow before the first frame, as a robot's do before its camera's
-        commands.insert(1, ("joints", [sys.executable, str(INDEPENDENT / "joints.py"), "--prefixes", *prefixes]))
+        commands.append(("joints", [sys.executable, str(INDEPENDENT / "joints.py"), "--prefixes", *prefixes]))
     procs: list[subprocess.Popen[bytes]] = []
 
     def start(tag: str, argv: list[str]) -> None:
@@ -172,6 +174,13 @@ def run_case(name: str, policy: list[str], domain: int, warmup_s: float, seconds
             print(f"{name}: no joint state within {START_TIMEOUT_S:g} s (see {logs / (name + '_joints.log')})", file=sys.stderr)
             return None
         start("source", source_args(source))
+        # the policy starts on a node whose records carry the state (the preflight reads its first frames)
+        if not listener.synced.wait(START_TIMEOUT_S):
+            print(f"{name}: no record with a joint state within {START_TIMEOUT_S:g} s (see {logs / (name + '_node.log')})",
+                  file=sys.stderr)
+            return None
+        start("policy", cli("policy", "run", *policy, "--config", str(RIG), "--command-topic", COMMAND_TOPIC,
+                            "--timeout-s", "120"))
         deadline = time.monotonic() + 300
         while not listener.status.get("frame_to_first_action_ms"):
             if time.monotonic() > deadline or any(p.poll() is not None for p in procs):
