@@ -27,7 +27,6 @@ from typing import Any
 
 import numpy as np
 import rclpy
-from rclpy.duration import Duration
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState
 from std_msgs.msg import String
@@ -105,10 +104,8 @@ def main(spec_path: str, truth_path: str) -> int:
     compressed = spec.get("transport", "raw") == "compressed"
     image_type, image_topic = (CompressedImage, "image_raw/compressed") if compressed else (Image, "image_raw")
     image_pub = node.create_publisher(image_type, image_topic, sensor)
-    info_pub = node.create_publisher(CameraInfo, "camera_info", deep)
-    # created after the image and camera info writers, so announced to the other participants after them (discovery's
-    # endpoint data is one reliable stream, taken in order): a reader that acknowledged a joint state knows them too
     joint_pub = node.create_publisher(JointState, "joint_states", deep)
+    info_pub = node.create_publisher(CameraInfo, "camera_info", deep)
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
     description_pub = node.create_publisher(String, "robot_description", latched)
     if spec.get("robot_description"):
@@ -124,6 +121,7 @@ def main(spec_path: str, truth_path: str) -> int:
     if image_pub.get_subscription_count() < 1:
         print("publisher: no subscriber on image_raw within 30 s", file=sys.stderr)
         return 1
+    time.sleep(float(spec.get("settle_s", 0.5)))
 
     loop_back_ns = int(spec.get("loop_back_s", 3.0) * NS)
     distinct = int(spec.get("distinct_frames", n))  # > 0 and < n: frames repeat (sustained-load runs)
@@ -175,35 +173,9 @@ def main(spec_path: str, truth_path: str) -> int:
     # "pace": "poll" wakes every 0.5 ms until a message is due; "sleep" sleeps until then in one call, as a driver
     # blocked on its device does (a benchmark should not add 2000 wake-ups a second that no camera makes)
     poll = spec.get("pace", "poll") == "poll"
-    def info_of(f: dict[str, Any]) -> CameraInfo:
-        cam = pipeline.camera
-        assert cam is not None
-        if 0 <= recalibrate_at <= f["index"]:
-            k = cam.k.copy()
-            k[0, 0] *= 1.01
-            cam = dataclasses.replace(cam, k=k, p=np.hstack([k, np.zeros((3, 1))]))
-        info = camera_info_msg(f["stamp_ns"], "front_optical", cam, cam.width_px, cam.height_px)
-        if f["index"] in absurd_info_at:
-            info.d = [1e308] * 5
-        return info
-
-    readers_matched = False
-    info_sent_first = -1  # the frame whose camera info went out before it
     for rel, _, kind, payload in events:
         while (left_ns := rel - (time.monotonic_ns() - start)) > 0:
             time.sleep(0.0005 if poll else left_ns / NS)
-        if kind == "frame" and not readers_matched:
-            # a writer matches a reader before that reader has matched the writer, and a reader drops what comes
-            # before: the first frame waits until every reader acknowledged the joint states sent so far (none
-            # sent: the frames before the first joint state may be lost in transport, counted so by the node)
-            readers_matched = joint_pub.wait_for_all_acked(Duration(seconds=30))
-            if readers_matched and spec.get("camera_info"):  # its reader may match later still: the first frame's
-                info_pub.publish(info_of(payload))  # calibration goes first, and the frame waits until it was taken
-                info_sent_first = payload["index"]
-                readers_matched = info_pub.wait_for_all_acked(Duration(seconds=30))
-            if not readers_matched:
-                print("publisher: a joint_states or camera_info reader acknowledged nothing within 30 s", file=sys.stderr)
-                return 1
         if kind == "frame":
             f = payload
             if f["withheld"]:
@@ -221,8 +193,17 @@ def main(spec_path: str, truth_path: str) -> int:
                 msg = built[f["index"] % distinct]
                 msg.header = header(f["stamp_ns"], "front_optical")
                 image_pub.publish(msg)
-            if spec.get("camera_info") and f["index"] != info_sent_first:
-                info_pub.publish(info_of(f))
+            if spec.get("camera_info"):
+                cam = pipeline.camera
+                assert cam is not None
+                if 0 <= recalibrate_at <= f["index"]:
+                    k = cam.k.copy()
+                    k[0, 0] *= 1.01
+                    cam = dataclasses.replace(cam, k=k, p=np.hstack([k, np.zeros((3, 1))]))
+                info = camera_info_msg(f["stamp_ns"], "front_optical", cam, cam.width_px, cam.height_px)
+                if f["index"] in absurd_info_at:
+                    info.d = [1e308] * 5
+                info_pub.publish(info)
         else:
             stamp, t_s, fault = payload
             stamp += t0
@@ -240,6 +221,7 @@ def main(spec_path: str, truth_path: str) -> int:
                 sent_joint_faults.append(fault)
             joint_pub.publish(JointState(header=header(stamp, ""), name=names, position=values))
             sent_joint_stamps.append(stamp)
+    time.sleep(float(spec.get("linger_s", 1.0)))
     wait_for_acknowledgements(node, [image_pub, joint_pub, info_pub])  # a reader behind still gets the tail
     truth = {
         "joints": joints,
