@@ -193,15 +193,20 @@ def run_case(name: str, policy: list[str], domain: int, warmup_s: float, seconds
         listener.recording = False
         return {"status": dict(listener.status), "frame_period_ms": listener.frame_period_ms()}
     finally:
-        for proc in reversed(procs):
-            proc.send_signal(signal.SIGINT)
-        for proc in reversed(procs):
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop(list(reversed(procs)))
         listener.close()
+
+
+def stop(procs: list[subprocess.Popen[bytes]]) -> None:
+    """SIGINT to each, then each waited for up to 20 s and killed after."""
+    for proc in procs:
+        proc.send_signal(signal.SIGINT)
+    for proc in procs:
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
 
 @contextmanager
@@ -248,12 +253,7 @@ def grpc_server(dataset: Path) -> Iterator[list[str]]:
         spec = f"grpc://127.0.0.1:{port}?policy_type=act&checkpoint={quote(str(act), safe='/')}"
         yield ["--policy", spec, "--features", str(act), "--dataset", str(dataset)]
     finally:
-        server.send_signal(signal.SIGINT)
-        try:
-            server.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            server.kill()
-            server.wait()
+        stop([server])
 
 
 REMOTE_SERVERS: dict[str, Callable[[Path], AbstractContextManager[list[str]]]] = {"ws": ws_server, "grpc": grpc_server}
